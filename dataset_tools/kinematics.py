@@ -169,8 +169,17 @@ def retarget(
     compat: bool = True,
 ) -> np.ndarray:
     """Move a motion (T, J, 3) onto the target skeleton: IK on the source, FK with the target
-    offsets, and the root trajectory scaled by the ratio of leg lengths (source frame 0)."""
+    offsets, and the root trajectory scaled by the ratio of leg lengths (source frame 0).
+
+    With swing-only IK each bone's global rotation carries its rest direction exactly onto the
+    observed direction, so FK(IK) reduces to laying every observed bone direction out with the
+    target length; that is what is computed (identical result, no rotations). The across
+    convention (``compat``) changes only the root rotation, which cancels here.
+    """
+    del compat  # the result does not depend on it (see above)
     joints = np.asarray(joints, dtype=np.float64)
+    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3):
+        raise ValueError(f"joints must be (T, {skeleton.num_joints}, 3), got {joints.shape}")
     target = skeleton.offsets if target_offsets is None else np.asarray(target_offsets, np.float64)
     source_lengths = skeleton.bone_lengths_of(joints[0])
     target_lengths = np.linalg.norm(target, axis=-1)
@@ -179,5 +188,20 @@ def retarget(
     if source_leg < _EPS:
         raise ValueError("the source skeleton has zero leg length")
     scale = (target_lengths[knee] + target_lengths[ankle]) / source_leg
-    local = inverse_kinematics(joints, skeleton, smooth_sigma=None, compat=compat)
-    return forward_kinematics(local, joints[:, 0] * scale, target, skeleton)
+
+    children, parents, _ = _chain_order(skeleton)
+    bones = joints[:, children] - joints[:, parents]
+    lengths = np.linalg.norm(bones, axis=-1, keepdims=True)
+    if np.any(lengths < _EPS):
+        frame, bone = np.argwhere(lengths[..., 0] < _EPS)[0]
+        raise ValueError(
+            f"zero-length bone between joints {parents[bone]} and {children[bone]} (frame {frame})"
+        )
+    # (T, J, 3) bone vectors of the target skeleton, indexed by child joint.
+    target_bones = np.zeros_like(joints)
+    target_bones[:, children] = bones / lengths * target_lengths[children, None]
+    positions = np.empty_like(joints)
+    positions[:, 0] = joints[:, 0] * scale
+    for level_children, level_parents, _ in _depth_levels(skeleton):
+        positions[:, level_children] = positions[:, level_parents] + target_bones[:, level_children]
+    return positions

@@ -47,12 +47,13 @@ class RenderConfig:
         grid_step: spacing of the ground grid in metres.
         caption_width: characters per line of the wrapped caption.
         mp4_quality: ffmpeg quality knob passed to imageio-ffmpeg (0..10, 10 is best).
+        zoom: how much of the frame the 3D box fills (matplotlib leaves wide margins at 1).
     """
 
     size_px: int = 480
     elevation: float = 20.0
     azimuth: float = -70.0
-    view_radius: float = 1.2
+    view_radius: float = 1.1
     follow_root: bool = True
     left_color: str = "#1f6fd1"
     right_color: str = "#d6402b"
@@ -61,6 +62,7 @@ class RenderConfig:
     grid_step: float = 0.5
     caption_width: int = 44
     mp4_quality: float = 7.0
+    zoom: float = 1.35
 
 
 def _check_joints(joints: np.ndarray) -> np.ndarray:
@@ -134,7 +136,7 @@ class _StickFigure:
         }
         ax.set_axis_off()
         ax.view_init(elev=config.elevation, azim=config.azimuth)
-        ax.set_box_aspect((1, 1, 1))
+        ax.set_box_aspect((1, 1, 1), zoom=config.zoom)
         self.grid = Line3DCollection(np.zeros((0, 2, 3)), colors="#b0b0b0", linewidths=0.6)
         ax.add_collection3d(self.grid, autolim=False)
         self.trajectory = None
@@ -166,7 +168,8 @@ class _StickFigure:
         plot_center = _to_plot(np.array([center[0], 0.0, center[1]]))
         self.ax.set_xlim(plot_center[0] - radius, plot_center[0] + radius)
         self.ax.set_ylim(plot_center[1] - radius, plot_center[1] + radius)
-        self.ax.set_zlim(0.0, 2 * radius)
+        # Lift the box so a standing body fills the middle of the frame rather than its bottom.
+        self.ax.set_zlim(-0.3 * radius, 1.7 * radius)
 
 
 def _prepare(joints: np.ndarray, skeleton: SkeletonSpec | None) -> tuple[np.ndarray, SkeletonSpec]:

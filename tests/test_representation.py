@@ -161,3 +161,15 @@ def test_degenerate_inputs_raise_clear_errors():
         process_motion(np.zeros((10, 20, 3)))
     with pytest.raises(ValueError):
         recover_from_ric(np.zeros((10, 100)))
+
+
+def test_retarget_equals_fk_of_ik_with_target_offsets():
+    from t2m.benchmarks.representation import _random_motion
+
+    source = _random_motion(np.random.default_rng(3), frames=40)  # a scaled, non-target skeleton
+    local = inverse_kinematics(source, SMPL)
+    lengths = SMPL.bone_lengths_of(source[0])
+    scale = (SMPL.bone_lengths[5] + SMPL.bone_lengths[8]) / (lengths[5] + lengths[8])
+    expected = forward_kinematics(local, source[:, 0] * scale, SMPL.offsets, SMPL)
+    assert np.abs(retarget(source) - expected).max() < 1e-9
+    assert np.abs(SMPL.bone_lengths_of(retarget(source)) - SMPL.bone_lengths).max() < 1e-9
