@@ -112,15 +112,21 @@ def read_index(path: str | Path) -> list[IndexRow]:
     return rows
 
 
-def apply_index_rules(joints: np.ndarray, row: IndexRow, fps: float = 20.0) -> np.ndarray:
-    """Cut one index row out of a 20-fps motion the way the reference pipeline does.
+def cut_segment(
+    joints: np.ndarray,
+    start_frame: int,
+    end_frame: int | None,
+    trim_seconds: float = 0.0,
+    negate_x: bool = False,
+    fps: float = 20.0,
+) -> np.ndarray:
+    """Cut an index segment out of (T, J, 3) frames at ``fps`` the way the reference pipeline does.
 
-    HumanAct12 rows are taken whole and not negated; other rows lose their sub-dataset's lead-in,
-    are sliced ``[start:end]`` and get x negated. Returns (T', J, 3).
+    First ``trim_seconds`` are dropped, then ``[start_frame:end_frame]`` is taken (end exclusive,
+    ``None`` = to the end), then x is negated when asked. Returns a new (T', J, 3) array.
     """
-    if row.is_humanact12:
-        return np.asarray(joints).copy()
-    trim = int(round(trim_seconds_for(row.source_path) * fps))
-    cut = np.asarray(joints)[trim:][row.start_frame : row.end_frame].copy()
-    cut[..., 0] *= -1
+    trim = int(round(trim_seconds * fps))
+    cut = np.array(np.asarray(joints)[trim:][start_frame:end_frame], copy=True)
+    if negate_x:
+        cut[..., 0] *= -1
     return cut

@@ -61,7 +61,9 @@ def load_nlp(model_name: str | None = None):
 def spacy_model_version() -> str:
     """``name-version`` of the loaded pipeline, for build reports."""
     nlp = load_nlp()
-    return f"{nlp.meta.get('lang', 'en')}_{nlp.meta.get('name', '?')}-{nlp.meta.get('version', '?')}"
+    return (
+        f"{nlp.meta.get('lang', 'en')}_{nlp.meta.get('name', '?')}-{nlp.meta.get('version', '?')}"
+    )
 
 
 def tag_captions(texts: Sequence[str], batch_size: int = 512) -> list[list[tuple[str, str]]]:
@@ -87,7 +89,10 @@ def tag_captions(texts: Sequence[str], batch_size: int = 512) -> list[list[tuple
 def format_line(caption: Caption, pairs: Iterable[tuple[str, str]]) -> str:
     """One HumanML3D text line ``caption#word/POS ...#start#end``."""
     tokens = " ".join(f"{word}/{pos}" for word, pos in pairs)
-    return f"{caption.text}#{tokens}#{caption.start:.1f}#{caption.end:.1f}"
+    # Plain float text ("0.0", "1.25") as HumanML3D writes it; rounding to 1 decimal would move
+    # a caption's start by up to a frame.
+    start, end = float(round(caption.start, 3)), float(round(caption.end, 3))
+    return f"{caption.text}#{tokens}#{start!r}#{end!r}"
 
 
 def parse_caption_line(line: str, where: str = "caption") -> Caption:

@@ -144,6 +144,8 @@ class T2MStageConfig:
     """Per batch, the probability of feeding ground-truth previous codes."""
     start_snippets: int = 10
     end_snippets: int = 49
+    curriculum_step: int = 1
+    """Snippets added per curriculum stage."""
     patience: int = 3
     """Move to the next curriculum stage after this many epochs without a better validation loss."""
     max_stage_epochs: int = 20
@@ -249,7 +251,9 @@ def demo() -> Config:
 
 def tiny() -> Config:
     """Minute models and a few steps per stage: seconds, for tests."""
-    cfg = Config(preset="tiny")
+    # One thread: these models are far too small to gain from more, and idle worker threads
+    # spinning on a busy machine make each small op milliseconds slower.
+    cfg = Config(preset="tiny", num_threads=1)
     cfg.ae = AEStageConfig(
         model=AutoencoderConfig(hidden_size=32, code_size=16, dropout=0.1),
         batch_size=16,
@@ -434,6 +438,8 @@ def validate(cfg: Config) -> None:
         raise ValueError("t2m.model.max_snippets must exceed data.max_frames / unit_length")
     if cfg.length.model.num_classes * data.unit_length < data.length_limit:
         raise ValueError("length.model.num_classes * unit_length must cover data.length_limit")
+    if t2m.curriculum_step < 1:
+        raise ValueError("t2m.curriculum_step must be at least 1")
     if not 0.0 <= t2m.teacher_forcing <= 1.0:
         raise ValueError("t2m.teacher_forcing must be a probability")
     for stage in STAGES:

@@ -62,7 +62,7 @@ class RenderConfig:
     grid_step: float = 0.5
     caption_width: int = 44
     mp4_quality: float = 7.0
-    zoom: float = 1.35
+    zoom: float = 1.5
 
 
 def _check_joints(joints: np.ndarray) -> np.ndarray:
@@ -169,7 +169,7 @@ class _StickFigure:
         self.ax.set_xlim(plot_center[0] - radius, plot_center[0] + radius)
         self.ax.set_ylim(plot_center[1] - radius, plot_center[1] + radius)
         # Lift the box so a standing body fills the middle of the frame rather than its bottom.
-        self.ax.set_zlim(-0.3 * radius, 1.7 * radius)
+        self.ax.set_zlim(-0.55 * radius, 1.45 * radius)
 
 
 def _prepare(joints: np.ndarray, skeleton: SkeletonSpec | None) -> tuple[np.ndarray, SkeletonSpec]:
@@ -183,10 +183,16 @@ def _prepare(joints: np.ndarray, skeleton: SkeletonSpec | None) -> tuple[np.ndar
     return joints, skeleton
 
 
-def _frames(
-    joints: np.ndarray, caption: str, fps: float, skeleton: SkeletonSpec, config: RenderConfig
+def render_frames(
+    joints: np.ndarray,
+    caption: str = "",
+    fps: float = 20.0,
+    skeleton: SkeletonSpec | None = None,
+    config: RenderConfig | None = None,
 ) -> Iterator[np.ndarray]:
-    """Yield each frame as an (H, W, 3) uint8 RGB image."""
+    """Yield the animation of joints (T, J, 3) frame by frame as (H, W, 3) uint8 RGB images."""
+    joints, skeleton = _prepare(joints, skeleton)
+    config = config or RenderConfig()
     dpi = 100
     fig = Figure(figsize=(config.size_px / dpi, config.size_px / dpi), dpi=dpi)
     canvas = FigureCanvasAgg(fig)  # attaching the canvas is what lets the figure draw
@@ -204,8 +210,13 @@ def _frames(
 
 
 def _atomic_target(path: Path) -> tuple[int, str]:
+    """A temp file beside ``path`` (same file system, so os.replace is atomic), mode 0666 & ~umask."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    return tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; keep the user's usual permissions
+    return fd, tmp
 
 
 def render_animation(
@@ -239,7 +250,7 @@ def render_animation(
     config = config or RenderConfig()
     if config.size_px % 2:
         raise ValueError(f"size_px must be even for video encoding, got {config.size_px}")
-    frames = _frames(joints, caption, fps, skeleton, config)
+    frames = render_frames(joints, caption, fps, skeleton, config)
     fd, tmp = _atomic_target(path)
     os.close(fd)
     try:

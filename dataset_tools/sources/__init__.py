@@ -34,8 +34,9 @@ class ClipTask:
     Attributes:
         name: output clip name (no extension); its mirror is ``"M" + name``.
         path: source file.
-        start_frame / end_frame: segment at 20 fps after resampling and trimming, end exclusive;
-            ``None`` means the whole (possibly cropped) motion.
+        segmented: the clip is cut by an index (``start_frame``/``end_frame`` at 20 fps after
+            ``trim_seconds``, end exclusive, ``None`` = to the end); otherwise it is the whole
+            motion, cropped when too long.
         trim_seconds: seconds dropped from the start before segmenting (reference-pipeline rule).
         negate_x: negate x before mirroring (reference-pipeline rule for its intermediate layout).
         caption_path: the clip's caption file, or ``None`` when it has none.
@@ -43,7 +44,8 @@ class ClipTask:
 
     name: str
     path: str
-    start_frame: int | None = None
+    segmented: bool = False
+    start_frame: int = 0
     end_frame: int | None = None
     trim_seconds: float = 0.0
     negate_x: bool = False

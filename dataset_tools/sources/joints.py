@@ -70,4 +70,6 @@ def load_joints(path: str | Path, options: JointsOptions) -> Motion:
     if joints_in_file != 52:
         joints = joints[:, :22]
     joints = to_y_up(joints.astype(np.float64), options.up)
-    return Motion(joints=joints, fps=float(options.fps), metadata={"joints_in_file": joints_in_file})
+    return Motion(
+        joints=joints, fps=float(options.fps), metadata={"joints_in_file": joints_in_file}
+    )

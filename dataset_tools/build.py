@@ -1,0 +1,748 @@
+"""Build a HumanML3D-layout dataset from AMASS, joint arrays or BVH files.
+
+``python -m dataset_tools build --source amass|joints|bvh --input DIR --out DIR ...`` or
+:func:`build_dataset`. Per clip: load -> resample to 20 fps -> segment (index) or crop (10 s,
+seeded) -> mirror -> retarget, canonicalise, features (:func:`process_motion`) -> write
+``new_joint_vecs/`` and ``new_joints/``; captions are tagged with spaCy in batches and written
+last, so a clip whose ``texts/`` files exist is finished and a re-run skips it. Then Mean/Std,
+splits and ``build_report.json``. A clip that fails is reported with its reason and skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import multiprocessing
+import os
+import platform
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from dataset_tools import segment, texts
+from dataset_tools.mirror import mirror_caption, mirror_joints
+from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
+from dataset_tools.skeleton import SMPL
+from dataset_tools.sources import ClipTask, Motion
+from dataset_tools.stats import FeatureStats, mean_and_pooled_std
+
+logger = logging.getLogger(__name__)
+
+SOURCES = ("amass", "joints", "bvh")
+DATASET_FPS = SMPL.fps
+SPLIT_FRACTIONS = (0.80, 0.05, 0.15)
+# Captions are tagged and written in chunks of this many clips: one spaCy pass per chunk is
+# fast, and a crash loses at most one chunk of finished motions' texts (re-done on resume).
+CAPTION_CHUNK = 512
+
+
+@dataclass
+class BuildConfig:
+    """Everything a build needs; ``python -m dataset_tools build --help`` documents each field.
+
+    Attributes:
+        source: "amass", "joints" or "bvh".
+        input_dir: folder of source files (searched recursively for .npz / .bvh; for joints, the
+            folder itself or its ``joints/`` subfolder, or the index's paths relative to it).
+        out_dir: dataset folder to write.
+        texts_dir: caption files ``<clip>.txt``; default ``input_dir/texts`` when it exists.
+        index: ``index.csv`` segmenting the sources (reference-pipeline rules apply).
+        body_model_dir: SMPL-H body models (``male|female|neutral/model.npz``), for AMASS.
+        mapping: BVH joint mapping: a built-in name ("bandai", "cmu_cc") or a JSON file;
+            default: detected from the joint names.
+        fps: frame rate of joint arrays (default: ``source.json``, else 20 with an index).
+        up: up axis of joint arrays, "y" or "z" (default: ``source.json``, else "y").
+        bvh_scale: metres per BVH unit (default: detected, centimetres for human-sized rigs).
+        drop_first_frame: drop a leading T-pose frame of BVH files (default: per mapping).
+        target_skeleton: (>=22, 3) joints of one frame defining target bone lengths (default:
+            the HumanML3D target skeleton built into ``dataset_tools.skeleton``).
+        splits_dir: folder with ``train.txt``, ``val.txt``, ``test.txt`` to reuse.
+        max_seconds: clips longer than this are cropped (seeded) unless an index segments them.
+        workers: processes for the motion work.
+        force: rebuild clips already finished.
+        seed: seeds crops and splits.
+    """
+
+    source: str
+    input_dir: Path
+    out_dir: Path
+    texts_dir: Path | None = None
+    index: Path | None = None
+    body_model_dir: Path | None = None
+    mapping: str | None = None
+    fps: float | None = None
+    up: str | None = None
+    bvh_scale: float | None = None
+    drop_first_frame: bool | None = None
+    target_skeleton: Path | None = None
+    splits_dir: Path | None = None
+    max_seconds: float = 10.0
+    workers: int = 1
+    force: bool = False
+    seed: int = 0
+
+
+@dataclass
+class ClipResult:
+    """What a worker reports for one task."""
+
+    name: str
+    path: str
+    error: str | None = None
+    frames: int = 0
+    source_frames: int = 0
+    source_fps: float = 0.0
+    captions: list[texts.Caption] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _WorkerContext:
+    """What every worker needs besides its task (picklable)."""
+
+    out_dir: Path
+    options: dict
+    target_offsets: np.ndarray | None
+    max_frames: int
+    seed: int
+
+
+# ----------------------------------------------------------------------------- file writing
+
+
+def atomic_save_npy(path: Path, array: np.ndarray) -> None:
+    """Write ``array`` to ``path`` via a temporary file in the same folder and ``os.replace``."""
+    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npy.tmp")
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            np.save(stream, array)
+        os.replace(temp, path)
+    except BaseException:
+        Path(temp).unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_text(path: Path, content: str) -> None:
+    """Write UTF-8 ``content`` to ``path`` atomically (temporary file, then ``os.replace``)."""
+    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            stream.write(content)
+        os.replace(temp, path)
+    except BaseException:
+        Path(temp).unlink(missing_ok=True)
+        raise
+
+
+def output_paths(out_dir: Path, name: str) -> list[Path]:
+    """Every file a finished clip has (texts last: they are written after the motions)."""
+    return [
+        out_dir / folder / f"{clip}{suffix}"
+        for clip in (name, "M" + name)
+        for folder, suffix in (
+            ("new_joint_vecs", ".npy"),
+            ("new_joints", ".npy"),
+            ("texts", ".txt"),
+        )
+    ]
+
+
+def is_finished(out_dir: Path, name: str) -> bool:
+    return all(path.is_file() for path in output_paths(out_dir, name))
+
+
+# ----------------------------------------------------------------------------- task listing
+
+
+def _caption_path(config: BuildConfig, name: str) -> str | None:
+    texts_dir = config.texts_dir
+    if texts_dir is None and (config.input_dir / "texts").is_dir():
+        texts_dir = config.input_dir / "texts"
+    return str(texts_dir / f"{name}.txt") if texts_dir is not None else None
+
+
+def _name_from_relative(relative: Path) -> str:
+    """Clip name from a path under the input folder: ``KIT/3/walk_poses.npz`` -> ``KIT_3_walk_poses``."""
+    return "_".join(relative.with_suffix("").parts)
+
+
+def _resolve_index_path(input_dir: Path, source_path: str, suffix: str) -> Path:
+    """Find an index row's file under ``input_dir`` (with or without the ``pose_data/`` prefix)."""
+    relative = Path(source_path)
+    parts = [part for part in relative.parts if part not in (".", "")]
+    candidates = [Path(*parts)]
+    if parts and parts[0] == "pose_data":
+        candidates.append(Path(*parts[1:]))
+    for candidate in candidates:
+        for path in (input_dir / candidate, input_dir / candidate.with_suffix(suffix)):
+            if path.is_file():
+                return path
+    return input_dir / candidates[-1].with_suffix(suffix)
+
+
+def list_tasks(config: BuildConfig) -> list[ClipTask]:
+    """One task per output clip, in a stable order. Raises ValueError for an unusable input."""
+    input_dir = config.input_dir
+    suffix = {"amass": ".npz", "joints": ".npy", "bvh": ".bvh"}[config.source]
+    if config.index is not None:
+        tasks = []
+        for row in segment.read_index(config.index):
+            path = _resolve_index_path(input_dir, row.source_path, suffix)
+            # Only the reference joint layout (its pose_data, reflected by an axis swap) needs the
+            # x negation; our AMASS reader already returns a proper right-handed y-up frame.
+            negate = config.source == "joints" and not row.is_humanact12
+            tasks.append(
+                ClipTask(
+                    name=row.new_name,
+                    path=str(path),
+                    start_frame=0 if row.is_humanact12 else row.start_frame,
+                    end_frame=None if row.is_humanact12 else row.end_frame,
+                    trim_seconds=0.0
+                    if row.is_humanact12
+                    else segment.trim_seconds_for(row.source_path),
+                    negate_x=negate,
+                    caption_path=_caption_path(config, row.new_name),
+                    segmented=not row.is_humanact12,
+                )
+            )
+        return tasks
+    folder = input_dir
+    if config.source == "joints":
+        from dataset_tools.sources.joints import joints_folder
+
+        folder = joints_folder(input_dir)
+    files = (
+        sorted(folder.rglob(f"*{suffix}"))
+        if config.source != "joints"
+        else sorted(folder.glob(f"*{suffix}"))
+    )
+    tasks = []
+    for path in files:
+        name = _name_from_relative(path.relative_to(folder))
+        tasks.append(ClipTask(name=name, path=str(path), caption_path=_caption_path(config, name)))
+    return tasks
+
+
+# ----------------------------------------------------------------------------- per-clip work
+
+_LOADED: dict[str, Motion] = {}  # the last file read by this process (index rows share files)
+
+
+def load_motion(path: str, options: dict) -> Motion:
+    """Read one source file with the loader its suffix names; y-up metres, any fps."""
+    if path in _LOADED:
+        return _LOADED[path]
+    if not Path(path).is_file():
+        raise ValueError("source file not found")
+    suffix = Path(path).suffix.lower()
+    if suffix == ".npz":
+        from dataset_tools.sources.amass import load_amass
+
+        motion = load_amass(path, options["body_model_dir"])
+    elif suffix == ".npy":
+        from dataset_tools.sources.joints import JointsOptions, load_joints
+
+        motion = load_joints(path, JointsOptions(fps=options["fps"], up=options["up"]))
+    elif suffix == ".bvh":
+        from dataset_tools.sources.bvh import BvhOptions, load_bvh_motion
+
+        motion = load_bvh_motion(path, BvhOptions(**options["bvh"]))
+    else:
+        raise ValueError(f"no reader for {suffix!r} files")
+    _LOADED.clear()
+    _LOADED[path] = motion
+    return motion
+
+
+def _cut(task: ClipTask, joints: np.ndarray, context: _WorkerContext) -> tuple[np.ndarray, float]:
+    """Segment by the task's index rules, or crop to ``max_frames``.
+
+    Returns (joints, seconds to shift caption times by): 0 for index segments, whose captions
+    are already timed within the segment (as HumanML3D's are), the crop start otherwise.
+    """
+    if task.segmented:
+        cut = segment.cut_segment(
+            joints, task.start_frame, task.end_frame, task.trim_seconds, task.negate_x, DATASET_FPS
+        )
+        return cut, 0.0
+    if task.negate_x:
+        joints = segment.cut_segment(joints, 0, None, negate_x=True)
+    cropped, start = segment.random_crop(
+        joints, context.max_frames, segment.clip_rng(task.name, context.seed)
+    )
+    return cropped, start / DATASET_FPS
+
+
+def read_captions(task: ClipTask) -> list[texts.Caption]:
+    """The task's caption file, else captions from the source's own labels (Bandai-Namco BVH)."""
+    if task.caption_path is not None and Path(task.caption_path).is_file():
+        return texts.read_caption_file(task.caption_path)
+    if Path(task.path).suffix.lower() == ".bvh":
+        from dataset_tools.sources.bvh import label_captions
+
+        labelled = label_captions(task.path)
+        if labelled:
+            return [texts.Caption(text) for text in labelled]
+    raise ValueError("no caption file")
+
+
+def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
+    """Turn one task into its two clips (plain and mirrored) on disk; captions are returned."""
+    result = ClipResult(name=task.name, path=task.path)
+    clock = time.perf_counter()
+    try:
+        captions = read_captions(task)
+        motion = load_motion(task.path, context.options)
+        result.source_frames, result.source_fps = len(motion.joints), motion.fps
+        if not np.isfinite(motion.joints).all():
+            bad = int((~np.isfinite(motion.joints)).any(axis=(1, 2)).sum())
+            raise ValueError(f"{bad} frame(s) contain NaN or inf")
+        if not (np.isfinite(motion.fps) and motion.fps > 0):
+            raise ValueError(f"bad frame rate {motion.fps}")
+        joints = segment.resample(motion.joints, motion.fps, DATASET_FPS)
+        result.seconds["load"] = time.perf_counter() - clock
+
+        clock = time.perf_counter()
+        joints, offset = _cut(task, joints, context)
+        if len(joints) < 2:
+            raise ValueError(f"only {len(joints)} frame(s) at {DATASET_FPS:g} fps; need at least 2")
+        captions = texts.shift_captions(captions, offset, (len(joints) - 1) / DATASET_FPS)
+        if not captions:
+            raise ValueError("no caption falls inside the clip")
+        mirrored = mirror_joints(joints)[:, :22]
+        outputs = {}
+        for name, clip in ((task.name, joints[:, :22]), ("M" + task.name, mirrored)):
+            features, recovered = process_motion(clip, SMPL, context.target_offsets)
+            if not (np.isfinite(features).all() and np.isfinite(recovered).all()):
+                raise ValueError("features came out non-finite")
+            outputs[name] = (features, recovered)
+        result.seconds["features"] = time.perf_counter() - clock
+
+        clock = time.perf_counter()
+        for name, (features, recovered) in outputs.items():
+            atomic_save_npy(
+                context.out_dir / "new_joint_vecs" / f"{name}.npy", features.astype(np.float32)
+            )
+            atomic_save_npy(
+                context.out_dir / "new_joints" / f"{name}.npy", recovered.astype(np.float32)
+            )
+        result.seconds["write"] = time.perf_counter() - clock
+        result.frames = len(outputs[task.name][0])
+        result.captions = captions
+    # One clip's failure must not stop the build: whatever went wrong is recorded as its reason.
+    except Exception as error:  # noqa: BLE001
+        result.error = str(error) or type(error).__name__
+    return result
+
+
+def _process_star(arguments: tuple[ClipTask, _WorkerContext]) -> ClipResult:
+    return process_task(*arguments)
+
+
+# ----------------------------------------------------------------------------- captions
+
+
+def write_captions(out_dir: Path, results: Sequence[ClipResult]) -> None:
+    """Tag the captions of finished clips (and their mirrors) in one spaCy pass and write texts/."""
+    jobs: list[tuple[str, list[texts.Caption]]] = []
+    for result in results:
+        jobs.append((result.name, result.captions))
+        mirrored = [texts.Caption(mirror_caption(c.text), c.start, c.end) for c in result.captions]
+        jobs.append(("M" + result.name, mirrored))
+    tagged = texts.tag_captions([caption.text for _, captions in jobs for caption in captions])
+    position = 0
+    for name, captions in jobs:
+        lines = []
+        for caption in captions:
+            lines.append(texts.format_line(caption, tagged[position]))
+            position += 1
+        atomic_write_text(out_dir / "texts" / f"{name}.txt", "\n".join(lines) + "\n")
+
+
+# ----------------------------------------------------------------------------- splits
+
+
+def _read_split(path: Path) -> list[str]:
+    return [line.strip() for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+def make_splits(
+    groups: dict[str, list[str]], seed: int, splits_dir: Path | None = None
+) -> tuple[dict[str, list[str]], list[str]]:
+    """Split clip names into train/val/test; returns (splits, clips missing from given splits).
+
+    ``groups`` maps a source file to its clip names (no "M"). Without ``splits_dir`` whole
+    groups are shuffled with ``seed`` and cut 80/5/15, so segments of one capture never straddle
+    splits; every clip's mirror follows it.
+    """
+    splits: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+    unassigned: list[str] = []
+    if splits_dir is not None:
+        assigned: dict[str, str] = {}
+        for split in splits:
+            path = splits_dir / f"{split}.txt"
+            if not path.is_file():
+                raise ValueError(f"split file {path} not found")
+            for name in _read_split(path):
+                assigned.setdefault(name, split)
+        for names in groups.values():
+            for name in names:
+                split = assigned.get(name)
+                if split is None:
+                    unassigned.append(name)
+                else:
+                    splits[split] += [name, "M" + name]
+    else:
+        keys = sorted(groups)
+        order = np.random.default_rng(seed).permutation(len(keys))
+        cut_train = int(round(SPLIT_FRACTIONS[0] * len(keys)))
+        cut_val = int(round((SPLIT_FRACTIONS[0] + SPLIT_FRACTIONS[1]) * len(keys)))
+        for position, key_index in enumerate(order):
+            split = "train" if position < cut_train else "val" if position < cut_val else "test"
+            for name in groups[keys[key_index]]:
+                splits[split] += [name, "M" + name]
+    return {split: sorted(names) for split, names in splits.items()}, sorted(unassigned)
+
+
+def write_splits(out_dir: Path, splits: dict[str, list[str]], all_names: Sequence[str]) -> None:
+    contents = dict(splits)
+    contents["train_val"] = sorted(splits["train"] + splits["val"])
+    contents["all"] = sorted(all_names)
+    for split, names in contents.items():
+        atomic_write_text(out_dir / f"{split}.txt", "".join(f"{name}\n" for name in names))
+
+
+# ----------------------------------------------------------------------------- the build
+
+
+def _versions() -> dict[str, str]:
+    import scipy
+    import spacy
+
+    import dataset_tools
+
+    versions = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "spacy": spacy.__version__,
+        "dataset_tools": getattr(dataset_tools, "__version__", "0.1.0"),
+    }
+    try:
+        versions["spacy_model"] = texts.spacy_model_version()
+    except RuntimeError:
+        versions["spacy_model"] = "none"
+    return versions
+
+
+def _source_options(config: BuildConfig) -> dict:
+    """Per-source reading options, resolved from flags and ``source.json``."""
+    options: dict = {
+        "body_model_dir": str(config.body_model_dir) if config.body_model_dir else None,
+        # Joint arrays met by another source (HumanAct12 rows of an AMASS index) are in the
+        # reference pose_data layout: 20 fps, y-up.
+        "fps": DATASET_FPS,
+        "up": "y",
+    }
+    if config.source == "joints":
+        from dataset_tools.sources.joints import read_source_config
+
+        source_config = read_source_config(config.input_dir)
+        fps = config.fps or source_config.get("fps") or (DATASET_FPS if config.index else None)
+        if fps is None:
+            raise ValueError("--fps is required for joint arrays without a source.json or --index")
+        options["fps"] = float(fps)
+        options["up"] = config.up or source_config.get("up", "y")
+        if options["up"] not in ("y", "z"):
+            raise ValueError(f"up axis must be 'y' or 'z', got {options['up']!r}")
+    if config.source == "amass":
+        if config.body_model_dir is None or not config.body_model_dir.is_dir():
+            raise ValueError(
+                "--body-model DIR (with male|female|neutral/model.npz) is required for AMASS"
+            )
+    if config.source == "bvh":
+        options["bvh"] = {
+            "mapping": config.mapping,
+            "scale": config.bvh_scale,
+            "up": config.up or "y",
+            "drop_first_frame": config.drop_first_frame,
+        }
+    return options
+
+
+def _run_tasks(
+    tasks: Sequence[ClipTask], context: _WorkerContext, workers: int
+) -> Iterator[ClipResult]:
+    arguments = [(task, context) for task in tasks]
+    if workers <= 1 or len(tasks) <= 1:
+        yield from map(_process_star, arguments)
+        return
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    chunksize = max(1, min(16, len(tasks) // (workers * 8)))
+    with multiprocessing.get_context(method).Pool(workers) as pool:
+        yield from pool.imap_unordered(_process_star, arguments, chunksize=chunksize)
+
+
+def compute_stats(out_dir: Path, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Mean/Std over the features of ``names`` (their files in ``new_joint_vecs``)."""
+    layout = FeatureLayout(SMPL.num_joints)
+    stats = FeatureStats(layout.dim)
+    skipped = []
+    for name in tqdm(names, desc="stats", unit="clip", leave=False, disable=len(names) < 1000):
+        features = np.load(out_dir / "new_joint_vecs" / f"{name}.npy")
+        try:
+            stats.add(features)
+        except ValueError as error:
+            skipped.append({"name": name, "reason": str(error)})
+    if stats.count == 0:
+        raise ValueError("no clip has finite features; cannot compute Mean/Std")
+    mean, std, constant = mean_and_pooled_std(stats, layout.groups())
+    return mean, std, {"frames": stats.count, "skipped": skipped, "constant_groups": constant}
+
+
+def build_dataset(config: BuildConfig) -> dict:
+    """Build (or resume) the dataset described by ``config``; returns the build report.
+
+    Raises ValueError for unusable configuration (missing input, unknown source, ...); clip-level
+    problems are reported in ``report["skipped"]`` instead.
+    """
+    started = time.perf_counter()
+    timings: dict[str, float] = {}
+    # 1. Check the configuration and list the clips.
+    if config.source not in SOURCES:
+        raise ValueError(f"unknown source {config.source!r} (choose from {', '.join(SOURCES)})")
+    if not config.input_dir.is_dir():
+        raise ValueError(f"input folder {config.input_dir} does not exist")
+    if config.index is not None and not config.index.is_file():
+        raise ValueError(f"index {config.index} not found")
+    options = _source_options(config)
+    texts.load_nlp()  # fail now, not after the motion work, when no English model is installed
+    target_offsets = None
+    if config.target_skeleton is not None:
+        target_offsets = target_offsets_from_example(np.load(config.target_skeleton))
+    for folder in ("new_joint_vecs", "new_joints", "texts"):
+        (config.out_dir / folder).mkdir(parents=True, exist_ok=True)
+    clock = time.perf_counter()
+    tasks = list_tasks(config)
+    names = [task.name for task in tasks]
+    if len(set(names)) != len(names):
+        raise ValueError("two source clips map to the same clip name")
+    todo = [task for task in tasks if config.force or not is_finished(config.out_dir, task.name)]
+    timings["list_s"] = time.perf_counter() - clock
+    logger.info("%d clips listed, %d to build", len(tasks), len(todo))
+
+    # 2. Motions in parallel; captions tagged and written by chunk as clips finish.
+    context = _WorkerContext(
+        out_dir=config.out_dir,
+        options=options,
+        target_offsets=target_offsets,
+        max_frames=int(round(config.max_seconds * DATASET_FPS)),
+        seed=config.seed,
+    )
+    skipped: list[dict] = []
+    built: list[ClipResult] = []
+    pending: list[ClipResult] = []
+    worker_seconds: dict[str, float] = {"load": 0.0, "features": 0.0, "write": 0.0}
+    timings["captions_s"] = 0.0
+    clock = time.perf_counter()
+
+    def flush() -> None:
+        caption_clock = time.perf_counter()
+        write_captions(config.out_dir, pending)
+        timings["captions_s"] += time.perf_counter() - caption_clock
+        pending.clear()
+
+    progress = tqdm(total=len(todo), desc="build", unit="clip", disable=None)
+    for result in _run_tasks(todo, context, config.workers):
+        progress.update()
+        for step, seconds in result.seconds.items():
+            worker_seconds[step] += seconds
+        if result.error is not None:
+            skipped.append({"name": result.name, "path": result.path, "reason": result.error})
+            continue
+        built.append(result)
+        pending.append(result)
+        if len(pending) >= CAPTION_CHUNK:
+            flush()
+    if pending:
+        flush()
+    progress.close()
+    timings["clips_s"] = time.perf_counter() - clock
+
+    # 3. Statistics and splits over every finished clip (this run's and earlier runs').
+    clock = time.perf_counter()
+    skipped_names = {entry["name"] for entry in skipped}
+    finished = [
+        t for t in tasks if t.name not in skipped_names and is_finished(config.out_dir, t.name)
+    ]
+    if not finished:
+        report = _report(config, tasks, built, skipped, [], timings, started, {})
+        _write_report(config.out_dir, report)
+        return report
+    all_names = sorted(name for task in finished for name in (task.name, "M" + task.name))
+    mean, std, stats_info = compute_stats(config.out_dir, all_names)
+    atomic_save_npy(config.out_dir / "Mean.npy", mean)
+    atomic_save_npy(config.out_dir / "Std.npy", std)
+    timings["stats_s"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    stats_skipped = {entry["name"] for entry in stats_info["skipped"]}
+    groups: dict[str, list[str]] = {}
+    for task in finished:
+        if task.name not in stats_skipped and "M" + task.name not in stats_skipped:
+            groups.setdefault(task.path, []).append(task.name)
+    splits, unassigned = make_splits(groups, config.seed, config.splits_dir)
+    split_names = sorted(name for names in groups.values() for n in names for name in (n, "M" + n))
+    write_splits(config.out_dir, splits, split_names)
+    timings["splits_s"] = time.perf_counter() - clock
+    for step, seconds in worker_seconds.items():
+        timings[f"worker_{step}_s"] = seconds
+
+    stats_info["unassigned_to_splits"] = unassigned
+    report = _report(config, tasks, built, skipped, finished, timings, started, stats_info)
+    report["splits"] = {split: len(names) for split, names in splits.items()}
+    _write_report(config.out_dir, report)
+    return report
+
+
+def _report(
+    config: BuildConfig,
+    tasks: Sequence[ClipTask],
+    built: Sequence[ClipResult],
+    skipped: list[dict],
+    finished: Sequence[ClipTask],
+    timings: dict[str, float],
+    started: float,
+    stats_info: dict,
+) -> dict:
+    """The content of ``build_report.json``."""
+    frames = 0
+    for task in finished:
+        features = np.load(config.out_dir / "new_joint_vecs" / f"{task.name}.npy", mmap_mode="r")
+        frames += 2 * len(features)
+    seconds_in = sum(r.source_frames / r.source_fps for r in built if r.source_fps > 0)
+    timings["total_s"] = time.perf_counter() - started
+    config_dict = {
+        key: (str(value) if isinstance(value, Path) else value)
+        for key, value in asdict(config).items()
+    }
+    return {
+        "config": config_dict,
+        "clips_in": len(tasks),
+        "clips_built_this_run": len(built),
+        "clips_resumed": len(finished) - len(built) if finished else 0,
+        "clips_out": 2 * len(finished),
+        "source_hours_read_this_run": seconds_in / 3600.0,
+        "frames_out": frames,
+        "hours_out": frames / DATASET_FPS / 3600.0,
+        "skipped": skipped,
+        "stats": stats_info,
+        "timings": {key: round(value, 4) for key, value in timings.items()},
+        "versions": _versions(),
+    }
+
+
+def _write_report(out_dir: Path, report: dict) -> None:
+    atomic_write_text(out_dir / "build_report.json", json.dumps(report, indent=2) + "\n")
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="python -m dataset_tools build",
+        description="Build a HumanML3D-layout dataset (new_joint_vecs/, new_joints/, texts/, "
+        "Mean.npy, Std.npy, split files, build_report.json) from motion sources.",
+    )
+    parser.add_argument("--source", required=True, choices=SOURCES, help="kind of input files")
+    parser.add_argument("--input", required=True, type=Path, help="folder of source files")
+    parser.add_argument("--out", required=True, type=Path, help="dataset folder to write")
+    parser.add_argument("--texts", type=Path, help="caption files <clip>.txt (default INPUT/texts)")
+    parser.add_argument("--index", type=Path, help="index.csv segmenting the sources")
+    parser.add_argument("--body-model", type=Path, help="SMPL-H models folder (AMASS)")
+    parser.add_argument("--mapping", help="BVH joint mapping: bandai, cmu_cc or a JSON file")
+    parser.add_argument("--fps", type=float, help="frame rate of joint arrays")
+    parser.add_argument("--up", choices=("y", "z"), help="up axis of joint arrays / BVH files")
+    parser.add_argument("--bvh-scale", type=float, help="metres per BVH unit (default: detect)")
+    tpose = parser.add_mutually_exclusive_group()
+    tpose.add_argument(
+        "--drop-first-frame",
+        dest="drop_first_frame",
+        action="store_true",
+        default=None,
+        help="drop a leading BVH T-pose frame",
+    )
+    tpose.add_argument(
+        "--keep-first-frame",
+        dest="drop_first_frame",
+        action="store_false",
+        help="keep the first BVH frame",
+    )
+    parser.add_argument(
+        "--target-skeleton", type=Path, help="(>=22, 3) .npy frame giving target bone lengths"
+    )
+    parser.add_argument("--splits", type=Path, help="folder with train/val/test.txt to reuse")
+    parser.add_argument(
+        "--max-seconds", type=float, default=10.0, help="crop longer clips (seeded)"
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(os.cpu_count() or 1, 8),
+        help="parallel processes (default: CPU cores, at most 8; the output does not depend on it)",
+    )
+    parser.add_argument("--force", action="store_true", help="rebuild finished clips")
+    parser.add_argument("--seed", type=int, default=0, help="seed for crops and splits")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m dataset_tools build ...``: 0 on success, 1 when no clip was built, 2 on bad input."""
+    arguments = _parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if arguments.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    if arguments.workers < 1 or arguments.max_seconds <= 0:
+        print("error: --workers must be >= 1 and --max-seconds > 0", file=sys.stderr)
+        return 2
+    config = BuildConfig(
+        source=arguments.source,
+        input_dir=arguments.input,
+        out_dir=arguments.out,
+        texts_dir=arguments.texts,
+        index=arguments.index,
+        body_model_dir=arguments.body_model,
+        mapping=arguments.mapping,
+        fps=arguments.fps,
+        up=arguments.up,
+        bvh_scale=arguments.bvh_scale,
+        drop_first_frame=arguments.drop_first_frame,
+        target_skeleton=arguments.target_skeleton,
+        splits_dir=arguments.splits,
+        max_seconds=arguments.max_seconds,
+        workers=arguments.workers,
+        force=arguments.force,
+        seed=arguments.seed,
+    )
+    try:
+        report = build_dataset(config)
+    except (ValueError, RuntimeError, OSError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    for entry in report["skipped"]:
+        logger.warning("skipped %s: %s", entry["name"], entry["reason"])
+    print(
+        f"{report['clips_out']} clips ({report['hours_out']:.2f} h) in {config.out_dir}; "
+        f"{len(report['skipped'])} skipped (see build_report.json)"
+    )
+    return 0 if report["clips_out"] else 1

@@ -1,0 +1,875 @@
+"""Action generators: each turns action parameters into joint-angle tracks over a number of frames.
+
+A generator returns a ``Track``: poses (n, D) in radians (see ``body.DOF_NAMES``), the heading's
+yaw rate, a flight height (> 0 only while airborne) and, for airborne frames, the horizontal
+velocity in the heading frame. Generators never place the root: ``clip.assemble`` derives the root
+from the feet (the stance foot stays planted), so stride length and root speed always agree.
+
+Sided actions (kick, punch, wave, raise, hop, turning, sidestepping, circling) are generated for
+the left side (or leftward turn) and mirrored for the right with ``body.mirror_dofs``, which makes
+left and right exact mirror images by construction.
+
+Every ACTIONS entry knows how to sample its parameters and duration and how to generate itself.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+
+from dataset_tools.synth.body import DOF, NUM_DOFS, mirror_dofs
+
+GRAVITY = 9.81
+SPEEDS = ("slow", "normal", "fast")
+# Target root speeds (m/s) per speed class; the ranges do not overlap so detectors can tell them
+# apart. Sideways gaits are slower.
+_WALK_SPEED = {"slow": (0.6, 0.8), "normal": (1.05, 1.3), "fast": (1.5, 1.75)}
+_RUN_SPEED = {"slow": (2.25, 2.55), "normal": (2.8, 3.2), "fast": (3.5, 3.9)}
+_SIDE_SPEED = {"slow": (0.25, 0.33), "normal": (0.42, 0.52), "fast": (0.62, 0.75)}
+# Stride length (m) of the mean body against the thigh amplitude of the gait tables, measured on
+# the generated motion (the root follows the planted feet, so the stride is an outcome, not an
+# input); tests check the resulting speeds.
+_AMPLITUDES = np.arange(0.3, 1.81, 0.15)
+_WALK_STRIDES = np.array(
+    [0.513, 0.643, 0.82, 0.939, 1.088, 1.218, 1.349, 1.491, 1.623, 1.731, 1.868]
+)
+_RUN_STRIDES = np.array(
+    [0.703, 0.908, 1.146, 1.352, 1.554, 1.743, 1.935, 2.124, 2.329, 2.495, 2.62]
+)
+
+
+@dataclass
+class Track:
+    """Joint-angle tracks of one action over n frames.
+
+    Attributes:
+        dofs: (n, D) joint angles, radians.
+        yaw_rate: (n,) heading change per frame, radians (positive = turning left).
+        flight: (n,) height of the airborne root above its ground-supported path, metres.
+        air_velocity: (n, 2) heading-frame (left, forward) velocity in metres per frame while
+            airborne; NaN lets the assembler interpolate between the neighbouring ground frames.
+        stance: optional (n, 2) weights of the left and right foot as the planted one (gaits,
+            where the phase says which foot carries the body); None lets the lowest foot decide.
+    """
+
+    dofs: np.ndarray
+    yaw_rate: np.ndarray
+    flight: np.ndarray
+    air_velocity: np.ndarray
+    stance: np.ndarray | None = None
+
+    @classmethod
+    def still(cls, dofs: np.ndarray) -> Track:
+        n = dofs.shape[0]
+        return cls(dofs, np.zeros(n), np.zeros(n), np.full((n, 2), np.nan))
+
+    def mirrored(self) -> Track:
+        air = self.air_velocity.copy()
+        air[:, 0] *= -1
+        stance = None if self.stance is None else self.stance[:, ::-1].copy()
+        return Track(mirror_dofs(self.dofs), -self.yaw_rate, self.flight.copy(), air, stance)
+
+
+@dataclass
+class Style:
+    """Per-clip mannerisms applied to every action (degrees and factors)."""
+
+    stance_width: float = 3.0
+    knee_bend: float = 4.0
+    arm_abd: float = 8.0
+    elbow: float = 14.0
+    lean: float = 2.0
+    head: float = 0.0
+    arm_swing: float = 1.0
+    tempo: float = 1.0
+    leg_scale: float = 1.0  # the subject's leg length over the mean body's: strides scale with it
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator) -> Style:
+        return cls(
+            stance_width=float(rng.uniform(1.5, 5.0)),
+            knee_bend=float(rng.uniform(2.0, 7.0)),
+            arm_abd=float(rng.uniform(5.0, 12.0)),
+            elbow=float(rng.uniform(8.0, 22.0)),
+            lean=float(rng.uniform(0.0, 5.0)),
+            head=float(rng.uniform(-6.0, 6.0)),
+            arm_swing=float(rng.uniform(0.75, 1.25)),
+            tempo=float(rng.uniform(0.9, 1.1)),
+        )
+
+    def base_pose(self) -> np.ndarray:
+        """The relaxed standing pose (D,), radians."""
+        return pose_vector(
+            None,
+            spine_flex=self.lean,
+            neck_flex=self.head,
+            l_hip_abd=self.stance_width, r_hip_abd=self.stance_width,
+            l_knee=self.knee_bend, r_knee=self.knee_bend,
+            l_hip_flex=0.5 * self.knee_bend, r_hip_flex=0.5 * self.knee_bend,
+            l_ankle=0.5 * self.knee_bend, r_ankle=0.5 * self.knee_bend,
+            l_shoulder_abd=self.arm_abd, r_shoulder_abd=self.arm_abd,
+            l_elbow=self.elbow, r_elbow=self.elbow,
+        )  # fmt: skip
+
+
+def pose_vector(base: np.ndarray | None, **degrees: float) -> np.ndarray:
+    """A pose (D,) in radians: ``base`` (or zeros) with the named angles set, given in degrees."""
+    pose = np.zeros(NUM_DOFS) if base is None else base.copy()
+    for name, value in degrees.items():
+        pose[DOF[name]] = np.radians(value)
+    return pose
+
+
+def both(**degrees: float) -> dict[str, float]:
+    """Expand ``hip_flex=10`` to ``l_hip_flex=10, r_hip_flex=10``."""
+    return {f"{s}_{k}": v for k, v in degrees.items() for s in ("l", "r")}
+
+
+def keyframes(times: list[float], poses: list[np.ndarray], n: int, fps: float) -> np.ndarray:
+    """Shape-preserving cubic interpolation of key poses (K, D) at times (K,) seconds to (n, D)."""
+    times_arr = np.asarray(times, dtype=np.float64)
+    if np.any(np.diff(times_arr) <= 0):
+        raise ValueError("key times must increase")
+    t = np.clip(np.arange(n) / fps, times_arr[0], times_arr[-1])
+    return PchipInterpolator(times_arr, np.stack(poses), axis=0)(t)
+
+
+def _bump(phase: np.ndarray, centre: float, width: float) -> np.ndarray:
+    """Periodic bump in [0, 1] peaking at ``centre`` (cycles) with about ``width`` cycles spread."""
+    return np.exp((np.cos(2 * np.pi * (phase - centre)) - 1.0) / (2 * np.pi * width) ** 2)
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def _lead_in(n: int, fps: float, natural: float) -> float:
+    """Start time (s) that centres an action of ``natural`` seconds in n frames."""
+    return max(0.0, 0.5 * (n / fps - natural))
+
+
+# --- gaits -------------------------------------------------------------------------------------
+
+
+def _periodic_curve(knots: list[tuple[float, float]], samples: int = 240) -> np.ndarray:
+    """A smooth periodic table (samples,) through (phase, value) knots, phases in [0, 1)."""
+    xp = np.array([k[0] for k in knots])
+    fp = np.array([k[1] for k in knots])
+    grid = np.arange(samples) / samples
+    table = np.interp(grid, xp, fp, period=1.0)
+    # Circular smoothing removes the corners of the piecewise-linear interpolation.
+    kernel = np.exp(-0.5 * (np.arange(-12, 13) / 4.0) ** 2)
+    kernel /= kernel.sum()
+    padded = np.concatenate([table[-12:], table, table[:12]])
+    return np.convolve(padded, kernel, mode="valid")
+
+
+def _lookup(table: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    grid = np.arange(len(table) + 1) / len(table)
+    return np.interp(phase % 1.0, grid, np.append(table, table[0]))
+
+
+# Gait cycles, phase 0 = heel strike of the leg. Thigh angle from the vertical (not from the
+# pelvis), knee flexion, and foot pitch (toe up positive; 0 = flat on the ground), degrees.
+_WALK_THIGH = _periodic_curve(
+    [(0, 20), (0.1, 18), (0.3, 2), (0.52, -16), (0.62, -10), (0.75, 12), (0.88, 23)]
+)
+_WALK_KNEE = _periodic_curve(
+    [
+        (0, 3),
+        (0.12, 16),
+        (0.25, 9),
+        (0.42, 5),
+        (0.52, 14),
+        (0.62, 38),
+        (0.72, 60),
+        (0.85, 28),
+        (0.95, 4),
+    ]
+)
+_WALK_FOOT = _periodic_curve(
+    [(0, 12), (0.07, 0), (0.43, 0), (0.52, -12), (0.62, -36), (0.72, -12), (0.85, 6), (0.95, 12)]
+)
+_RUN_THIGH = _periodic_curve(
+    [(0, 22), (0.2, 0), (0.4, -22), (0.5, -14), (0.7, 25), (0.85, 34), (0.95, 27)]
+)
+_RUN_KNEE = _periodic_curve(
+    [(0, 18), (0.15, 40), (0.3, 22), (0.4, 15), (0.55, 70), (0.68, 105), (0.82, 70), (0.95, 25)]
+)
+_RUN_FOOT = _periodic_curve(
+    [(0, 6), (0.06, 0), (0.25, 0), (0.35, -15), (0.42, -38), (0.55, -20), (0.75, 6)]
+)
+
+
+def _gait_angles(phase: np.ndarray, run: bool, amplitude: float) -> dict:
+    """Leg angles (degrees) of one leg over gait phases (n,); ``amplitude`` scales the thigh swing.
+
+    The ankle is solved so the foot has the pitch of the foot curve: flat during stance.
+    """
+    thigh = amplitude * _lookup(_RUN_THIGH if run else _WALK_THIGH, phase)
+    knee = _lookup(_RUN_KNEE if run else _WALK_KNEE, phase) * (0.8 + 0.2 * amplitude)
+    foot = _lookup(_RUN_FOOT if run else _WALK_FOOT, phase)
+    ankle = np.clip(foot - thigh + knee, -40, 30)
+    abd = 1.0 - 2.0 * _bump(phase, 0.3, 0.12)
+    return {"hip_flex": thigh, "knee": knee, "ankle": ankle, "hip_abd": abd}
+
+
+def forward_gait(
+    n: int, fps: float, rng: np.random.Generator, style: Style, speed: float, run: bool,
+    backward: bool = False, yaw_rate_s: float = 0.0,
+) -> Track:  # fmt: skip
+    """Walk or run along the heading at about ``speed`` m/s; backward = the cycle played in reverse.
+
+    Cadence and stride length both grow with speed (stride = speed / cadence); the hip amplitude
+    is set from the stride so the planted foot, not a root velocity, moves the body.
+    """
+    cadence = 1.15 + 0.13 * speed if run else 0.55 + 0.36 * speed  # strides per second
+    strides = _RUN_STRIDES if run else _WALK_STRIDES
+    amplitude = float(np.interp(speed / cadence / style.leg_scale, strides, _AMPLITUDES))
+    cadence *= style.tempo
+    t = np.arange(n) / fps
+    direction = -1.0 if backward else 1.0
+    phase_left = rng.uniform() + direction * cadence * t
+    phase_right = phase_left + 0.5
+    dofs = np.repeat(style.base_pose()[None], n, axis=0)
+    legs = {}
+    for side, phase in (("l", phase_left), ("r", phase_right)):
+        legs[side] = _gait_angles(phase % 1.0, run, amplitude)
+        legs[side]["hip_abd"] = legs[side]["hip_abd"] + style.stance_width - 2.0
+        for name, value in legs[side].items():
+            dofs[:, DOF[f"{side}_{name}"]] = np.radians(value)
+    mean_hip = 0.0
+    swing = style.arm_swing * (1.4 if run else 0.9)
+    for side, other in (("l", "r"), ("r", "l")):
+        # An arm swings with the opposite leg.
+        flex = swing * (legs[other]["hip_flex"] - mean_hip)
+        dofs[:, DOF[f"{side}_shoulder_flex"]] = np.radians(flex)
+        elbow = (85.0 if run else style.elbow + 4 * speed) + 0.3 * np.maximum(flex, 0)
+        dofs[:, DOF[f"{side}_elbow"]] = np.radians(elbow)
+        dofs[:, DOF[f"{side}_shoulder_abd"]] = np.radians(style.arm_abd + (6 if run else 0))
+    lean = style.lean + (6 + 2 * speed if run else 1.5 * speed) * direction
+    dofs[:, DOF["spine_flex"]] = np.radians(lean)
+    dofs[:, DOF["neck_flex"]] = np.radians(style.head - 0.5 * lean)
+    twist = (5 if run else 4) * np.cos(2 * np.pi * phase_left)
+    dofs[:, DOF["pelvis_twist"]] = np.radians(-twist)
+    dofs[:, DOF["spine_twist"]] = np.radians(1.6 * twist)
+    dofs[:, DOF["pelvis_roll"]] = np.radians(3.0 * np.cos(2 * np.pi * (phase_left - 0.3)))
+    flight = np.zeros(n)
+    if run:
+        # Both feet are off the ground between one foot's toe-off and the other's heel strike.
+        height = 0.02 + 0.01 * speed
+        for phase in (phase_left % 1.0, phase_right % 1.0):
+            window = (phase >= 0.4) & (phase < 0.5)
+            flight[window] = height * np.sin(np.pi * (phase[window] - 0.4) / 0.1)
+    yaw_rate = np.full(n, yaw_rate_s / fps)
+    end = 0.4 if run else 0.5
+    stance = np.stack([_stance_weight(p % 1.0, end) for p in (phase_left, phase_right)], axis=1)
+    return Track(dofs, yaw_rate, flight, np.full((n, 2), np.nan), stance)
+
+
+def _stance_weight(phase: np.ndarray, end: float, ramp: float = 0.07) -> np.ndarray:
+    """Weight (n,) of a leg as the planted one: rises after heel strike, falls at ``end``."""
+    return _smoothstep(phase / ramp) * (1 - _smoothstep((phase - end) / ramp))
+
+
+def sidestep_left(
+    n: int, fps: float, rng: np.random.Generator, style: Style, speed: float, run: bool
+) -> Track:
+    """Step sideways to the left: the left leg swings out while the right leg, planted, abducts;
+    then the right leg swings in while the left, planted, comes back under the body."""
+    reach = 2 * 0.88 * style.leg_scale
+    cadence = (1.5 if run else 1.0) * (0.8 + 0.4 * speed)
+    abduction = np.degrees(np.arcsin(np.clip(speed / cadence / reach, 0, 0.6)))
+    t = np.arange(n) / fps
+    phase = (rng.uniform() + cadence * t) % 1.0
+    first = phase < 0.5
+    local = (2 * phase) % 1.0
+    # The swinging foot rises first, then moves out (or in), then comes down.
+    progress = _smoothstep((local - 0.12) / 0.76)
+    abd = np.where(first, progress, 1 - progress) * abduction
+    lift = np.sin(np.pi * local) ** 2
+    dofs = np.repeat(style.base_pose()[None], n, axis=0)
+    for side, swinging in (("l", first), ("r", ~first)):
+        dofs[:, DOF[f"{side}_hip_abd"]] = np.radians(abd + 1.0)
+        knee = style.knee_bend + (14 if run else 8) + np.where(swinging, 30 * lift, 0)
+        hip = 6 + np.where(swinging, 14 * lift, 0)
+        dofs[:, DOF[f"{side}_knee"]] = np.radians(knee)
+        dofs[:, DOF[f"{side}_hip_flex"]] = np.radians(hip)
+        # Foot flat (pitch = thigh - knee + ankle = 0) while planted, toes a little down in swing.
+        dofs[:, DOF[f"{side}_ankle"]] = np.radians(knee - hip - np.where(swinging, 10 * lift, 0))
+        dofs[:, DOF[f"{side}_shoulder_abd"]] = np.radians(style.arm_abd + 0.5 * abd)
+        dofs[:, DOF[f"{side}_elbow"]] = np.radians(style.elbow + (50 if run else 10))
+    dofs[:, DOF["spine_lat"]] = np.radians(2.0 * np.sin(2 * np.pi * phase))
+    flight = np.zeros(n)
+    if run:
+        # A shuffle: a small hop as the feet cross the widest stance.
+        window = (phase > 0.45) & (phase < 0.55)
+        flight[window] = 0.025 * np.sin(np.pi * (phase[window] - 0.45) / 0.1)
+    stance = np.stack([(~first).astype(float), first.astype(float)], axis=1)
+    return Track(dofs, np.zeros(n), flight, np.full((n, 2), np.nan), stance)
+
+
+def gait(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Walk or run (``params["speed_mps"]``) forward, backward, sideways or in a circle."""
+    run = params["gait"] == "run"
+    speed = params["speed_mps"]
+    direction = params["direction"]
+    if direction in ("forward", "backward"):
+        return forward_gait(n, fps, rng, style, speed, run, backward=direction == "backward")
+    if direction in ("left", "right"):
+        track = sidestep_left(n, fps, rng, style, speed, run)
+        return track if direction == "left" else track.mirrored()
+    yaw_rate = speed / params["radius_m"]
+    track = forward_gait(n, fps, rng, style, speed, run, yaw_rate_s=yaw_rate)
+    # Counterclockwise seen from above is a continuous left turn.
+    return track if direction == "counterclockwise" else track.mirrored()
+
+
+# --- in place ----------------------------------------------------------------------------------
+
+
+def turn(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Turn on the spot by stepping: each foot keeps its world yaw while planted (the hip rotates
+    under it) and swings to the next yaw; the heading follows the feet."""
+    angle = np.radians(params["angle"])
+    steps = 2 if params["angle"] <= 90 else 4
+    natural = 0.45 * steps + 0.3
+    start = _lead_in(n, fps, natural)
+    t = np.arange(n) / fps
+    step_time = (natural - 0.3) / steps
+    foot_yaw = {"l": np.zeros(n), "r": np.zeros(n)}
+    lift = {"l": np.zeros(n), "r": np.zeros(n)}
+    for i in range(steps):
+        leg = "l" if i % 2 == 0 else "r"
+        target = angle * (i // 2 + 1) / (steps // 2)
+        local = (t - start - 0.15 - i * step_time) / step_time
+        previous = angle * (i // 2) / (steps // 2)
+        active = (local > 0) & (local < 1)
+        foot_yaw[leg] = np.where(
+            local >= 1,
+            target,
+            np.where(active, previous + (target - previous) * _smoothstep(local), foot_yaw[leg]),
+        )
+        lift[leg] = lift[leg] + np.where(active, np.sin(np.pi * np.clip(local, 0, 1)) ** 2, 0)
+    heading = 0.5 * (foot_yaw["l"] + foot_yaw["r"])
+    dofs = np.repeat(style.base_pose()[None], n, axis=0)
+    for leg, sign in (("l", 1.0), ("r", -1.0)):
+        # External hip rotation turns the left toe left and the right toe right.
+        dofs[:, DOF[f"{leg}_hip_rot"]] = sign * (foot_yaw[leg] - heading)
+        dofs[:, DOF[f"{leg}_hip_flex"]] += np.radians(18 * lift[leg])
+        dofs[:, DOF[f"{leg}_knee"]] += np.radians(34 * lift[leg])
+        dofs[:, DOF[f"{leg}_ankle"]] -= np.radians(8 * lift[leg])
+    yaw_rate = np.diff(heading, prepend=0.0)
+    return Track(dofs, yaw_rate, np.zeros(n), np.full((n, 2), np.nan))
+
+
+def jump(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Jump ``count`` times in place or forward: crouch, push off, fly ballistically, land, absorb."""
+    count = params["count"]
+    height = params["height_m"]
+    distance = params.get("distance_m", 0.0)
+    air_time = 2 * np.sqrt(2 * height / GRAVITY)
+    cycle = 0.32 + 0.12 + air_time
+    natural = 0.35 + count * cycle + 0.45
+    base = style.base_pose()
+    lean = 12 if distance > 0 else 6
+    crouch = pose_vector(
+        base,
+        pelvis_pitch=lean + 10,
+        spine_flex=8,
+        **both(hip_flex=45, knee=75, ankle=28, shoulder_flex=-35, elbow=20),
+    )
+    push = pose_vector(
+        base,
+        pelvis_pitch=lean,
+        **both(hip_flex=lean + 2, knee=3, ankle=-28, shoulder_flex=110, elbow=15, shoulder_abd=15),
+    )
+    tuck = pose_vector(
+        base,
+        pelvis_pitch=lean,
+        **both(hip_flex=lean + 35, knee=55, ankle=-12, shoulder_flex=80, elbow=25, shoulder_abd=15),
+    )
+    land = pose_vector(
+        base,
+        pelvis_pitch=lean * 0.5,
+        **both(hip_flex=12 + lean, knee=10, ankle=-18, shoulder_flex=45, elbow=20, shoulder_abd=15),
+    )
+    absorb = pose_vector(
+        base,
+        pelvis_pitch=lean + 8,
+        spine_flex=6,
+        **both(hip_flex=40, knee=65, ankle=25, shoulder_flex=20, elbow=25),
+    )
+    t = _lead_in(n, fps, natural)
+    times, poses = [t], [base]
+    flight = np.zeros(n)
+    air = np.full((n, 2), np.nan)
+    frames = np.arange(n) / fps
+    for i in range(count):
+        t += 0.3 if i == 0 else 0.12
+        times.append(t)
+        poses.append(crouch)
+        t += 0.14
+        times.append(t)
+        poses.append(push)
+        takeoff = t
+        times += [t + 0.5 * air_time, t + air_time]
+        poses += [tuck, land]
+        t += air_time
+        window = (frames >= takeoff) & (frames < t)
+        tau = frames[window] - takeoff
+        flight[window] = np.maximum(tau * (0.5 * GRAVITY * air_time) - 0.5 * GRAVITY * tau**2, 1e-4)
+        air[window] = (0.0, distance / air_time / fps)
+        t += 0.2
+        times.append(t)
+        poses.append(absorb)
+    times.append(t + 0.45)
+    poses.append(base)
+    return Track(keyframes(times, poses, n, fps), np.zeros(n), flight, air)
+
+
+def hop_left(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Hop ``count`` times on the left foot with the right leg held up."""
+    count = params["count"]
+    air_time = 0.26
+    cycle = 0.2 + 0.1 + air_time + 0.1
+    natural = 0.5 + count * cycle + 0.5
+    base = style.base_pose()
+    held = dict(
+        r_hip_flex=35,
+        r_knee=80,
+        r_ankle=-10,
+        l_shoulder_abd=28,
+        r_shoulder_abd=28,
+        l_elbow=35,
+        r_elbow=35,
+        spine_lat=-3,
+    )
+    ready = pose_vector(base, l_knee=12, l_hip_flex=8, l_ankle=8, **held)
+    crouch = pose_vector(base, pelvis_pitch=6, l_knee=35, l_hip_flex=25, l_ankle=18, **held)
+    push = pose_vector(base, pelvis_pitch=3, l_knee=4, l_hip_flex=4, l_ankle=-25, **held)
+    t = _lead_in(n, fps, natural)
+    times, poses = [t, t + 0.5], [base, ready]
+    t += 0.5
+    flight = np.zeros(n)
+    air = np.full((n, 2), np.nan)
+    frames = np.arange(n) / fps
+    for _ in range(count):
+        times += [t + 0.2, t + 0.3]
+        poses += [crouch, push]
+        takeoff = t + 0.3
+        window = (frames >= takeoff) & (frames < takeoff + air_time)
+        tau = frames[window] - takeoff
+        flight[window] = np.maximum(tau * (0.5 * GRAVITY * air_time) - 0.5 * GRAVITY * tau**2, 1e-4)
+        air[window] = 0.0
+        t = takeoff + air_time + 0.1
+        times.append(t)
+        poses.append(crouch)
+    times += [t + 0.2, t + 0.5]
+    poses += [ready, base]
+    return Track(keyframes(times, poses, n, fps), np.zeros(n), flight, air)
+
+
+def kick_left(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """A front kick with the left leg: chamber the knee, snap the shank out, retract, step down."""
+    base = style.base_pose()
+    high = params.get("height_deg", 80)
+    arms = dict(
+        l_shoulder_abd=30,
+        r_shoulder_abd=30,
+        l_elbow=60,
+        r_elbow=60,
+        l_shoulder_flex=20,
+        r_shoulder_flex=20,
+    )
+    chamber = pose_vector(
+        base,
+        pelvis_pitch=-6,
+        r_knee=12,
+        r_hip_flex=6,
+        r_ankle=6,
+        l_hip_flex=high - 20,
+        l_knee=95,
+        l_ankle=-10,
+        **arms,
+    )
+    extend = pose_vector(
+        base,
+        pelvis_pitch=-12,
+        r_knee=10,
+        r_hip_flex=5,
+        r_ankle=5,
+        l_hip_flex=high,
+        l_knee=6,
+        l_ankle=-30,
+        **arms,
+    )
+    natural = 1.15
+    t = _lead_in(n, fps, natural)
+    times = [t, t + 0.35, t + 0.52, t + 0.72, t + 1.15]
+    poses = [base, chamber, extend, chamber, base]
+    return Track.still(keyframes(times, poses, n, fps))
+
+
+def punch_left(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Raise a guard, throw ``count`` straight left punches (torso rotating into them), lower."""
+    count = params["count"]
+    base = style.base_pose()
+    guard_arms = both(shoulder_flex=35, shoulder_abd=18, elbow=125, shoulder_twist=10)
+    guard = pose_vector(
+        base, l_knee=12, r_knee=12, l_hip_flex=6, r_hip_flex=6, l_ankle=6, r_ankle=6, **guard_arms
+    )
+    strike = pose_vector(
+        guard,
+        spine_twist=-22,
+        pelvis_twist=-6,
+        l_shoulder_flex=86,
+        l_shoulder_abd=12,
+        l_elbow=4,
+        l_shoulder_twist=0,
+        r_shoulder_flex=30,
+    )
+    natural = 0.45 + count * 0.5 + 0.45
+    t = _lead_in(n, fps, natural)
+    times, poses = [t, t + 0.45], [base, guard]
+    t += 0.45
+    for _ in range(count):
+        times += [t + 0.15, t + 0.5]
+        poses += [strike, guard]
+        t += 0.5
+    times.append(t + 0.45)
+    poses.append(base)
+    return Track.still(keyframes(times, poses, n, fps))
+
+
+def _arm_pose(base: np.ndarray, sides: tuple[str, ...], **degrees: float) -> np.ndarray:
+    return pose_vector(base, **{f"{s}_{k}": v for s in sides for k, v in degrees.items()})
+
+
+def wave(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Raise the hand(s) above the shoulder, forearm up, and swing the forearm side to side."""
+    sides = ("l", "r") if params["side"] == "both" else ("l",)
+    count = params["count"]
+    rate = params["rate_hz"]
+    base = style.base_pose()
+    up = _arm_pose(base, sides, shoulder_abd=105, shoulder_flex=18, shoulder_twist=-80, elbow=85)
+    natural = 0.5 + count / rate + 0.5
+    t0 = _lead_in(n, fps, natural)
+    t1 = t0 + 0.5
+    t2 = t1 + count / rate
+    dofs = keyframes([t0, t1, t2, t2 + 0.5], [base, up, up, base], n, fps)
+    t = np.arange(n) / fps
+    inside = (t > t1) & (t < t2)
+    swing = np.where(inside, np.sin(2 * np.pi * rate * (t - t1)), 0.0) * np.radians(32)
+    for s in sides:
+        dofs[:, DOF[f"{s}_elbow"]] += swing
+    track = Track.still(dofs)
+    return track.mirrored() if params["side"] == "right" else track
+
+
+def raise_hands(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Raise one or both arms straight up overhead, hold, and lower them."""
+    sides = ("l", "r") if params["side"] == "both" else ("l",)
+    base = style.base_pose()
+    up = _arm_pose(base, sides, shoulder_flex=170, shoulder_abd=12, elbow=8, collar_elev=10)
+    hold = params["hold_s"]
+    natural = 0.7 + hold + 0.7
+    t = _lead_in(n, fps, natural)
+    track = Track.still(
+        keyframes([t, t + 0.7, t + 0.7 + hold, t + natural], [base, up, up, base], n, fps)
+    )
+    return track.mirrored() if params["side"] == "right" else track
+
+
+def clap(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Hold the forearms up in front of the chest and bring the palms together ``count`` times."""
+    count = params["count"]
+    rate = params["rate_hz"]
+    base = style.base_pose()
+    ready = pose_vector(
+        base, **both(shoulder_flex=40, shoulder_abd=12, elbow=100, shoulder_twist=35)
+    )
+    natural = 0.5 + count / rate + 0.5
+    t0 = _lead_in(n, fps, natural)
+    t1 = t0 + 0.5
+    t2 = t1 + count / rate
+    dofs = keyframes([t0, t1, t2, t2 + 0.5], [base, ready, ready, base], n, fps)
+    t = np.arange(n) / fps
+    inside = (t > t1) & (t < t2)
+    # 0 with the hands apart, 1 at the clap (once per 1 / rate seconds).
+    closing = np.where(inside, 0.5 - 0.5 * np.cos(2 * np.pi * rate * (t - t1)), 0.0)
+    for s in ("l", "r"):
+        dofs[:, DOF[f"{s}_shoulder_twist"]] += np.radians(28) * closing
+    return Track.still(dofs)
+
+
+def squat(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Squat down (hips back, knees forward and out, arms forward for balance) and stand, ``count`` times."""
+    count = params["count"]
+    depth = params["depth_deg"]
+    base = style.base_pose()
+    down = pose_vector(
+        base,
+        pelvis_pitch=28,
+        spine_flex=6,
+        neck_flex=-10,
+        **both(hip_flex=depth, hip_abd=10, knee=depth + 20, ankle=30, shoulder_flex=80, elbow=12),
+    )
+    period = params["period_s"]
+    natural = count * period
+    t = _lead_in(n, fps, natural)
+    times, poses = [t], [base]
+    for _ in range(count):
+        times += [t + 0.5 * period, t + period]
+        poses += [down, base]
+        t += period
+    return Track.still(keyframes(times, poses, n, fps))
+
+
+def sit(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Lower to the ground (squat, then sit with the legs forward), stay, and stand back up."""
+    base = style.base_pose()
+    low = pose_vector(
+        base,
+        pelvis_pitch=30,
+        spine_flex=10,
+        **both(hip_flex=100, hip_abd=8, knee=125, ankle=32, shoulder_flex=55, elbow=20),
+    )
+    seated = pose_vector(
+        base,
+        pelvis_pitch=-14,
+        spine_flex=12,
+        neck_flex=-4,
+        **both(
+            hip_flex=105,
+            hip_abd=6,
+            knee=params["knee_deg"],
+            ankle=-8,
+            shoulder_flex=25,
+            shoulder_abd=14,
+            elbow=25,
+        ),
+    )
+    hold = params["hold_s"]
+    natural = 0.9 + 0.8 + hold + 0.8 + 0.9
+    t = _lead_in(n, fps, natural)
+    times = np.cumsum([t, 0.9, 0.8, hold, 0.8, 0.9]).tolist()
+    return Track.still(keyframes(times, [base, low, seated, seated, low, base], n, fps))
+
+
+def bow(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Bend forward at the hips with the arms hanging, hold, straighten."""
+    base = style.base_pose()
+    depth = params["depth_deg"]
+    bent = pose_vector(
+        base,
+        pelvis_pitch=depth,
+        spine_flex=10,
+        neck_flex=12,
+        **both(shoulder_flex=depth + 5, elbow=10, shoulder_abd=4),
+    )
+    hold = params["hold_s"]
+    natural = 1.0 + hold + 1.0
+    t = _lead_in(n, fps, natural)
+    return Track.still(
+        keyframes([t, t + 1.0, t + 1.0 + hold, t + natural], [base, bent, bent, base], n, fps)
+    )
+
+
+def stand(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+    """Stand still: a slow weight shift and breathing sway."""
+    base = style.base_pose()
+    t = np.arange(n) / fps
+    dofs = np.repeat(base[None], n, axis=0)
+    sway = np.sin(2 * np.pi * 0.25 * t + rng.uniform(0, 2 * np.pi))
+    dofs[:, DOF["spine_lat"]] += np.radians(1.0) * sway
+    dofs[:, DOF["pelvis_roll"]] += np.radians(1.0) * sway
+    dofs[:, DOF["spine_flex"]] += np.radians(0.8) * np.sin(2 * np.pi * 0.3 * t)
+    dofs[:, DOF["neck_flex"]] += np.radians(2.0) * np.sin(2 * np.pi * 0.13 * t + rng.uniform(0, 6))
+    return Track.still(dofs)
+
+
+def _sided(generator: Callable) -> Callable:
+    def run(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
+        track = generator(params, n, fps, rng, style)
+        return track.mirrored() if params["side"] == "right" else track
+
+    run.__doc__ = generator.__doc__
+    return run
+
+
+# --- parameter sampling ------------------------------------------------------------------------
+
+
+def _choice(rng: np.random.Generator, options) -> object:
+    return options[int(rng.integers(len(options)))]
+
+
+def _sample_gait(rng: np.random.Generator, gait_name: str) -> tuple[dict, float]:
+    directions = ["forward"] * 3 + ["backward", "left", "right", "clockwise", "counterclockwise"]
+    direction = _choice(rng, directions)
+    speed = _choice(rng, SPEEDS)
+    if direction in ("left", "right"):
+        table = _SIDE_SPEED
+    else:
+        table = _RUN_SPEED if gait_name == "run" else _WALK_SPEED
+    if direction == "backward":
+        table = {k: tuple(0.75 * x for x in v) for k, v in table.items()}
+    low, high = table[speed]
+    params = {
+        "gait": gait_name,
+        "direction": direction,
+        "speed": speed,
+        "speed_mps": round(float(rng.uniform(low, high)), 3),
+    }
+    if direction in ("clockwise", "counterclockwise"):
+        params["radius_m"] = round(
+            float(rng.uniform(1.2, 2.2) * (1.6 if gait_name == "run" else 1.0)), 3
+        )
+        turn_deg = float(rng.uniform(240, 360))
+        duration = np.radians(turn_deg) * params["radius_m"] / params["speed_mps"]
+        duration = float(np.clip(duration, 3.0, 7.5))
+        params["angle"] = round(
+            float(np.degrees(duration * params["speed_mps"] / params["radius_m"])), 1
+        )
+        return params, duration
+    return params, float(rng.uniform(2.5, 5.0))
+
+
+@dataclass(frozen=True)
+class ActionSpec:
+    """An action: how to sample its parameters and duration, and its generator."""
+
+    name: str
+    sample: Callable[[np.random.Generator], tuple[dict, float]]
+    generate: Callable[..., Track]
+    sided: bool = field(default=False)
+
+
+def _sample_turn(rng):
+    angle = int(_choice(rng, (90, 180)))
+    return {"direction": _choice(rng, ("left", "right")), "angle": angle}, (
+        1.6 if angle == 90 else 2.4
+    ) + float(rng.uniform(0, 0.4))
+
+
+def _turn(params, n, fps, rng, style):
+    track = turn(params, n, fps, rng, style)
+    return track if params["direction"] == "left" else track.mirrored()
+
+
+def _sample_jump(rng):
+    count = int(rng.integers(1, 4))
+    forward = bool(rng.uniform() < 0.5)
+    height = float(rng.uniform(0.18, 0.32))
+    air = 2 * np.sqrt(2 * height / GRAVITY)
+    params = {
+        "mode": "forward" if forward else "in_place",
+        "count": count,
+        "height_m": round(height, 3),
+    }
+    if forward:
+        params["distance_m"] = round(float(rng.uniform(0.45, 0.9)), 3)
+    return params, 0.35 + count * (0.44 + air) + 0.5 + float(rng.uniform(0, 0.3))
+
+
+def _sample_wave(rng):
+    count = int(rng.integers(2, 5))
+    rate = float(rng.uniform(1.4, 2.2))
+    return {
+        "side": _choice(rng, ("left", "right", "both")),
+        "count": count,
+        "rate_hz": round(rate, 3),
+    }, 1.1 + count / rate + float(rng.uniform(0, 0.4))
+
+
+def _sample_raise(rng):
+    hold = float(rng.uniform(0.6, 1.6))
+    return {
+        "side": _choice(rng, ("left", "right", "both")),
+        "hold_s": round(hold, 3),
+    }, 1.5 + hold + float(rng.uniform(0, 0.3))
+
+
+def _sample_kick(rng):
+    return {
+        "side": _choice(rng, ("left", "right")),
+        "height_deg": round(float(rng.uniform(65, 85)), 1),
+    }, 1.3 + float(rng.uniform(0, 0.3))
+
+
+def _sample_punch(rng):
+    count = int(rng.integers(1, 4))
+    return {"side": _choice(rng, ("left", "right")), "count": count}, 1.0 + 0.5 * count + float(
+        rng.uniform(0, 0.3)
+    )
+
+
+def _sample_hop(rng):
+    count = int(rng.integers(2, 5))
+    return {"side": _choice(rng, ("left", "right")), "count": count}, 1.1 + 0.66 * count + float(
+        rng.uniform(0, 0.3)
+    )
+
+
+def _sample_squat(rng):
+    count = int(rng.integers(1, 4))
+    period = float(rng.uniform(1.5, 2.1))
+    return {
+        "count": count,
+        "depth_deg": round(float(rng.uniform(80, 100)), 1),
+        "period_s": round(period, 3),
+    }, count * period + float(rng.uniform(0.1, 0.4))
+
+
+def _sample_sit(rng):
+    hold = float(rng.uniform(0.8, 2.0))
+    return {
+        "hold_s": round(hold, 3),
+        "knee_deg": round(float(rng.uniform(15, 40)), 1),
+    }, 3.4 + hold + float(rng.uniform(0, 0.3))
+
+
+def _sample_bow(rng):
+    hold = float(rng.uniform(0.4, 1.0))
+    return {
+        "depth_deg": round(float(rng.uniform(35, 60)), 1),
+        "hold_s": round(hold, 3),
+    }, 2.0 + hold + float(rng.uniform(0, 0.3))
+
+
+def _sample_clap(rng):
+    count = int(rng.integers(3, 8))
+    rate = float(rng.uniform(1.8, 2.6))
+    return {"count": count, "rate_hz": round(rate, 3)}, 1.1 + count / rate + float(
+        rng.uniform(0, 0.3)
+    )
+
+
+def _sample_stand(rng):
+    return {}, float(rng.uniform(1.5, 3.0))
+
+
+ACTIONS: dict[str, ActionSpec] = {
+    spec.name: spec
+    for spec in (
+        ActionSpec("walk", lambda rng: _sample_gait(rng, "walk"), gait),
+        ActionSpec("run", lambda rng: _sample_gait(rng, "run"), gait),
+        ActionSpec("turn", _sample_turn, _turn, sided=True),
+        ActionSpec("jump", _sample_jump, jump),
+        ActionSpec("hop", _sample_hop, _sided(hop_left), sided=True),
+        ActionSpec("wave", _sample_wave, wave, sided=True),
+        ActionSpec("raise", _sample_raise, raise_hands, sided=True),
+        ActionSpec("kick", _sample_kick, _sided(kick_left), sided=True),
+        ActionSpec("punch", _sample_punch, _sided(punch_left), sided=True),
+        ActionSpec("squat", _sample_squat, squat),
+        ActionSpec("sit", _sample_sit, sit),
+        ActionSpec("bow", _sample_bow, bow),
+        ActionSpec("clap", _sample_clap, clap),
+        ActionSpec("stand", _sample_stand, stand),
+    )
+}

@@ -1,0 +1,132 @@
+"""``python -m t2m.bench``: run every part's benchmark and write ``bench/results.json`` and
+``bench/results.md`` with the hardware and versions they were measured on.
+
+Each module in ``t2m/benchmarks/`` exposes ``run(quick: bool = False) -> dict`` returning flat
+``name -> number or string`` measurements; a benchmark that fails is recorded as such and the
+others still run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import os
+import platform
+import pkgutil
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dataset_tools.io import write_json_atomic, write_text_atomic
+
+logger = logging.getLogger(__name__)
+
+# The order in which the parts run (cheap first); modules not listed run after these.
+ORDER = ("representation", "synth", "build", "train", "sample", "evaluate")
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def environment() -> dict:
+    """Hardware and versions the numbers were measured with."""
+    info = {
+        "cpu": _cpu_name(),
+        "cpu_count": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+    }
+    return info
+
+
+def available() -> list[str]:
+    import t2m.benchmarks as package
+
+    names = [m.name for m in pkgutil.iter_modules(package.__path__) if not m.name.startswith("_")]
+    return sorted(names, key=lambda n: (ORDER.index(n) if n in ORDER else len(ORDER), n))
+
+
+def run_all(names: list[str], quick: bool) -> dict:
+    results: dict = {"environment": environment(), "quick": quick, "parts": {}}
+    for name in names:
+        logger.info("benchmark %s ...", name)
+        start = time.perf_counter()
+        try:
+            measured = importlib.import_module(f"t2m.benchmarks.{name}").run(quick=quick)
+            status = "ok"
+        except Exception as error:  # one part failing must not hide the others' numbers
+            logger.error("benchmark %s failed: %s", name, error)
+            measured = {"error": f"{type(error).__name__}: {error}", "trace": traceback.format_exc()}
+            status = "failed"
+        results["parts"][name] = {
+            "status": status,
+            "seconds": round(time.perf_counter() - start, 2),
+            "results": measured,
+        }
+    return results
+
+
+def to_markdown(results: dict) -> str:
+    env = results["environment"]
+    lines = [
+        "# Benchmarks" + (" (quick mode)" if results["quick"] else ""),
+        "",
+        f"Measured {env['date']} on {env['cpu']} ({env['cpu_count']} cores, "
+        f"{env['torch_threads']} torch threads), CUDA: {env['cuda'] or 'none'}; Python "
+        f"{env['python']}, numpy {env['numpy']}, torch {env['torch']}.",
+        "",
+        "| part | measurement | value |",
+        "| --- | --- | --- |",
+    ]
+    for part, entry in results["parts"].items():
+        if entry["status"] != "ok":
+            lines.append(f"| {part} | FAILED | {entry['results']['error']} |")
+            continue
+        for key, value in entry["results"].items():
+            lines.append(f"| {part} | {key} | {value} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m t2m.bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", nargs="*", help=f"parts to run (default: all of {available()})")
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions (a smoke run)")
+    parser.add_argument("--out", default="bench", help="output folder (default: bench)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    names = available()
+    if args.only:
+        unknown = sorted(set(args.only) - set(names))
+        if unknown:
+            print(f"error: unknown benchmark(s) {unknown}; known: {names}", file=sys.stderr)
+            return 2
+        names = [n for n in names if n in args.only]
+    results = run_all(names, args.quick)
+    out = Path(args.out)
+    write_json_atomic(out / "results.json", results)
+    markdown = to_markdown(results)
+    write_text_atomic(out / "results.md", markdown)
+    print(markdown)
+    return 0 if all(p["status"] == "ok" for p in results["parts"].values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

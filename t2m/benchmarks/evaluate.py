@@ -1,0 +1,159 @@
+"""Evaluation speed: the full protocol at demo sizes, batched vs one-at-a-time generation, and
+the evaluator's forward pass at paper sizes (the original takes 0.45 s per batch of 32 here).
+
+Timings do not depend on the weights, so the models are built untrained from the presets unless a
+trained demo run (``checkpoints/demo``) and the demo dataset (``data/demo``) are present; the
+test split is the demo corpus' when present, else a synthetic one of the same size (600 items of
+40..199 frames, 15% of 2,000 clips x 2 mirrors).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from t2m import evaluate
+from t2m.data.dataset import Caption, Clip
+
+logger = logging.getLogger(__name__)
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO_DATASET = ROOT / "data" / "demo"
+DEMO_RUN = ROOT / "checkpoints" / "demo"
+SYNTHETIC_ITEMS = 600
+WORDS = (
+    "a/DET person/NOUN walk/VERB forward/ADV slowly/ADV then/ADV turn/VERB left/ADJ and/CCONJ "
+    "jump/VERB wave/VERB right/ADJ hand/NOUN kick/VERB with/ADP the/DET foot/NOUN"
+).split()
+
+
+def _untrained_stages(preset_name: str) -> list:
+    """eval, length and t2m stages of a preset's sizes with random weights."""
+    from t2m.config import preset
+    from t2m.data.normalization import Normalizer
+    from t2m.data.words import load_vectorizer
+    from t2m.train.checkpoint import TrainedStage, build_models
+
+    config = preset(preset_name)
+    vectorizer = load_vectorizer(config.data.word_vectors, config.data.max_text_tokens)
+    dims = {
+        "feature_dim": 263,
+        "word_dim": vectorizer.dim,
+        "vocab_size": 0,
+        "code_size": config.ae.model.code_size,
+    }
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    torch.manual_seed(0)
+    stages = []
+    for stage in ("eval", "length", "t2m"):
+        models = build_models(stage, config, dims)
+        for module in models.values():
+            module.eval()
+        stages.append(
+            TrainedStage(
+                stage=stage,
+                config=config,
+                models=models,
+                normalizer=normalizer,
+                vectorizer=vectorizer,
+                progress={},
+                dims=dims,
+                initial_code=torch.zeros(config.ae.model.code_size) if stage == "t2m" else None,
+            )
+        )
+    return stages
+
+
+def _synthetic_clips(count: int, rng: np.random.Generator) -> list[Clip]:
+    clips = []
+    for index in range(count):
+        frames = int(rng.integers(40, 200))
+        captions = [
+            Caption("synthetic", list(rng.choice(WORDS, size=int(rng.integers(4, 12)))))
+            for _ in range(3)
+        ]
+        motion = rng.normal(size=(frames, 263)).astype(np.float32)
+        clips.append(Clip(f"synthetic_{index:04d}", motion, captions))
+    return clips
+
+
+def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str]:
+    if (DEMO_RUN / "eval" / "best.pt").is_file() and (DEMO_DATASET / "test.txt").is_file():
+        from t2m.data.dataset import load_split
+
+        backend = evaluate.CheckpointBackend.from_run_dir(DEMO_RUN)
+        clips = load_split(DEMO_DATASET, "test", backend.data_config)
+        return backend, clips, "trained demo run on the demo test split"
+    backend = evaluate.CheckpointBackend(*_untrained_stages("demo"))
+    clips = _synthetic_clips(SYNTHETIC_ITEMS, np.random.default_rng(0))
+    return backend, clips, f"untrained demo-size models, synthetic split of {SYNTHETIC_ITEMS} items"
+
+
+def _generation_speedup(
+    backend: evaluate.CheckpointBackend, clips: list[Clip], count: int
+) -> dict[str, float]:
+    draw = evaluate.draw_items(clips, count, np.random.default_rng(1))
+    captions, lengths = draw.caption_list(clips), draw.lengths
+    backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
+    start = time.perf_counter()
+    backend.generate(captions, lengths, seed=0)
+    batched = time.perf_counter() - start
+    batch_size = backend.batch_size
+    backend.batch_size = 1
+    try:
+        start = time.perf_counter()
+        backend.generate(captions, lengths, seed=0)
+        single = time.perf_counter() - start
+    finally:
+        backend.batch_size = batch_size
+    return {
+        "evaluate.generate_batched_motions_per_s": round(count / batched, 1),
+        "evaluate.generate_one_at_a_time_motions_per_s": round(count / single, 1),
+        "evaluate.batched_generation_speedup_x": round(single / batched, 1),
+    }
+
+
+def _paper_evaluator_forward(repeats: int) -> float:
+    """Seconds for the paper-size evaluator to embed 32 captions and 32 motions of 196 frames."""
+    eval_stage = _untrained_stages("paper")[0]
+    evaluator = eval_stage.models["evaluator"]
+    words = torch.randn(32, 22, eval_stage.dims["word_dim"])
+    pos = torch.zeros(32, 22, 15)
+    text_lengths = torch.full((32,), 12, dtype=torch.long)
+    motion = torch.randn(32, 196, 263)
+    motion_lengths = torch.full((32,), 196, dtype=torch.long)
+    with torch.no_grad():
+        evaluator(words, pos, text_lengths, motion, motion_lengths)  # warm-up
+        start = time.perf_counter()
+        for _ in range(repeats):
+            evaluator(words, pos, text_lengths, motion, motion_lengths)
+    return (time.perf_counter() - start) / repeats
+
+
+def run(quick: bool = False) -> dict:
+    logging.getLogger("t2m").setLevel(logging.WARNING)
+    backend, clips, source = _backend_and_clips()
+    results: dict = {"evaluate.setup": source, "evaluate.test_items": len(clips)}
+    results.update(_generation_speedup(backend, clips, 64 if quick else 256))
+    results["evaluate.paper_evaluator_forward_batch32_s"] = round(
+        _paper_evaluator_forward(2 if quick else 5), 3
+    )
+    replications = 2 if quick else 20
+    config = evaluate.EvalConfig(replications=replications)
+    start = time.perf_counter()
+    result = evaluate.run_protocol(clips, backend, config)
+    elapsed = time.perf_counter() - start
+    per_replication = elapsed / replications
+    results["evaluate.protocol_items"] = result.num_items
+    results["evaluate.replication_s"] = round(per_replication, 2)
+    key = "evaluate.20_replications_s" + ("_estimated_from_2" if quick else "")
+    results[key] = round(per_replication * 20, 1)
+    for part in ("generate_s", "embed_s", "metrics_s"):
+        results[f"evaluate.{part.removesuffix('_s')}_share_pct"] = round(
+            100 * result.timings_s[part] / elapsed, 1
+        )
+    return results

@@ -1,0 +1,1 @@
+"""The networks of T2M; each is built from its config alone and knows nothing of files."""

@@ -1,0 +1,60 @@
+"""Text2length: a caption -> a distribution over motion lengths in units of 4 frames.
+
+Text encoder (BiGRU) -> sentence feature (2H) -> [Linear -> LayerNorm -> LeakyReLU] per MLP size
+-> Linear to ``num_classes``; class ``c`` means ``4 c`` frames.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from t2m.config import LengthModelConfig
+from t2m.models.text_encoder import TextEncoder
+
+
+class LengthEstimator(nn.Module):
+    """Words, POS (B, L, 15), text lengths (B,) -> logits (B, num_classes)."""
+
+    def __init__(self, word_dim: int, config: LengthModelConfig, vocab_size: int = 0):
+        super().__init__()
+        self.config = config
+        self.text_encoder = TextEncoder(word_dim, config.text, vocab_size)
+        layers: list[nn.Module] = []
+        size = self.text_encoder.output_size
+        for width in config.mlp_sizes:
+            layers += [nn.Linear(size, width), nn.LayerNorm(width), nn.LeakyReLU(0.2)]
+            size = width
+        layers.append(nn.Linear(size, config.num_classes))
+        self.head = nn.Sequential(*layers)
+
+    def forward(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+        _, sentence = self.text_encoder(words, pos, lengths)
+        return self.head(sentence)
+
+
+def length_loss(logits: torch.Tensor, target_class: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Cross-entropy and accuracy for logits (B, K) and classes (B,)."""
+    loss = F.cross_entropy(logits, target_class)
+    accuracy = (logits.argmax(-1) == target_class).float().mean()
+    return {"loss": loss, "accuracy": accuracy}
+
+
+def sample_lengths(
+    logits: torch.Tensor,
+    generator: torch.Generator,
+    min_units: int = 10,
+    retries: int = 2,
+) -> torch.Tensor:
+    """Draw a length in units (B,) from softmax(logits (B, K)).
+
+    A draw under ``min_units`` is redrawn, at most ``retries`` times; if still short it is raised
+    to ``min_units`` (so every motion has at least 40 frames).
+    """
+    probs = torch.softmax(logits.float(), dim=-1)
+    units = torch.multinomial(probs, 1, generator=generator).squeeze(-1)
+    for _ in range(retries):
+        again = torch.multinomial(probs, 1, generator=generator).squeeze(-1)
+        units = torch.where(units < min_units, again, units)
+    return units.clamp(min=min_units)

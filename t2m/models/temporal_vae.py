@@ -1,0 +1,309 @@
+"""Temporal VAE: text -> a sequence of snippet codes, one GRU step per 4 frames.
+
+Three recurrent blocks share one shape: input Linear -> LayerNorm -> LeakyReLU, plus a sinusoidal
+encoding of the time to arrival (snippets left), into a GRU cell whose initial state is a Linear
+of the sentence feature.
+
+* prior      input [previous code, attention]               -> mean, log-variance of z
+* posterior  input [previous code, current code, attention] -> mean, log-variance of z
+* generator  input [previous code, attention, z]            -> next code
+
+Attention: query = Linear(generator state), keys / values = Linears of the word features, scaled
+dot product, padding masked (the original neither scales nor masks). The code before step 1 is
+the autoencoder's code of the mean pose (zero normalised features), passed in by the caller.
+
+Speed: the input Linears act on concatenations; instead of concatenating per step, their weight
+matrices are split by input part, and every part known before the loop (the current codes, the
+previous codes under teacher forcing, the time-to-arrival encodings, the keys and values) is
+projected for all steps in one matrix product. The arithmetic is that of the concatenated Linears.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from t2m.config import TemporalVAEConfig
+from t2m.models.text_encoder import TextEncoder
+
+
+def sinusoidal_table(num_positions: int, size: int) -> torch.Tensor:
+    """(num_positions, size) table: sin on even, cos on odd dimensions (Vaswani et al.)."""
+    position = torch.arange(num_positions, dtype=torch.float32)[:, None]
+    frequency = torch.exp(torch.arange(0, size, 2, dtype=torch.float32) * (-math.log(10000.0) / size))
+    table = torch.zeros(num_positions, size)
+    table[:, 0::2] = torch.sin(position * frequency)
+    table[:, 1::2] = torch.cos(position * frequency)[:, : size // 2]
+    return table
+
+
+class RecurrentBlock(nn.Module):
+    """Linear -> LayerNorm -> LeakyReLU (+ time encoding) -> GRUCell; initial state from the sentence."""
+
+    def __init__(self, input_size: int, hidden_size: int, sentence_size: int):
+        super().__init__()
+        self.input = nn.Linear(input_size, hidden_size)
+        self.norm = nn.LayerNorm(hidden_size)
+        self.cell = nn.GRUCell(hidden_size, hidden_size)
+        self.initial = nn.Linear(sentence_size, hidden_size)
+
+    def step(self, preactivation: torch.Tensor, time_code: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
+        """Given ``input(x)`` (B, H) already computed, the next hidden state (B, H)."""
+        return self.cell(F.leaky_relu(self.norm(preactivation), 0.2) + time_code, hidden)
+
+
+class Gaussian(nn.Module):
+    """Hidden state -> (mean, log-variance) of z."""
+
+    def __init__(self, hidden_size: int, latent_size: int):
+        super().__init__()
+        self.mean = nn.Linear(hidden_size, latent_size)
+        self.logvar = nn.Linear(hidden_size, latent_size)
+
+    def forward(self, hidden: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.mean(hidden), self.logvar(hidden)
+
+
+class TemporalVAE(nn.Module):
+    """Text encoder + prior / posterior / generator with word attention.
+
+    Args:
+        word_dim: word-vector size; code_size: the autoencoder's code size.
+        config: sizes; vocab_size > 0 for a trainable word embedding.
+    """
+
+    def __init__(self, word_dim: int, code_size: int, config: TemporalVAEConfig, vocab_size: int = 0):
+        super().__init__()
+        self.config = config
+        self.code_size = code_size
+        self.text_encoder = TextEncoder(word_dim, config.text, vocab_size)
+        text_size = self.text_encoder.output_size
+        hidden, latent, attention = config.hidden_size, config.latent_size, config.attention_size
+        self.query = nn.Linear(hidden, attention)
+        self.key = nn.Linear(text_size, attention, bias=False)
+        self.value = nn.Linear(text_size, attention)
+        self.prior = RecurrentBlock(code_size + attention, hidden, text_size)
+        self.posterior = RecurrentBlock(2 * code_size + attention, hidden, text_size)
+        self.generator = RecurrentBlock(code_size + attention + latent, hidden, text_size)
+        self.prior_gaussian = Gaussian(hidden, latent)
+        self.posterior_gaussian = Gaussian(hidden, latent)
+        self.output = nn.Sequential(
+            nn.Linear(hidden, hidden), nn.LayerNorm(hidden), nn.LeakyReLU(0.2), nn.Linear(hidden, code_size)
+        )
+        self.register_buffer(
+            "time_table", sinusoidal_table(config.max_snippets, hidden), persistent=False
+        )
+
+    # -- pieces ------------------------------------------------------------------------------
+
+    def encode_text(
+        self, words: torch.Tensor, pos: torch.Tensor, text_lengths: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """-> word features (B, L, 2Ht), sentence feature (B, 2Ht), word mask (B, L) bool."""
+        word_features, sentence = self.text_encoder(words, pos, text_lengths)
+        positions = torch.arange(word_features.shape[1], device=word_features.device)
+        mask = positions[None, :] < text_lengths.to(word_features.device)[:, None]
+        return word_features, sentence, mask
+
+    def _split_weights(self) -> dict[str, torch.Tensor]:
+        """Input-Linear weights split by input part; prior/posterior/generator stacked (3H, .)."""
+        c, a = self.code_size, self.config.attention_size
+        prior, post, gen = self.prior.input.weight, self.posterior.input.weight, self.generator.input.weight
+        return {
+            "previous": torch.cat([prior[:, :c], post[:, :c], gen[:, :c]]),  # (3H, C)
+            "attention": torch.cat([prior[:, c:], post[:, 2 * c :], gen[:, c : c + a]]),  # (3H, A)
+            "bias": torch.cat([self.prior.input.bias, self.posterior.input.bias, self.generator.input.bias]),
+            "current": post[:, c : 2 * c],  # (H, C), posterior only
+            "latent": gen[:, c + a :],  # (H, Z), generator only
+        }
+
+    def _time_codes(self, num_snippets: torch.Tensor, steps: int) -> torch.Tensor:
+        """(B, S, H) encodings of the snippets left before the end: num_snippets - i."""
+        left = num_snippets[:, None] - torch.arange(steps, device=num_snippets.device)[None, :]
+        left = left.clamp(0, self.config.max_snippets - 1)
+        return self.time_table[left]
+
+    def _context(self, word_features: torch.Tensor, word_mask: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        keys = self.key(word_features)  # (B, L, A), once per sequence
+        values = self.value(word_features)
+        bias = torch.zeros(word_mask.shape, dtype=keys.dtype, device=keys.device)
+        bias = bias.masked_fill(~word_mask, float("-inf"))
+        return keys, values, bias
+
+    def _attend(
+        self, hidden: torch.Tensor, keys: torch.Tensor, values: torch.Tensor, bias: torch.Tensor
+    ) -> torch.Tensor:
+        """Generator state (B, H) -> attention vector (B, A)."""
+        query = self.query(hidden)
+        scores = torch.einsum("bla,ba->bl", keys, query) / math.sqrt(keys.shape[-1]) + bias
+        return torch.einsum("bl,bla->ba", torch.softmax(scores, dim=-1), values)
+
+    # -- training ----------------------------------------------------------------------------
+
+    def forward(
+        self,
+        word_features: torch.Tensor,
+        sentence: torch.Tensor,
+        word_mask: torch.Tensor,
+        codes: torch.Tensor,
+        initial_code: torch.Tensor,
+        teacher_forcing: bool,
+        noise: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """Teacher-forced or free-running pass over target codes (posterior sampling).
+
+        Args:
+            word_features (B, L, 2Ht), sentence (B, 2Ht), word_mask (B, L): from :meth:`encode_text`.
+            codes: (B, S, C) target codes (from the frozen encoder).
+            initial_code: (C,) or (B, C), the mean-pose code fed before step 1.
+            teacher_forcing: feed the target previous code (else the model's own, detached).
+            noise: (B, S, Z) standard normal draws; drawn from the global generator if None.
+
+        Returns: ``codes`` (B, S, C) predicted; ``posterior_mean``, ``posterior_logvar``,
+        ``prior_mean``, ``prior_logvar`` (B, S, Z).
+        """
+        batch, steps, _ = codes.shape
+        hidden_size = self.config.hidden_size
+        weights = self._split_weights()
+        keys, values, bias = self._context(word_features, word_mask)
+        initial_code = initial_code.expand(batch, self.code_size)
+        num_snippets = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
+        time_codes = self._time_codes(num_snippets, steps)  # (B, S, H)
+        current = F.linear(codes, weights["current"])  # (B, S, H)
+        if teacher_forcing:
+            previous_codes = torch.cat([initial_code[:, None], codes[:, :-1]], dim=1)
+            previous_all = F.linear(previous_codes, weights["previous"], weights["bias"])  # (B, S, 3H)
+        if noise is None:
+            noise = torch.randn(batch, steps, self.config.latent_size, device=codes.device, dtype=codes.dtype)
+
+        h_prior = self.prior.initial(sentence)
+        h_post = self.posterior.initial(sentence)
+        h_gen = self.generator.initial(sentence)
+        previous = initial_code
+        outputs: dict[str, list[torch.Tensor]] = {k: [] for k in ("codes", "pm", "pl", "qm", "ql")}
+        for i in range(steps):
+            attention = self._attend(h_gen, keys, values, bias)
+            if teacher_forcing:
+                pre = previous_all[:, i]
+            else:
+                pre = F.linear(previous, weights["previous"], weights["bias"])
+            pre = pre + F.linear(attention, weights["attention"])  # (B, 3H)
+            pre_prior, pre_post, pre_gen = pre.split(hidden_size, dim=-1)
+            time_code = time_codes[:, i]
+            h_post = self.posterior.step(pre_post + current[:, i], time_code, h_post)
+            h_prior = self.prior.step(pre_prior, time_code, h_prior)
+            post_mean, post_logvar = self.posterior_gaussian(h_post)
+            prior_mean, prior_logvar = self.prior_gaussian(h_prior)
+            z = post_mean + torch.exp(0.5 * post_logvar) * noise[:, i]
+            h_gen = self.generator.step(pre_gen + F.linear(z, weights["latent"]), time_code, h_gen)
+            code = self.output(h_gen)
+            previous = code.detach()
+            for key, value in zip(outputs, (code, prior_mean, prior_logvar, post_mean, post_logvar)):
+                outputs[key].append(value)
+        stacked = {key: torch.stack(values, dim=1) for key, values in outputs.items()}
+        return {
+            "codes": stacked["codes"],
+            "prior_mean": stacked["pm"],
+            "prior_logvar": stacked["pl"],
+            "posterior_mean": stacked["qm"],
+            "posterior_logvar": stacked["ql"],
+        }
+
+    # -- generation --------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def generate(
+        self,
+        word_features: torch.Tensor,
+        sentence: torch.Tensor,
+        word_mask: torch.Tensor,
+        num_snippets: torch.Tensor,
+        initial_code: torch.Tensor,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Sample codes from the prior, each item for its own number of snippets.
+
+        Args:
+            word_features (B, L, 2Ht), sentence (B, 2Ht), word_mask (B, L): :meth:`encode_text`.
+            num_snippets: (B,) int, snippets per item (frames // 4), 1 .. max_snippets - 1.
+            initial_code: (C,) or (B, C) mean-pose code.
+            generator: the source of the latent draws (on the model's device).
+
+        Returns: (B, max(num_snippets), C); rows past an item's length are zero.
+        """
+        batch = word_features.shape[0]
+        hidden_size = self.config.hidden_size
+        num_snippets = num_snippets.to(word_features.device).long()
+        steps = int(num_snippets.max())  # the one host sync: the loop's length
+        if steps >= self.config.max_snippets or int(num_snippets.min()) < 1:
+            raise ValueError(f"num_snippets must be in 1..{self.config.max_snippets - 1}")
+        weights = self._split_weights()
+        keys, values, bias = self._context(word_features, word_mask)
+        time_codes = self._time_codes(num_snippets, steps)
+        noise = torch.randn(
+            batch, steps, self.config.latent_size, generator=generator,
+            device=word_features.device, dtype=word_features.dtype,
+        )  # fmt: skip
+        prior_weight = weights["previous"][:hidden_size], weights["attention"][:hidden_size]
+        gen_slice = slice(2 * hidden_size, 3 * hidden_size)
+        gen_weight = weights["previous"][gen_slice], weights["attention"][gen_slice]
+        prior_bias, gen_bias = weights["bias"][:hidden_size], weights["bias"][gen_slice]
+
+        h_prior = self.prior.initial(sentence)
+        h_gen = self.generator.initial(sentence)
+        previous = initial_code.expand(batch, self.code_size)
+        codes = []
+        for i in range(steps):
+            attention = self._attend(h_gen, keys, values, bias)
+            time_code = time_codes[:, i]
+            pre_prior = F.linear(previous, prior_weight[0], prior_bias) + F.linear(attention, prior_weight[1])
+            h_prior = self.prior.step(pre_prior, time_code, h_prior)
+            prior_mean, prior_logvar = self.prior_gaussian(h_prior)
+            z = prior_mean + torch.exp(0.5 * prior_logvar) * noise[:, i]
+            pre_gen = (
+                F.linear(previous, gen_weight[0], gen_bias)
+                + F.linear(attention, gen_weight[1])
+                + F.linear(z, weights["latent"])
+            )
+            h_gen = self.generator.step(pre_gen, time_code, h_gen)
+            previous = self.output(h_gen)
+            codes.append(previous)
+        codes_tensor = torch.stack(codes, dim=1)  # (B, S, C)
+        valid = torch.arange(steps, device=codes_tensor.device)[None, :] < num_snippets[:, None]
+        return codes_tensor * valid[..., None]
+
+
+def gaussian_kl(
+    mean_q: torch.Tensor, logvar_q: torch.Tensor, mean_p: torch.Tensor, logvar_p: torch.Tensor
+) -> torch.Tensor:
+    """KL(N(mean_q, exp(logvar_q)) || N(mean_p, exp(logvar_p))), summed over the last axis."""
+    kl = 0.5 * (
+        logvar_p - logvar_q + (torch.exp(logvar_q) + (mean_q - mean_p) ** 2) / torch.exp(logvar_p) - 1.0
+    )
+    return kl.sum(-1)
+
+
+def temporal_vae_loss(
+    outputs: dict[str, torch.Tensor],
+    target_codes: torch.Tensor,
+    decoded: torch.Tensor,
+    target_motion: torch.Tensor,
+    kl_weight: float = 0.01,
+    code_weight: float = 1.0,
+    feature_weight: float = 1.0,
+) -> dict[str, torch.Tensor]:
+    """SmoothL1 on decoded features + SmoothL1 on codes + kl_weight * KL(posterior || prior).
+
+    KL is summed over latent dimensions and averaged over items and steps.
+    """
+    feature_loss = F.smooth_l1_loss(decoded, target_motion)
+    code_loss = F.smooth_l1_loss(outputs["codes"], target_codes)
+    kl = gaussian_kl(
+        outputs["posterior_mean"], outputs["posterior_logvar"],
+        outputs["prior_mean"], outputs["prior_logvar"],
+    ).mean()  # fmt: skip
+    total = feature_weight * feature_loss + code_weight * code_loss + kl_weight * kl
+    return {"loss": total, "features": feature_loss, "codes": code_loss, "kl": kl}

@@ -1,0 +1,384 @@
+"""Text to motion: the Python API that ``python -m t2m.sample`` is a thin shell over.
+
+    pipe = TextToMotion.from_checkpoints("checkpoints/demo")
+    motions = pipe.generate(["a person walks forward and waves"], num_samples=3, seed=0)
+    motions[0][2].joints      # (T, 22, 3) metres, y-up, 20 fps: prompt 0, sample 2
+
+Steps of :meth:`TextToMotion.generate`:
+
+1. tag every prompt with spaCy (as the dataset builder does) and look its words up; unknown
+   words are reported, a prompt without any known word is an error;
+2. fix every motion's length: given frames are rounded to whole snippets (4 frames) and clamped
+   to 40..196, missing ones are drawn from the text2length model;
+3. generate snippet codes with the temporal VAE's prior, batched across prompts and samples
+   (items sorted by length so a batch wastes few steps), and decode them to features;
+4. de-normalise the features with the statistics stored in the checkpoint and recover joints
+   with ``dataset_tools.representation.recover_from_ric``.
+
+All randomness comes from one ``torch.Generator`` seeded by ``seed``: the same seed, prompts,
+lengths, batch size and precision give the same motions, bit for bit, on the same machine.
+
+Precision: ``fp32`` (reference), ``bf16`` (weights and activations in bfloat16) or ``int8``
+(dynamic int8 quantisation of the recurrent cells and linear layers, CPU only). At batch 1 the
+prior / generator step reads every weight once per 4 frames, so smaller weights are faster.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from dataset_tools.representation import FeatureLayout, recover_from_ric
+from t2m.config import DataConfig
+from t2m.data.normalization import Normalizer
+from t2m.data.words import EncodedText, WordVectors
+from t2m.models.autoencoder import MovementDecoder
+from t2m.models.length import LengthEstimator, sample_lengths
+from t2m.models.temporal_vae import TemporalVAE
+
+logger = logging.getLogger(__name__)
+
+PRECISIONS = ("fp32", "bf16", "int8")
+FPS = 20.0
+
+
+@dataclass(frozen=True)
+class GeneratedMotion:
+    """One generated motion.
+
+    Attributes:
+        text: the prompt.
+        prompt_index: which prompt (0-based, in the order given).
+        repetition: which sample of that prompt (0-based).
+        joints: (T, J, 3) float32 positions in metres, y-up, 20 fps.
+        features: (T, D) float32 de-normalised features (263-d for HumanML3D).
+    """
+
+    text: str
+    prompt_index: int
+    repetition: int
+    joints: np.ndarray
+    features: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.joints.shape[0])
+
+
+@dataclass(frozen=True)
+class PreparedText:
+    """A prompt ready for the text encoders, and what the vocabulary made of it."""
+
+    text: str
+    encoded: EncodedText
+    unknown_words: tuple[str, ...]
+    dropped_words: tuple[str, ...]
+
+
+def frames_for(
+    frames: float, unit_length: int = 4, min_frames: int = 40, max_frames: int = 196
+) -> int:
+    """A requested length in frames rounded to whole snippets and clamped (with a warning)."""
+    if not math.isfinite(frames) or frames <= 0:
+        raise ValueError(f"motion length must be a positive number of frames, got {frames}")
+    rounded = int(round(frames / unit_length)) * unit_length
+    clamped = min(max(rounded, min_frames), max_frames)
+    if clamped != rounded:
+        logger.warning("length %g frames is outside %d..%d; using %d frames", frames, min_frames,
+                       max_frames, clamped)  # fmt: skip
+    return clamped
+
+
+def frames_for_seconds(seconds: float, unit_length: int = 4, min_frames: int = 40,
+                       max_frames: int = 196) -> int:  # fmt: skip
+    """A length in seconds as frames at 20 fps, rounded and clamped as :func:`frames_for`."""
+    if not math.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"motion length must be a positive number of seconds, got {seconds}")
+    return frames_for(seconds * FPS, unit_length, min_frames, max_frames)
+
+
+def _quantized(module: nn.Module) -> nn.Module:
+    """A copy of ``module`` with its GRUs and Linears dynamically quantised to int8.
+
+    The recurrent blocks' input Linears stay float: the VAE reads their weights directly to
+    split them by input part (see ``TemporalVAE._split_weights``).
+    """
+    from torch.ao.quantization import quantize_dynamic
+
+    targets = {
+        name
+        for name, child in module.named_modules()
+        if isinstance(child, (nn.Linear, nn.GRUCell, nn.GRU)) and not name.endswith(".input")
+    }
+    with warnings.catch_warnings():
+        # torch marks eager-mode quantisation as deprecated in favour of torchao (not a
+        # dependency here); the API still works in the pinned torch.
+        warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.simplefilter("ignore", UserWarning)
+        return quantize_dynamic(copy.deepcopy(module), targets, dtype=torch.qint8)
+
+
+class TextToMotion:
+    """Trained T2M models ready to turn prompts into motions.
+
+    Args:
+        vae: the text encoder + temporal VAE (eval mode).
+        decoder: the fine-tuned movement decoder (codes -> normalised features).
+        normalizer: the statistics the models were trained with.
+        vectorizer: the vocabulary of the VAE's text encoder.
+        initial_code: (C,) the mean-pose code fed before the first snippet.
+        data: the data settings (unit length, min / max frames, max words).
+        length_model: text2length (needed only when lengths are not given) and its vocabulary.
+        device: where the models run.
+        precision: "fp32", "bf16" or "int8" (CPU only).
+    """
+
+    def __init__(
+        self,
+        vae: TemporalVAE,
+        decoder: MovementDecoder,
+        normalizer: Normalizer,
+        vectorizer: WordVectors,
+        initial_code: torch.Tensor,
+        data: DataConfig,
+        length_model: LengthEstimator | None = None,
+        length_vectorizer: WordVectors | None = None,
+        device: str | torch.device = "cpu",
+        precision: str = "fp32",
+    ) -> None:
+        if precision not in PRECISIONS:
+            raise ValueError(f"unknown precision {precision!r}; use one of {', '.join(PRECISIONS)}")
+        self.device = torch.device(device)
+        if precision == "int8" and self.device.type != "cpu":
+            raise ValueError("int8 inference runs on the CPU only; use --precision bf16 on a GPU")
+        self.precision = precision
+        self.dtype = torch.bfloat16 if precision == "bf16" else torch.float32
+        self.data = data
+        self.normalizer = normalizer
+        self.vectorizer = vectorizer
+        self.layout = FeatureLayout.for_dim(normalizer.dim)
+        vae = vae.to(self.device).eval()
+        decoder = decoder.to(self.device).eval()
+        if precision == "int8":
+            vae = _quantized(vae)
+        elif precision == "bf16":
+            vae = copy.deepcopy(vae).to(torch.bfloat16)
+        self.vae = vae
+        # The decoder runs once per motion: it stays float32 (cheap, and keeps features exact).
+        self.decoder = decoder
+        self.initial_code = initial_code.to(self.device, self.dtype)
+        self.length_model = length_model.to(self.device).eval() if length_model else None
+        self.length_vectorizer = length_vectorizer or vectorizer
+        if self.length_vectorizer.fingerprint() != vectorizer.fingerprint():
+            raise ValueError("the text2length model and the text-to-motion model use different "
+                             "word vectors (retrain with `make train-len` on the same dataset)")  # fmt: skip
+
+    # -- loading -----------------------------------------------------------------------------
+
+    @classmethod
+    def from_checkpoints(
+        cls,
+        run_dir: str | Path,
+        device: str = "cpu",
+        precision: str = "fp32",
+        need_length_model: bool = True,
+        which: str = "best",
+    ) -> TextToMotion:
+        """Load the ``t2m`` (and ``length``) stages of a run folder.
+
+        Raises ValueError, one line naming the make target that trains a missing stage, when a
+        stage is missing, unreadable or does not belong with the other.
+        """
+        from t2m.train.checkpoint import MAKE_TARGETS, load_stage
+        from t2m.train.runtime import resolve_device
+
+        run_dir = Path(run_dir)
+        if not run_dir.is_dir():
+            raise ValueError(
+                f"no checkpoint folder {run_dir} (train one with `make train-ae train-len "
+                "train-t2m`, or pass --checkpoints DIR)"
+            )
+        resolved = resolve_device(device)
+        t2m = load_stage(run_dir, "t2m", resolved, which)
+        length = load_stage(run_dir, "length", resolved, which) if need_length_model else None
+        if t2m.vectorizer is None or t2m.initial_code is None:
+            raise ValueError(f"{t2m.path}: incomplete t2m checkpoint (retrain with "
+                             f"`make {MAKE_TARGETS['t2m']}`)")  # fmt: skip
+        if length is not None:
+            if length.vectorizer is None or (
+                length.vectorizer.fingerprint() != t2m.vectorizer.fingerprint()
+            ):
+                raise ValueError(
+                    f"{length.path} was trained with other word vectors than {t2m.path} "
+                    f"(retrain with `make {MAKE_TARGETS['length']}` on the same dataset)"
+                )
+            if length.config.data.unit_length != t2m.config.data.unit_length:
+                raise ValueError(f"{length.path} and {t2m.path} use different unit lengths "
+                                 f"(retrain with `make {MAKE_TARGETS['length']}`)")  # fmt: skip
+        return cls(
+            vae=t2m.models["vae"],
+            decoder=t2m.models["decoder"],
+            normalizer=t2m.normalizer,
+            vectorizer=t2m.vectorizer,
+            initial_code=t2m.initial_code,
+            data=t2m.config.data,
+            length_model=length.models["length"] if length else None,
+            length_vectorizer=length.vectorizer if length else None,
+            device=resolved,
+            precision=precision,
+        )
+
+    # -- steps -------------------------------------------------------------------------------
+
+    def prepare(self, texts: Sequence[str]) -> list[PreparedText]:
+        """Tag and encode prompts; warn about unknown words, refuse prompts with no known word."""
+        from dataset_tools.texts import tag_captions
+
+        texts = [texts] if isinstance(texts, str) else list(texts)
+        if not texts:
+            raise ValueError("no prompt given")
+        for text in texts:
+            if not isinstance(text, str) or not text.strip():
+                raise ValueError("empty prompt: give a sentence describing the motion")
+        prepared = []
+        max_words = self.vectorizer.max_tokens
+        for text, pairs in zip(texts, tag_captions(texts)):
+            words = [word.lower() for word, _ in pairs]
+            unknown = tuple(dict.fromkeys(w for w in words if w not in self.vectorizer.index))
+            if not words or len(unknown) == len(set(words)):
+                listed = ", ".join(unknown) if unknown else "none"
+                raise ValueError(f"no known word in prompt {text!r} (unknown: {listed})")
+            if unknown:
+                logger.warning("unknown words in %r (ignored): %s", text, ", ".join(unknown))
+            dropped = tuple(words[max_words:])
+            if dropped:
+                logger.warning("prompt %r is longer than %d words; ignoring: %s", text, max_words,
+                               " ".join(dropped))  # fmt: skip
+            tokens = [f"{word}/{pos}" for word, pos in pairs]
+            prepared.append(PreparedText(text, self.vectorizer.encode_tokens(tokens), unknown,
+                                         dropped))  # fmt: skip
+        return prepared
+
+    def _text_batch(
+        self, encoded: Sequence[EncodedText], vectorizer: WordVectors, dtype: torch.dtype
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Stack encoded captions into (words, pos, lengths) tensors on the device."""
+        words = np.stack([item.words for item in encoded])
+        pos = np.stack([item.pos_onehot for item in encoded])
+        lengths = torch.tensor([item.length for item in encoded], dtype=torch.long)
+        words_tensor = torch.from_numpy(words).to(self.device)
+        if words_tensor.is_floating_point():
+            words_tensor = words_tensor.to(dtype)
+        return words_tensor, torch.from_numpy(pos).to(self.device, dtype), lengths
+
+    def sample_lengths(
+        self, prepared: Sequence[PreparedText], generator: torch.Generator
+    ) -> list[int]:
+        """Draw one length in frames per prepared prompt from the text2length model."""
+        if self.length_model is None:
+            raise ValueError("no text2length model loaded: give lengths (--length / --seconds) "
+                             "or load the `length` stage (`make train-len`)")  # fmt: skip
+        unit = self.data.unit_length
+        # Both models share one vocabulary (checked on construction), so one encoding serves.
+        encoded = [item.encoded for item in prepared]
+        words, pos, lengths = self._text_batch(encoded, self.length_vectorizer, torch.float32)
+        with torch.inference_mode():
+            logits = self.length_model(words, pos, lengths)
+            units = sample_lengths(logits, generator, min_units=self.data.min_frames // unit)
+        max_units = self.data.max_frames // unit
+        return [int(u) * unit for u in units.clamp(max=max_units).tolist()]
+
+    @torch.inference_mode()
+    def generate_features(
+        self,
+        encoded: Sequence[EncodedText],
+        frames: Sequence[int],
+        generator: torch.Generator,
+    ) -> list[np.ndarray]:
+        """One batch: normalised-space generation -> de-normalised features (frames_i, D) each."""
+        unit = self.data.unit_length
+        words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
+        num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
+        word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
+        codes = self.vae.generate(word_features, sentence, mask, num_snippets.to(self.device),
+                                  self.initial_code, generator)  # fmt: skip
+        normalised = self.decoder(codes.float())  # (B, 4 S, D)
+        features = self.normalizer.denormalize(normalised).cpu().numpy()
+        return [features[i, :length] for i, length in enumerate(frames)]
+
+    def generate(
+        self,
+        texts: str | Sequence[str],
+        num_samples: int = 1,
+        lengths: int | Sequence[int | None] | None = None,
+        seed: int = 0,
+        batch_size: int = 32,
+        progress: bool = False,
+    ) -> list[list[GeneratedMotion]]:
+        """Generate ``num_samples`` motions per prompt.
+
+        Args:
+            texts: one prompt or a list of prompts.
+            num_samples: different motions per prompt.
+            lengths: frames for every prompt (int), per prompt (None entries are sampled), or
+                None to sample every length from the text2length model (one draw per motion).
+            seed: seeds the one generator all draws come from.
+            batch_size: motions generated together.
+            progress: show a progress bar.
+
+        Returns:
+            ``motions[prompt][sample]``.
+        """
+        from tqdm import tqdm
+
+        texts = [texts] if isinstance(texts, str) else list(texts)
+        if num_samples < 1:
+            raise ValueError(f"num_samples must be >= 1, got {num_samples}")
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        # 1. words
+        prepared = self.prepare(texts)
+        # 2. lengths, one per motion (prompt-major)
+        if lengths is None or isinstance(lengths, (int, np.integer)):
+            per_prompt: list[int | None] = [lengths] * len(texts)  # type: ignore[list-item]
+        else:
+            per_prompt = list(lengths)
+            if len(per_prompt) != len(texts):
+                raise ValueError(f"{len(per_prompt)} lengths for {len(texts)} prompts")
+        fixed = [None if n is None else self._clamp(n) for n in per_prompt]
+        generator = torch.Generator(self.device).manual_seed(seed)
+        items = [(p, r) for p in range(len(texts)) for r in range(num_samples)]
+        frames = {item: fixed[item[0]] for item in items}
+        missing = [item for item in items if frames[item] is None]
+        if missing:
+            drawn = self.sample_lengths([prepared[p] for p, _ in missing], generator)
+            frames.update(zip(missing, drawn))
+        # 3.-4. batches of similar lengths (stable order: ties keep prompt-major order)
+        order = sorted(items, key=lambda item: -frames[item])
+        results: dict[tuple[int, int], GeneratedMotion] = {}
+        bar = tqdm(total=len(order), desc="generating", unit="motion", disable=not progress)
+        for start in range(0, len(order), batch_size):
+            batch = order[start : start + batch_size]
+            features = self.generate_features(
+                [prepared[p].encoded for p, _ in batch], [frames[i] for i in batch], generator
+            )
+            for (p, r), feats in zip(batch, features):
+                joints = recover_from_ric(feats, self.layout.num_joints)
+                results[(p, r)] = GeneratedMotion(texts[p], p, r, joints.astype(np.float32),
+                                                  feats.astype(np.float32))  # fmt: skip
+            bar.update(len(batch))
+        bar.close()
+        return [[results[(p, r)] for r in range(num_samples)] for p in range(len(texts))]
+
+    def _clamp(self, frames: int) -> int:
+        data = self.data
+        return frames_for(frames, data.unit_length, data.min_frames, data.max_frames)

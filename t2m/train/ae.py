@@ -1,0 +1,104 @@
+"""Stage 1: the movement autoencoder, trained on random windows of normalised features."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from t2m.config import Config
+from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
+from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
+from t2m.train.checkpoint import build_models
+from t2m.train.runtime import Runtime, clip_gradients, seed_step
+from t2m.train.stage import StageRun, load_stage_data, mean_records
+
+logger = logging.getLogger(__name__)
+
+
+class AutoencoderObjective(nn.Module):
+    """The trainable module: a batch of windows -> the loss parts (what DDP wraps)."""
+
+    def __init__(self, autoencoder: MovementAutoencoder, sparsity_weight: float, smoothness_weight: float):
+        super().__init__()
+        self.autoencoder = autoencoder
+        self.sparsity_weight = sparsity_weight
+        self.smoothness_weight = smoothness_weight
+
+    def forward(self, motion: torch.Tensor) -> dict[str, torch.Tensor]:
+        reconstruction, codes = self.autoencoder(motion)
+        return autoencoder_loss(reconstruction, motion, codes, self.sparsity_weight, self.smoothness_weight)
+
+
+@torch.no_grad()
+def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime) -> dict[str, float]:
+    """Mean losses on fixed windows of the validation clips (same windows every time)."""
+    stage = config.ae
+    objective.eval()
+    records = []
+    for index, batch_indices in enumerate(np.array_split(np.arange(len(data)), max(1, len(data) // stage.batch_size))):
+        batch = data.window_batch(batch_indices, np.random.default_rng([config.seed, index, 99]), stage.window_frames)
+        with runtime.autocast():
+            records.append(objective(batch["motion"].to(runtime.device)))
+    objective.train()
+    return mean_records(records)
+
+
+def train_autoencoder(
+    config: Config, dataset_dir: str | Path, run_dir: str | Path, runtime: Runtime, resume: bool = False
+) -> Path:
+    """Train stage 1 into ``run_dir/ae``; returns that folder."""
+    stage = config.ae
+    # 1. data: windows must fit in every clip, which load_split's min_frames guarantees
+    data = load_stage_data(config, dataset_dir)
+    dims = {"feature_dim": data.train.feature_dim}
+    # 2. model, optimizer, resume
+    models = build_models("ae", config, dims)
+    autoencoder = models["autoencoder"].to(runtime.device)
+    objective = AutoencoderObjective(autoencoder, stage.sparsity_weight, stage.smoothness_weight)
+    optimizer = torch.optim.Adam(autoencoder.parameters(), lr=stage.lr)
+    run = StageRun("ae", config, run_dir, runtime, dims, models, optimizer, data.normalizer, None, resume)
+    trainable = runtime.wrap(objective)
+    trainable.train()
+    # 3. the loop
+    progress = run.progress
+    for epoch in range(progress["epoch"], stage.epochs):
+        batches = epoch_batches(len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size)
+        bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"ae epoch {epoch + 1}/{stage.epochs}",
+                   disable=not runtime.is_main, leave=False)  # fmt: skip
+        for index in range(progress["epoch_step"], len(batches)):
+            if run.reached_max_steps(stage.max_steps):
+                break
+            seed_step(config.seed, epoch, index, runtime.rank)
+            rng = batch_rng(config.seed, epoch, index, runtime.rank)
+            motion = data.train.window_batch(batches[index], rng, stage.window_frames)["motion"].to(runtime.device)
+            with runtime.autocast():
+                losses = trainable(motion)
+            optimizer.zero_grad(set_to_none=True)
+            losses["loss"].backward()
+            clip_gradients(autoencoder.parameters(), stage.grad_clip)
+            optimizer.step()
+            progress["step"] += 1
+            progress["epoch_step"] = index + 1
+            bar.update()
+            if run.step % stage.log_every == 0:
+                run.log("train", losses)
+                bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4f}")
+            if run.step % stage.checkpoint_every == 0:
+                run.save()
+        bar.close()
+        if run.reached_max_steps(stage.max_steps) and progress["epoch_step"] < len(batches):
+            run.save()
+            break
+        progress["epoch"] = epoch + 1
+        progress["epoch_step"] = 0
+        metrics = validate(trainable, data.val, config, runtime)
+        run.log("val", metrics)
+        run.save(best=run.improved(metrics["loss"]))
+        logger.info("ae epoch %d: val reconstruction %.4f", epoch + 1, metrics["reconstruction"])
+    run.finish()
+    return run.dir

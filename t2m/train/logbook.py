@@ -1,0 +1,94 @@
+"""Training records: metrics as JSON lines in the stage folder, and a PNG of the curves."""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+from t2m.train.checkpoint import atomic_write_bytes
+
+logger = logging.getLogger(__name__)
+
+
+class Logbook:
+    """Appends one JSON object per record to ``metrics.jsonl`` and redraws ``curves.png``.
+
+    Only the main process writes; on resume, records past the checkpoint's step are dropped so
+    the file reads as one run.
+    """
+
+    def __init__(self, stage_dir: Path, stage: str, enabled: bool = True, resume_step: int | None = None):
+        self.path = stage_dir / "metrics.jsonl"
+        self.curves_path = stage_dir / "curves.png"
+        self.stage = stage
+        self.enabled = enabled
+        self.start = time.time()
+        if not enabled:
+            return
+        stage_dir.mkdir(parents=True, exist_ok=True)
+        if resume_step is None:
+            self.path.unlink(missing_ok=True)
+        elif self.path.is_file():
+            kept = [line for line in self.path.read_text().splitlines() if line.strip()
+                    and json.loads(line).get("step", 0) <= resume_step]  # fmt: skip
+            atomic_write_bytes(self.path, "".join(line + "\n" for line in kept).encode())
+
+    def write(self, split: str, step: int, epoch: int, values: dict[str, Any]) -> None:
+        if not self.enabled:
+            return
+        record = {"stage": self.stage, "split": split, "step": step, "epoch": epoch,
+                  "elapsed_s": round(time.time() - self.start, 2)}  # fmt: skip
+        for key, value in values.items():
+            value = float(value) if not isinstance(value, (str, int)) else value
+            record[key] = value if not (isinstance(value, float) and math.isnan(value)) else None
+        with open(self.path, "a", encoding="utf-8") as handle:
+            handle.write(json.dumps(record) + "\n")
+
+    def records(self) -> list[dict[str, Any]]:
+        if not self.path.is_file():
+            return []
+        return [json.loads(line) for line in self.path.read_text().splitlines() if line.strip()]
+
+    def draw(self) -> None:
+        """Plot every numeric metric against the step, train and val, one panel per metric."""
+        if not self.enabled:
+            return
+        records = self.records()
+        if not records:
+            return
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        skip = {"stage", "split", "step", "epoch", "elapsed_s", "lr"}
+        names = sorted({k for r in records for k, v in r.items() if k not in skip
+                        and isinstance(v, (int, float))})  # fmt: skip
+        if not names:
+            return
+        columns = min(3, len(names))
+        rows = math.ceil(len(names) / columns)
+        figure, axes = plt.subplots(rows, columns, figsize=(4.5 * columns, 3 * rows), squeeze=False)
+        for axis, name in zip(axes.flat, names):
+            for split, style in (("train", "-"), ("val", "o-")):
+                points = [(r["step"], r[name]) for r in records
+                          if r["split"] == split and isinstance(r.get(name), (int, float))]  # fmt: skip
+                if points:
+                    xs, ys = zip(*points)
+                    axis.plot(xs, ys, style, label=split, markersize=3)
+            axis.set_title(name)
+            axis.set_xlabel("step")
+            axis.legend(fontsize=7)
+        for axis in list(axes.flat)[len(names) :]:
+            axis.axis("off")
+        figure.suptitle(f"{self.stage} training")
+        figure.tight_layout()
+        buffer = io.BytesIO()
+        figure.savefig(buffer, format="png", dpi=80)
+        plt.close(figure)
+        atomic_write_bytes(self.curves_path, buffer.getvalue())

@@ -1,0 +1,129 @@
+"""What every training loop shares: device choice, processes (DDP), seeding, autocast, clipping.
+
+A run is one process, or several started by ``torchrun`` (``WORLD_SIZE`` > 1 in the environment):
+then a process group is opened (gloo on CPU, nccl on CUDA), each process takes its own slice of
+every epoch, and the trainable module is wrapped in ``DistributedDataParallel``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import torch
+import torch.distributed as dist
+from torch import nn
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class Runtime:
+    """The process's place in the run and its device."""
+
+    device: torch.device
+    rank: int = 0
+    world_size: int = 1
+    bf16: bool = False
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @property
+    def distributed(self) -> bool:
+        return self.world_size > 1
+
+    def autocast(self) -> contextlib.AbstractContextManager:
+        """bfloat16 autocast when enabled (CUDA or CPU), else a no-op."""
+        if not self.bf16:
+            return contextlib.nullcontext()
+        return torch.autocast(device_type=self.device.type, dtype=torch.bfloat16)
+
+    def wrap(self, module: nn.Module) -> nn.Module:
+        """The module wrapped for gradient averaging across processes (itself when alone)."""
+        if not self.distributed:
+            return module
+        device_ids = [self.device.index] if self.device.type == "cuda" else None
+        return nn.parallel.DistributedDataParallel(module, device_ids=device_ids)
+
+    def barrier(self) -> None:
+        if self.distributed:
+            dist.barrier()
+
+    def broadcast_float(self, value: float) -> float:
+        """Rank 0's value on every process (so every process takes the same decisions)."""
+        if not self.distributed:
+            return value
+        tensor = torch.tensor([value], dtype=torch.float64, device=self._comm_device())
+        dist.broadcast(tensor, src=0)
+        return float(tensor.item())
+
+    def _comm_device(self) -> torch.device:
+        return self.device if dist.get_backend() == "nccl" else torch.device("cpu")
+
+
+def resolve_device(name: str, local_rank: int = 0) -> torch.device:
+    """``auto`` -> CUDA when present, else CPU; ``cuda`` with several processes -> cuda:local_rank.
+
+    Raises ValueError for an unavailable or unknown device.
+    """
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ValueError(f"unknown device {name!r} (auto, cpu, cuda, cuda:N)") from None
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError("device 'cuda' requested but CUDA is not available")
+        if device.index is None:
+            device = torch.device("cuda", local_rank % torch.cuda.device_count())
+        torch.cuda.set_device(device)
+    elif device.type not in ("cpu", "mps"):
+        raise ValueError(f"unsupported device {name!r}")
+    return device
+
+
+def start(device: str = "auto", bf16: bool = False, num_threads: int = 0) -> Runtime:
+    """Open the process group when launched by torchrun, choose the device, set threads."""
+    world_size = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    local_rank = int(os.environ.get("LOCAL_RANK", str(rank)))
+    resolved = resolve_device(device, local_rank)
+    if num_threads > 0:
+        torch.set_num_threads(num_threads)
+    if world_size > 1 and not dist.is_initialized():
+        backend = "nccl" if resolved.type == "cuda" else "gloo"
+        dist.init_process_group(backend=backend, rank=rank, world_size=world_size)
+        logger.info("process %d of %d (%s)", rank, world_size, backend)
+    return Runtime(resolved, rank, world_size, bf16)
+
+
+def finish(runtime: Runtime) -> None:
+    """Close the process group this run opened."""
+    if runtime.distributed and dist.is_initialized():
+        dist.destroy_process_group()
+
+
+def seed_step(seed: int, epoch: int, step: int, rank: int = 0) -> None:
+    """Seed torch's global generator for one step (dropout, latent noise), from its coordinates.
+
+    Seeding every step from (seed, epoch, step, rank) rather than once makes a resumed run draw
+    exactly what the uninterrupted run drew.
+    """
+    torch.manual_seed((((seed * 1_000_003 + epoch) * 1_000_003 + step) * 131 + rank) % (2**63 - 1))
+
+
+def clip_gradients(parameters: Iterator[nn.Parameter] | list[nn.Parameter], max_norm: float) -> None:
+    """Clip the total gradient norm when ``max_norm`` > 0."""
+    if max_norm > 0:
+        torch.nn.utils.clip_grad_norm_(list(parameters), max_norm)
+
+
+def unwrap(module: nn.Module) -> nn.Module:
+    """The module inside a DDP wrapper."""
+    return module.module if isinstance(module, nn.parallel.DistributedDataParallel) else module

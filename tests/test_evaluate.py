@@ -1,0 +1,208 @@
+"""The evaluation protocol on a synthetic backend, and a tiny end-to-end evaluation."""
+
+import json
+import math
+import zlib
+
+import numpy as np
+import pytest
+
+from t2m import evaluate
+from t2m.data.dataset import Caption, Clip
+
+EMBED = 16
+NOISE = 0.5
+
+
+def _chi_mean(dof: int) -> float:
+    """E||x|| for x ~ N(0, I_dof)."""
+    return math.sqrt(2) * math.exp(math.lgamma((dof + 1) / 2) - math.lgamma(dof / 2))
+
+
+def _caption_vector(text: str) -> np.ndarray:
+    return np.random.default_rng(zlib.crc32(text.encode())).normal(size=EMBED) * 3.0
+
+
+class FakeBackend:
+    """Motions carry their caption's vector in every frame; the text embedding is that vector,
+    the motion embedding the mean over frames. Generation adds one Gaussian offset per motion, so
+    every metric has a value known in advance."""
+
+    def __init__(self):
+        self.calls: list[tuple[int, np.ndarray | None]] = []
+
+    def embed_texts(self, captions):
+        return np.stack([_caption_vector(c.text) for c in captions])
+
+    def embed_motions(self, motions):
+        for motion in motions:
+            assert len(motion) % 4 == 0 and 4 <= len(motion) <= 196
+        return np.stack([m[:, :EMBED].mean(axis=0) for m in motions])
+
+    def generate(self, captions, lengths, seed):
+        self.calls.append((len(captions), None if lengths is None else np.array(lengths)))
+        rng = np.random.default_rng(seed)
+        if lengths is None:
+            lengths = rng.integers(10, 50, size=len(captions)) * 4
+        out = []
+        for caption, length in zip(captions, lengths, strict=True):
+            vector = _caption_vector(caption.text) + NOISE * rng.normal(size=EMBED)
+            out.append(np.tile(vector, (int(length), 1)))
+        return out
+
+
+def _clips(count: int = 70) -> list[Clip]:
+    rng = np.random.default_rng(0)
+    clips = []
+    for k in range(count):
+        text = f"a person does thing {k}"
+        frames = int(rng.integers(40, 200))
+        motion = np.tile(_caption_vector(text), (frames, 1)).astype(np.float32)
+        clips.append(Clip(f"clip{k:03d}", motion, [Caption(text, ["a/DET", "person/NOUN"])]))
+    return clips
+
+
+def test_draw_items_crops_to_units_inside_the_clip():
+    clips = _clips()
+    draw = evaluate.draw_items(clips, 64, np.random.default_rng(1))
+    assert len(set(draw.items.tolist())) == 64
+    full = np.array([min(len(clips[i].motion), 196) // 4 * 4 for i in draw.items])
+    assert np.all(draw.lengths % 4 == 0)
+    assert np.all((draw.lengths == full) | (draw.lengths == full - 4))
+    assert np.all(draw.starts + draw.lengths <= [len(clips[i].motion) for i in draw.items])
+    many = evaluate.draw_items(clips * 30, 2100, np.random.default_rng(2))
+    full = np.array([min(len((clips * 30)[i].motion), 196) // 4 * 4 for i in many.items])
+    assert np.mean(many.lengths < full) == pytest.approx(1 / 3, abs=0.04)
+
+
+def test_protocol_on_a_known_backend():
+    backend = FakeBackend()
+    config = evaluate.EvalConfig(replications=3, mm_texts=16, mm_samples=30, seed=5)
+    result = evaluate.run_protocol(_clips(64), backend, config)
+    assert result.num_items == 64
+    real = result.values[evaluate.REAL]
+    assert "multimodality" not in real
+    np.testing.assert_allclose(real["r_precision_top1"], 1.0)
+    np.testing.assert_allclose(real["mm_dist"], 0.0, atol=1e-4)  # float32 motions
+    np.testing.assert_allclose(real["fid"], 0.0, atol=1e-6)  # the same 64 clips, reordered
+    for row in (evaluate.GT_LENGTH, evaluate.SAMPLED_LENGTH):
+        values = result.values[row]
+        assert all(len(series) == 3 for series in values.values())
+        # Offsets of norm ~ NOISE * sqrt(16) = 2: small against caption vectors ~ 3 * sqrt(32) apart.
+        assert min(values["r_precision_top3"]) > 0.9
+        assert np.mean(values["mm_dist"]) == pytest.approx(NOISE * _chi_mean(EMBED), rel=0.1)
+        # Two independent offsets are NOISE * sqrt(2) * chi_16 apart, except for the ~1/30 of
+        # pairs that draw the same generation twice (as the original's index draws allow).
+        expected = NOISE * math.sqrt(2) * _chi_mean(EMBED) * (29 / 30)
+        assert np.mean(values["multimodality"]) == pytest.approx(expected, rel=0.12)
+        assert len(set(values["fid"])) == 3  # each replication generates anew
+        assert np.all(np.array(values["fid"]) > 0)
+    # Per replication: the GT-length row, its MM extras, the sampled row, its MM extras.
+    sizes = [size for size, _ in backend.calls]
+    assert sizes == [64, 16 * 29, 64, 16 * 29] * 3
+    gt_lengths = backend.calls[0][1]
+    assert gt_lengths is not None and np.all(gt_lengths % 4 == 0)
+    assert backend.calls[2][1] is None  # sampled length: the model draws it
+    mm_lengths = backend.calls[1][1]
+    np.testing.assert_array_equal(mm_lengths, np.repeat(gt_lengths[:16], 29))
+
+
+def test_protocol_is_deterministic_per_seed():
+    config = evaluate.EvalConfig(replications=2, mm_texts=4, mm_samples=10, seed=1)
+    first = evaluate.run_protocol(_clips(), FakeBackend(), config).values
+    second = evaluate.run_protocol(_clips(), FakeBackend(), config).values
+    assert first == second
+    other = evaluate.EvalConfig(replications=2, mm_texts=4, mm_samples=10, seed=2)
+    third = evaluate.run_protocol(_clips(), FakeBackend(), other).values
+    assert third[evaluate.GT_LENGTH]["fid"] != first[evaluate.GT_LENGTH]["fid"]
+
+
+def test_too_few_items_is_a_clear_error():
+    with pytest.raises(ValueError, match="pool of 32"):
+        evaluate.run_protocol(_clips(20), FakeBackend(), evaluate.EvalConfig(replications=1))
+
+
+def test_summary_and_markdown_mark_quick_runs(tmp_path):
+    config = evaluate.quick_config(evaluate.EvalConfig())
+    assert config.replications == 3 and config.quick
+    result = evaluate.run_protocol(_clips(70), FakeBackend(), config)
+    assert result.num_items == 64  # two full pools of 32; 6 items left out
+    summary = evaluate.summarize(result)
+    assert summary["quick"] and not summary["standard_protocol"]
+    assert any("QUICK MODE" in note for note in summary["deviations"])
+    assert any("diversity over 64 pairs" in note for note in summary["deviations"])
+    entry = summary["rows"][evaluate.GT_LENGTH]["fid"]
+    mean, interval = entry["mean"], entry["interval"]
+    assert mean == pytest.approx(np.mean(entry["values"]))
+    assert interval == pytest.approx(1.96 * np.std(entry["values"]) / math.sqrt(3))
+    json_path, md_path = evaluate.write_results(summary, tmp_path / "out")
+    assert json.loads(json_path.read_text())["rows"][evaluate.REAL]["fid"]["values"]
+    text = md_path.read_text()
+    assert "QUICK MODE" in text
+    for row in evaluate.ROWS:
+        assert f"| {row} |" in text
+    assert f"{mean:.3f} ±{interval:.3f}" in text
+    real_line = next(line for line in text.splitlines() if line.startswith(f"| {evaluate.REAL} |"))
+    assert real_line.rstrip(" |").endswith("-")  # no MultiModality for real motions
+
+
+def test_standard_settings_have_no_deviation():
+    assert evaluate.deviations(evaluate.EvalConfig(), num_items=4384) == []
+    notes = evaluate.deviations(evaluate.EvalConfig(replications=5), num_items=4384)
+    assert notes == ["replications = 5 (standard: 20)"]
+
+
+def test_cli_rejects_bad_input(tmp_path, capsys):
+    assert evaluate.main(["--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "\n" not in err
+    code = evaluate.main(
+        ["--dataset", str(tmp_path), "--checkpoints", str(tmp_path), "--replications", "0"]
+    )
+    assert code == 2
+
+
+def test_checkpoint_backend_generates_requested_lengths_deterministically(tiny_run):
+    backend = evaluate.CheckpointBackend.from_run_dir(tiny_run, batch_size=3)
+    captions = [
+        Caption("a person walks forward", ["a/DET", "person/NOUN", "walk/VERB", "forward/ADV"]),
+        Caption("someone hops in place", ["someone/PRON", "hop/VERB", "in/ADP", "place/NOUN"]),
+    ] * 3
+    lengths = np.array([40, 48, 196, 60, 44, 100])
+    first = backend.generate(captions, lengths, seed=3)
+    assert [len(m) for m in first] == lengths.tolist()
+    assert all(m.shape[1] == 263 and np.isfinite(m).all() for m in first)
+    again = backend.generate(captions, lengths, seed=3)
+    assert all(np.array_equal(a, b) for a, b in zip(first, again, strict=True))
+    other = backend.generate(captions, lengths, seed=4)
+    assert not np.array_equal(first[0], other[0])
+    sampled = [len(m) for m in backend.generate(captions, None, seed=3)]
+    assert all(length % 4 == 0 and 40 <= length <= 196 for length in sampled)
+    embeddings = backend.embed_motions(first)
+    assert embeddings.shape == (6, backend.evaluator.config.embedding_size)
+    assert backend.embed_texts(captions).shape == embeddings.shape
+
+
+def test_tiny_end_to_end_evaluation(tiny_run, tiny_dataset, tmp_path, capsys):
+    out = tmp_path / "results"
+    # The tiny test split has 6 clips; "all" holds one full pool of 32 items.
+    args = ["--dataset", str(tiny_dataset), "--checkpoints", str(tiny_run), "--split", "all"]
+    args += ["--replications", "2", "--mm-texts", "4", "--mm-samples", "10", "--out", str(out)]
+    assert evaluate.main(args) == 0
+    summary = json.loads((out / "results.json").read_text())
+    assert summary["num_items"] == 32 and not summary["standard_protocol"]
+    assert "split = all (standard: test)" in summary["deviations"]
+    for row in evaluate.ROWS:
+        for name, entry in summary["rows"][row].items():
+            assert len(entry["values"]) == 2 and all(math.isfinite(v) for v in entry["values"]), (
+                name
+            )
+            assert entry["interval"] >= 0
+    real = summary["rows"][evaluate.REAL]
+    assert 0 <= real["r_precision_top1"]["mean"] <= real["r_precision_top3"]["mean"] <= 1
+    # Reals against reals (other captions and crops of the same clips) sit closer than
+    # an untrained generator's motions do.
+    assert real["fid"]["mean"] < summary["rows"][evaluate.GT_LENGTH]["fid"]["mean"]
+    text = (out / "results.md").read_text()
+    assert "| Ours (sampled length) |" in text and "Deviations from the standard protocol" in text
+    assert "results.md" in capsys.readouterr().out

@@ -1,0 +1,131 @@
+"""Stick-figure rendering: files, frame counts, orientation on screen, determinism, errors."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import imageio_ffmpeg
+import numpy as np
+import pytest
+from PIL import Image
+
+from dataset_tools.skeleton import SMPL
+from t2m.render import RenderConfig, _to_plot, render_animation, render_frames, render_keyframes
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+REFERENCE_JOINTS = SHARED / "reference" / "humanml3d" / "new_joints" / "012314.npy"
+
+
+def _standing(num_frames: int = 6) -> np.ndarray:
+    """A person standing in the SMPL rest directions, facing +Z, feet on the floor, walking
+    slowly forwards: (T, 22, 3)."""
+    pose = np.zeros((22, 3))
+    # Arms out sideways (T-pose) rather than SMPL's hanging rest, so the arms are easy to find.
+    directions = SMPL.rest_directions.copy()
+    directions[[16, 18, 20]] = (1.0, 0.0, 0.0)
+    directions[[17, 19, 21]] = (-1.0, 0.0, 0.0)
+    for joint in range(1, 22):
+        pose[joint] = pose[SMPL.parents[joint]] + SMPL.bone_lengths[joint] * directions[joint]
+    pose[:, 1] -= pose[:, 1].min()
+    steps = np.linspace(0.0, 0.2, num_frames)
+    return pose[None] + np.stack([np.zeros_like(steps), np.zeros_like(steps), steps], -1)[:, None]
+
+
+def _mask(image: np.ndarray, color: str) -> np.ndarray:
+    rgb = np.array([int(color[i : i + 2], 16) for i in (1, 3, 5)])
+    return np.abs(image.astype(int) - rgb).sum(-1) < 40
+
+
+def test_front_view_puts_left_on_the_right_and_head_up():
+    config = RenderConfig(azimuth=-90.0, elevation=0.0, size_px=240)
+    image = next(iter(render_frames(_standing(1), config=config)))
+    assert image.shape == (240, 240, 3) and image.dtype == np.uint8
+    left = np.argwhere(_mask(image, config.left_color))
+    right = np.argwhere(_mask(image, config.right_color))
+    center = np.argwhere(_mask(image, config.center_color))
+    assert len(left) > 50 and len(right) > 50 and len(center) > 20
+    # Facing the camera, the person's left side is on the viewer's right.
+    assert left[:, 1].mean() > right[:, 1].mean() + 30
+    # y is up: the head (middle chain) is the highest thing drawn, the feet the lowest.
+    assert center[:, 0].min() < min(left[:, 0].min(), right[:, 0].min())
+    assert max(left[:, 0].max(), right[:, 0].max()) > center[:, 0].max()
+
+
+def test_world_to_plot_axes_is_a_rotation_not_a_mirror():
+    # A mirror would swap the sides and then a back view would look like a front view.
+    mapping = _to_plot(np.eye(3))
+    assert np.linalg.det(mapping) == pytest.approx(1.0)
+    assert tuple(_to_plot(np.array([0.0, 1.0, 0.0]))) == (0.0, 0.0, 1.0)  # y-up is drawn up
+
+
+def test_mp4_has_every_frame_at_20_fps(tmp_path):
+    joints = _standing(9)
+    path = render_animation(joints, tmp_path / "walk.mp4", caption="a person walks forward")
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    frames = list(reader)
+    assert meta["fps"] == pytest.approx(20.0)
+    assert tuple(meta["size"]) == (480, 480)
+    assert len(frames) == 9
+    assert os.listdir(tmp_path) == ["walk.mp4"]  # no temp file left behind
+
+
+def test_gif_has_every_frame_and_duration(tmp_path):
+    path = render_animation(_standing(5), tmp_path / "walk.gif", caption="walks", fps=20)
+    with Image.open(path) as gif:
+        assert gif.n_frames == 5
+        assert gif.info["duration"] == 50
+        assert gif.size == (480, 480)
+
+
+def test_same_motion_same_bytes(tmp_path):
+    joints = _standing(4)
+    config = RenderConfig(size_px=160)
+    for suffix in ("mp4", "gif"):
+        a = render_animation(joints, tmp_path / f"a.{suffix}", caption="x", config=config)
+        b = render_animation(joints, tmp_path / f"b.{suffix}", caption="x", config=config)
+        assert a.read_bytes() == b.read_bytes()
+
+
+def test_keyframe_strip_of_the_reference_clip(tmp_path):
+    if not REFERENCE_JOINTS.exists():
+        pytest.skip(f"real reference clip not found at {REFERENCE_JOINTS} (../shared is absent)")
+    joints = np.load(REFERENCE_JOINTS)
+    path = render_keyframes(joints, tmp_path / "strip.png", caption="a tennis serve",
+                            num_keyframes=5)  # fmt: skip
+    with Image.open(path) as strip:
+        width, height = strip.size
+        pixels = np.asarray(strip.convert("RGB"))
+    assert width == 5 * 240 and height > 200
+    config = RenderConfig()
+    # Every panel shows both sides of the body.
+    for panel in np.split(pixels, 5, axis=1):
+        assert _mask(panel, config.left_color).sum() > 30
+        assert _mask(panel, config.right_color).sum() > 30
+
+
+def test_long_walk_stays_in_view():
+    # Follow camera: a 6 m walk keeps the body in the middle of every frame.
+    joints = _standing(3)
+    joints = joints + np.array([[[0.0, 0.0, 0.0]], [[0.0, 0.0, 3.0]], [[0.0, 0.0, 6.0]]])
+    config = RenderConfig(size_px=160)
+    for image in render_frames(joints, config=config):
+        drawn = np.argwhere(_mask(image, config.left_color) | _mask(image, config.right_color))
+        assert len(drawn) > 20
+        assert 30 < drawn[:, 1].mean() < 130
+
+
+@pytest.mark.parametrize(
+    ("joints", "name", "match"),
+    [
+        (np.zeros((5, 22, 2)), "x.mp4", "shape"),
+        (np.full((5, 22, 3), np.nan), "x.mp4", "NaN"),
+        (np.zeros((5, 22, 3)), "x.avi", "format"),
+        (np.zeros((5, 23, 3)), "x.gif", "joints"),
+    ],
+)
+def test_bad_input_is_a_value_error_and_writes_nothing(tmp_path, joints, name, match):
+    with pytest.raises(ValueError, match=match):
+        render_animation(joints, tmp_path / name)
+    assert not list(tmp_path.iterdir())

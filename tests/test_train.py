@@ -1,0 +1,150 @@
+"""Training: the tiny run of all four stages, checkpoints, resume, refusals, the CLI and DDP."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from pathlib import Path
+
+import pytest
+import torch
+import torch.multiprocessing as mp
+
+from t2m.config import apply_overrides
+from t2m.data.words import TRAINABLE
+from t2m.train.__main__ import main, run_stage
+from t2m.train.checkpoint import read_checkpoint
+from t2m.train.checkpoint import load_stage
+
+
+def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
+    for stage in ("ae", "length", "t2m", "eval"):
+        folder = tiny_run / stage
+        for name in ("latest.pt", "best.pt", "config.json", "metrics.jsonl", "curves.png"):
+            assert (folder / name).is_file(), f"{stage}/{name}"
+        records = [json.loads(line) for line in (folder / "metrics.jsonl").read_text().splitlines()]
+        assert {r["split"] for r in records} == {"train", "val"}
+        assert all(r["loss"] is not None and r["loss"] == r["loss"] for r in records)
+        assert json.loads((folder / "config.json").read_text())["preset"] == "tiny"
+        trained = load_stage(tiny_run, stage)
+        assert all(not module.training for module in trained.models.values())
+        assert trained.normalizer.dim == 263
+    t2m = load_stage(tiny_run, "t2m")
+    assert t2m.initial_code.shape == (t2m.config.ae.model.code_size,)
+    assert t2m.progress["snippets"] == t2m.config.t2m.end_snippets and t2m.progress["done"]
+    # end to end: free text -> codes -> features, through the stored vocabulary
+    encoded = t2m.vectorizer.encode_tokens("a/DET person/NOUN walk/VERB forward/ADV".split())
+    words = torch.from_numpy(encoded.words)[None]
+    pos = torch.from_numpy(encoded.pos_onehot)[None]
+    vae, decoder = t2m.models["vae"], t2m.models["decoder"]
+    features, sentence, mask = vae.encode_text(words, pos, torch.tensor([encoded.length]))
+    codes = vae.generate(features, sentence, mask, torch.tensor([12]), t2m.initial_code, torch.Generator().manual_seed(0))
+    motion = decoder(codes)
+    assert motion.shape == (1, 48, 263) and torch.isfinite(motion).all()
+    # the ae and the evaluator share statistics and the frozen encoder
+    ae, evaluator = load_stage(tiny_run, "ae"), load_stage(tiny_run, "eval")
+    assert (ae.normalizer.std == evaluator.normalizer.std).all()
+    ae_best = read_checkpoint(tiny_run / "ae" / "best.pt")["models"]["autoencoder"]
+    stored = evaluator.models["evaluator"].movement_encoder.state_dict()
+    assert all(torch.equal(stored[k], ae_best[f"encoder.{k}"]) for k in stored)
+
+
+def weights(path: Path) -> dict[str, torch.Tensor]:
+    return {f"{m}.{k}": v for m, sd in read_checkpoint(path)["models"].items() for k, v in sd.items()}
+
+
+@pytest.mark.parametrize("stage,kill_at", [("ae", 3), ("t2m", 5)])
+def test_resume_after_kill_equals_uninterrupted(stage, kill_at, tiny_dataset, tiny_config, tiny_run, tmp_path):
+    config = apply_overrides(tiny_config, {f"{stage}.checkpoint_every": "1000", "ae.epochs": "2"})
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    for run_dir in (whole, killed):
+        if stage == "t2m":  # the same trained autoencoder under both
+            (run_dir / "ae").mkdir(parents=True)
+            for name in ("best.pt", "latest.pt"):
+                (run_dir / "ae" / name).write_bytes((tiny_run / "ae" / name).read_bytes())
+    run_stage(stage, config, tiny_dataset, whole)
+    # "kill" after kill_at steps (mid-epoch, a checkpoint is written on stopping) and resume
+    run_stage(stage, apply_overrides(config, {f"{stage}.max_steps": str(kill_at)}), tiny_dataset, killed)
+    assert read_checkpoint(killed / stage / "latest.pt")["progress"]["step"] == kill_at
+    run_stage(stage, config, tiny_dataset, killed, resume=True)
+    a, b = read_checkpoint(whole / stage / "latest.pt"), read_checkpoint(killed / stage / "latest.pt")
+    assert a["progress"] == b["progress"]
+    wa, wb = weights(whole / stage / "latest.pt"), weights(killed / stage / "latest.pt")
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
+    steps_a = [(r["split"], r["step"]) for r in map(json.loads, (whole / stage / "metrics.jsonl").read_text().splitlines())]
+    steps_b = [(r["split"], r["step"]) for r in map(json.loads, (killed / stage / "metrics.jsonl").read_text().splitlines())]
+    assert steps_a == steps_b
+
+
+def test_mismatched_checkpoints_are_refused(tiny_dataset, tiny_config, tiny_run, tmp_path):
+    run_dir = tmp_path / "run"
+    for stage in ("ae", "length"):
+        (run_dir / stage).mkdir(parents=True)
+        (run_dir / stage / "latest.pt").write_bytes((tiny_run / stage / "latest.pt").read_bytes())
+    bigger = apply_overrides(tiny_config, {"ae.model.hidden_size": "48"})
+    with pytest.raises(ValueError, match="model size differs"):
+        run_stage("ae", bigger, tiny_dataset, run_dir, resume=True)
+    (run_dir / "ae" / "latest.pt").write_bytes((tiny_run / "length" / "latest.pt").read_bytes())
+    with pytest.raises(ValueError, match="'length' checkpoint, not 'ae'"):
+        run_stage("ae", tiny_config, tiny_dataset, run_dir, resume=True)
+    other_words = apply_overrides(tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "50"})
+    with pytest.raises(ValueError, match="vocabulary differs"):
+        run_stage("length", other_words, tiny_dataset, run_dir, resume=True)
+    with pytest.raises(ValueError, match="make train-ae"):
+        run_stage("t2m", tiny_config, tiny_dataset, tmp_path / "empty")
+    with pytest.raises(ValueError, match="make train-len"):
+        load_stage(tmp_path / "empty", "length")
+
+
+def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
+    config = apply_overrides(tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "8"})
+    run_stage("length", config, tiny_dataset, tmp_path)
+    trained = load_stage(tmp_path, "length")
+    assert trained.vectorizer.trainable and "walk" in trained.vectorizer.index
+    encoded = trained.vectorizer.encode_tokens(["walk/VERB", "zzzz/NOUN"])
+    assert encoded.words.dtype.kind == "i" and encoded.words[2] == trained.vectorizer.index["unk"]
+    logits = trained.models["length"](torch.from_numpy(encoded.words)[None], torch.from_numpy(encoded.pos_onehot)[None],
+                                      torch.tensor([encoded.length]))  # fmt: skip
+    assert logits.shape == (1, 50)
+
+
+def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
+    base = ["ae", "--preset", "tiny", "--dataset", str(tiny_dataset), "--checkpoints", str(tmp_path), "--device", "cpu"]
+    assert main(base + ["--ae.nonexistent=1"]) == 2
+    assert "unknown config key" in capsys.readouterr().err
+    assert main(base + ["--ae.batch_size=abc"]) == 2
+    assert "expected an integer" in capsys.readouterr().err
+    assert main(["ae", "--preset", "huge"]) == 2
+    assert main(["ae", "--preset", "tiny", "--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]) == 2
+    assert main(base + ["--ae.max_steps=2", "--ae.epochs=1"]) == 0
+    assert (tmp_path / "ae" / "best.pt").is_file()
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _ddp_worker(rank: int, world_size: int, port: int, dataset: str, run_dir: str, config_dict: dict) -> None:
+    from t2m.config import from_dict
+
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world_size),
+                      LOCAL_RANK=str(rank))  # fmt: skip
+    torch.set_num_threads(1)
+    run_stage("ae", from_dict(config_dict), dataset, run_dir)
+    # every process ends with the main process's weights (DDP averages the gradients)
+    trained = load_stage(run_dir, "ae", which="latest").models["autoencoder"].state_dict()
+    torch.save(trained, Path(run_dir) / f"rank{rank}.pt")
+
+
+def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
+    config = apply_overrides(tiny_config, {"ae.batch_size": "8", "ae.epochs": "1"})
+    mp.start_processes(_ddp_worker, args=(2, _free_port(), str(tiny_dataset), str(tmp_path), config.to_dict()),
+                       nprocs=2, join=True, start_method="spawn")  # fmt: skip
+    checkpoint = read_checkpoint(tmp_path / "ae" / "latest.pt")
+    # 28 training clips, 14 per process, batches of 8: one step per epoch per process
+    assert checkpoint["progress"]["step"] == 1
+    single = read_checkpoint(tmp_path / "ae" / "latest.pt")["models"]["autoencoder"]
+    assert all(torch.isfinite(v).all() for v in single.values())
