@@ -379,7 +379,7 @@ def apply_overrides(cfg: Config, overrides: dict[str, str]) -> Config:
                 raise ValueError(f"unknown config key {key!r}")
             names = {f.name for f in dataclasses.fields(node)}
             if part not in names:
-                raise ValueError(f"unknown config key {key!r} ({'.'.join(parts[:depth + 1])!r})")
+                raise ValueError(f"unknown config key {key!r} ({'.'.join(parts[: depth + 1])!r})")
             if depth == len(parts) - 1:
                 annotation = _field_types(type(node))[part]
                 if dataclasses.is_dataclass(annotation):
@@ -431,7 +431,9 @@ def validate(cfg: Config) -> None:
         raise ValueError("ae.window_frames must be a positive multiple of data.unit_length")
     t2m = cfg.t2m
     if not data.min_frames // data.unit_length <= t2m.start_snippets <= t2m.end_snippets:
-        raise ValueError("need data.min_frames / unit_length <= t2m.start_snippets <= t2m.end_snippets")
+        raise ValueError(
+            "need data.min_frames / unit_length <= t2m.start_snippets <= t2m.end_snippets"
+        )
     if t2m.end_snippets * data.unit_length > data.max_frames:
         raise ValueError("t2m.end_snippets * unit_length must not exceed data.max_frames")
     if t2m.model.max_snippets <= data.max_frames // data.unit_length:

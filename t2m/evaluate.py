@@ -98,6 +98,8 @@ class EvalConfig:
     device: str = "cpu"
     which: str = "best"
     """Checkpoint of each stage: best or latest."""
+    precision: str = "fp32"
+    """Generator precision (fp32, bf16, int8); the evaluator always runs in float32."""
     quick: bool = False
     """A development run (few replications on a subset); marked in every output."""
 
@@ -124,7 +126,15 @@ def deviations(config: EvalConfig, num_items: int) -> list[str]:
         notes.append(
             "QUICK MODE: development run on a subset, not comparable with published numbers"
         )
-    for key in ("split", "replications", "mm_texts", "mm_samples", "pool_size", "mm_pairs"):
+    for key in (
+        "split",
+        "replications",
+        "mm_texts",
+        "mm_samples",
+        "pool_size",
+        "mm_pairs",
+        "precision",
+    ):
         value, standard = getattr(config, key), getattr(STANDARD, key)
         if value != standard:
             notes.append(f"{key} = {value} (standard: {standard})")
@@ -224,7 +234,7 @@ def draw_items(
 # the protocol
 
 
-SemanticScorer = Callable[[Sequence[str], Sequence[np.ndarray]], dict[str, float]]
+SemanticScore = Callable[[Sequence[str], Sequence[np.ndarray]], dict[str, float]]
 """(clip names, raw features (T_i, D)) -> label accuracies (``"all"`` is the one tabled)."""
 
 
@@ -238,6 +248,19 @@ class ProtocolResult:
     num_available: int
     config: EvalConfig
     timings_s: dict[str, float] = field(default_factory=dict)
+
+
+class _Timer:
+    """Accumulates wall time per kind of work: ``timer("embed_s", fn, *args)`` calls ``fn``."""
+
+    def __init__(self, *keys: str):
+        self.seconds = dict.fromkeys(keys, 0.0)
+
+    def __call__(self, key: str, fn: Callable[..., Any], *args: Any) -> Any:
+        start = time.perf_counter()
+        out = fn(*args)
+        self.seconds[key] += time.perf_counter() - start
+        return out
 
 
 def _seed(*keys: int) -> int:
@@ -276,6 +299,7 @@ def _multimodality(
     config: EvalConfig,
     seed: int,
     rng: np.random.Generator,
+    timer: _Timer,
 ) -> float:
     """MultiModality of the first ``mm_texts`` rows: their own generation plus
     ``mm_samples - 1`` more each, generated in one batched call."""
@@ -283,7 +307,8 @@ def _multimodality(
     extra = config.mm_samples - 1
     repeated = [captions[k] for k in range(num_texts) for _ in range(extra)]
     repeated_lengths = None if lengths is None else np.repeat(lengths[:num_texts], extra)
-    more = backend.embed_motions(backend.generate(repeated, repeated_lengths, seed))
+    generated = timer("generate_s", backend.generate, repeated, repeated_lengths, seed)
+    more = timer("embed_s", backend.embed_motions, generated)
     more = more.reshape(num_texts, extra, -1)  # (C, S - 1, E)
     samples = np.concatenate([first_generation[:num_texts, None], more], axis=1)  # (C, S, E)
     return metrics.multimodality(
@@ -297,7 +322,7 @@ def run_protocol(
     config: EvalConfig,
     unit_length: int = 4,
     max_frames: int = 196,
-    semantic: SemanticScorer | None = None,
+    semantic: SemanticScore | None = None,
 ) -> ProtocolResult:
     """Run ``config.replications`` replications of the protocol on ``clips`` (raw features).
 
@@ -319,13 +344,7 @@ def run_protocol(
         for row in ROWS
     }
     semantic_values: dict[str, dict[str, list[float]]] = {row: {} for row in ROWS}
-    timings = {"generate_s": 0.0, "embed_s": 0.0, "metrics_s": 0.0, "semantic_s": 0.0}
-
-    def timed(key: str, fn: Callable[..., Any], *args: Any) -> Any:
-        start = time.perf_counter()
-        out = fn(*args)
-        timings[key] += time.perf_counter() - start
-        return out
+    timed = _Timer("generate_s", "embed_s", "metrics_s", "semantic_s")
 
     def add_semantic(row: str, draw: Draw, motions: Sequence[np.ndarray]) -> None:
         if semantic is None:
@@ -371,7 +390,6 @@ def run_protocol(
             text = timed("embed_s", backend.embed_texts, captions)
             motion = timed("embed_s", backend.embed_motions, generated)
             row = timed("metrics_s", _row_metrics, text, motion, reference, config, metric_rng)
-            start = time.perf_counter()
             row["multimodality"] = _multimodality(
                 backend,
                 captions,
@@ -380,13 +398,12 @@ def run_protocol(
                 config,
                 _seed(config.seed, rep, variant, 1),
                 metric_rng,
+                timed,
             )
-            # The extra generations dominate this call's time.
-            timings["generate_s"] += time.perf_counter() - start
             for name, value in row.items():
                 values[row_name][name].append(value)
             add_semantic(row_name, draw, generated)
-    timings["total_s"] = time.perf_counter() - total_start
+    timings = dict(timed.seconds, total_s=time.perf_counter() - total_start)
     return ProtocolResult(
         values=values,
         semantic=semantic_values,
@@ -511,40 +528,34 @@ def _chunks(count: int, size: int) -> list[slice]:
 
 
 class CheckpointBackend:
-    """The evaluator, text2length and temporal VAE of a run, batched.
+    """The trained evaluator (embeddings) and the shared text-to-motion pipeline (generation).
 
-    Build one with :meth:`from_run_dir`, or from :class:`~t2m.train.checkpoint.TrainedStage`
-    objects (the benchmark builds untrained ones of a preset's sizes).
+    Build one with :meth:`from_run_dir`, or from an evaluator stage
+    (:class:`~t2m.train.checkpoint.TrainedStage`) and a :class:`~t2m.pipeline.TextToMotion`
+    (the benchmark builds untrained ones of a preset's sizes).
 
     Args:
-        eval_stage, length_stage, t2m_stage: the trained stages (models in eval mode).
-        device: where the models are.
+        eval_stage: the trained ``eval`` stage (its evaluator, statistics and vocabulary).
+        pipeline: generation (text2length + temporal VAE + decoder), batched.
         batch_size: items per forward pass.
     """
 
-    def __init__(
-        self,
-        eval_stage: Any,
-        length_stage: Any,
-        t2m_stage: Any,
-        device: str | torch.device = "cpu",
-        batch_size: int = 256,
-    ):
+    def __init__(self, eval_stage: Any, pipeline: Any, batch_size: int = 256):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        self.device = torch.device(device)
-        self.batch_size = batch_size
         self.eval_stage = eval_stage
-        self.length_stage = length_stage
-        self.t2m_stage = t2m_stage
+        self.pipeline = pipeline
+        self.batch_size = batch_size
         self.evaluator = eval_stage.models["evaluator"]
-        self.length_model = length_stage.models["length"]
-        self.vae = t2m_stage.models["vae"]
-        self.decoder = t2m_stage.models["decoder"]
+        self.device = next(self.evaluator.parameters()).device
         self.data_config = eval_stage.config.data
-        if eval_stage.dims["feature_dim"] != t2m_stage.dims["feature_dim"]:
-            raise ValueError("the eval and t2m stages disagree on the feature size")
-        self._encoded: dict[tuple[int, tuple[str, ...]], tuple[np.ndarray, np.ndarray, int]] = {}
+        if eval_stage.normalizer.dim != pipeline.normalizer.dim:
+            raise ValueError(
+                f"the evaluator reads {eval_stage.normalizer.dim}-d features but the generator "
+                f"writes {pipeline.normalizer.dim}-d ones"
+            )
+        # Replications reuse captions: encode each once per vocabulary.
+        self._encoded: dict[tuple[str, tuple[str, ...]], Any] = {}
 
     @classmethod
     def from_run_dir(
@@ -553,56 +564,49 @@ class CheckpointBackend:
         device: str = "cpu",
         which: str = "best",
         batch_size: int = 256,
+        precision: str = "fp32",
     ) -> CheckpointBackend:
         """Load ``eval/ length/ t2m/`` of a run folder (a one-line ValueError names the make
         target of a missing stage)."""
-        from t2m.train.checkpoint import load_stage  # torch-heavy; only when models are used
+        from t2m.pipeline import TextToMotion
+        from t2m.train.checkpoint import load_stage
+        from t2m.train.runtime import resolve_device
 
-        stages = [load_stage(run_dir, stage, device, which) for stage in ("eval", "length", "t2m")]
-        return cls(*stages, device=device, batch_size=batch_size)
+        resolved = resolve_device(device)
+        eval_stage = load_stage(run_dir, "eval", resolved, which)
+        pipeline = TextToMotion.from_checkpoints(run_dir, str(resolved), precision, which=which)
+        return cls(eval_stage, pipeline, batch_size)
 
-    @property
-    def unit_length(self) -> int:
-        return self.data_config.unit_length
-
-    @property
-    def max_frames(self) -> int:
-        return self.data_config.max_frames
-
-    def _text_inputs(self, stage: Any, captions: Sequence[Caption]) -> tuple[torch.Tensor, ...]:
-        """Captions -> words (B, L, Dw) or ids, POS one-hot (B, L, 15), lengths (B,) for the
-        vocabulary of ``stage``; encodings are cached since replications reuse captions."""
-        vectorizer = stage.vectorizer
-        rows, pos, lengths = [], [], []
+    def _encode(self, vectorizer: Any, captions: Sequence[Caption]) -> list[Any]:
+        """Dataset tokens (``word/POS``) -> EncodedText, as the models were trained on them."""
+        fingerprint = vectorizer.fingerprint()
+        out = []
         for caption in captions:
-            key = (id(vectorizer), tuple(caption.tokens))
+            key = (fingerprint, tuple(caption.tokens))
             if key not in self._encoded:
-                encoded = vectorizer.encode_tokens(caption.tokens)
-                self._encoded[key] = (encoded.words, encoded.pos_onehot, encoded.length)
-            words, onehot, length = self._encoded[key]
-            rows.append(words)
-            pos.append(onehot)
-            lengths.append(length)
-        return (
-            torch.from_numpy(np.stack(rows)).to(self.device),
-            torch.from_numpy(np.stack(pos)).to(self.device),
-            torch.tensor(lengths, dtype=torch.long, device=self.device),
-        )
+                self._encoded[key] = vectorizer.encode_tokens(caption.tokens)
+            out.append(self._encoded[key])
+        return out
 
     @torch.no_grad()
     def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
+        encoded = self._encode(self.eval_stage.vectorizer, captions)
         out = []
-        for chunk in _chunks(len(captions), self.batch_size):
-            words, pos, lengths = self._text_inputs(self.eval_stage, captions[chunk])
+        for chunk in _chunks(len(encoded), self.batch_size):
+            items = encoded[chunk]
+            words = torch.from_numpy(np.stack([e.words for e in items])).to(self.device)
+            pos = torch.from_numpy(np.stack([e.pos_onehot for e in items])).to(self.device)
+            lengths = torch.tensor([e.length for e in items], dtype=torch.long, device=self.device)
             out.append(self.evaluator.embed_text(words, pos, lengths).float().cpu().numpy())
         return np.concatenate(out)
 
     @torch.no_grad()
     def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
         normalizer = self.eval_stage.normalizer
+        unit = self.data_config.unit_length
         lengths = np.array([len(m) for m in motions], dtype=np.int64)
-        if np.any(lengths % self.unit_length) or np.any(lengths < self.unit_length):
-            raise ValueError(f"motion lengths must be positive multiples of {self.unit_length}")
+        if np.any(lengths % unit) or np.any(lengths < unit):
+            raise ValueError(f"motion lengths must be positive multiples of {unit}")
         out = []
         for chunk in _chunks(len(motions), self.batch_size):
             batch = motions[chunk]
@@ -616,46 +620,38 @@ class CheckpointBackend:
             out.append(embeddings.float().cpu().numpy())
         return np.concatenate(out)
 
-    @torch.no_grad()
-    def sample_lengths(self, captions: Sequence[Caption], generator: torch.Generator) -> np.ndarray:
-        """Frames per caption drawn from text2length (multiples of the unit, <= max_frames)."""
-        from t2m.models.length import sample_lengths
-
-        units = []
-        for chunk in _chunks(len(captions), self.batch_size):
-            words, pos, lengths = self._text_inputs(self.length_stage, captions[chunk])
-            logits = self.length_model(words, pos, lengths)
-            units.append(sample_lengths(logits, generator).cpu().numpy())
-        frames = np.concatenate(units).astype(np.int64) * self.unit_length
-        return np.minimum(frames, (self.max_frames // self.unit_length) * self.unit_length)
-
-    @torch.no_grad()
     def generate(
         self, captions: Sequence[Caption], lengths: np.ndarray | None, seed: int
     ) -> list[np.ndarray]:
-        generator = torch.Generator(self.device).manual_seed(seed)
+        from t2m.pipeline import PreparedText
+
+        pipeline = self.pipeline
+        generator = torch.Generator(pipeline.device).manual_seed(seed)
+        encoded = self._encode(pipeline.vectorizer, captions)
         if lengths is None:
-            lengths = self.sample_lengths(captions, generator)
-        lengths = np.asarray(lengths, dtype=np.int64)
-        if len(lengths) != len(captions):
-            raise ValueError(f"{len(lengths)} lengths for {len(captions)} captions")
+            prepared = [
+                PreparedText(c.text, e, (), ()) for c, e in zip(captions, encoded, strict=True)
+            ]
+            frames = np.concatenate(
+                [
+                    pipeline.sample_lengths(prepared[chunk], generator)
+                    for chunk in _chunks(len(prepared), self.batch_size)
+                ]
+            ).astype(np.int64)
+        else:
+            frames = np.asarray(lengths, dtype=np.int64)
+            if len(frames) != len(captions):
+                raise ValueError(f"{len(frames)} lengths for {len(captions)} captions")
         # Batches of similar length waste fewer recurrent steps on padding.
-        order = np.argsort(-lengths, kind="stable")
-        t2m_normalizer = self.t2m_stage.normalizer
+        order = np.argsort(-frames, kind="stable")
         out: list[np.ndarray | None] = [None] * len(captions)
         for chunk in _chunks(len(order), self.batch_size):
             index = order[chunk]
-            words, pos, text_lengths = self._text_inputs(
-                self.t2m_stage, [captions[i] for i in index]
+            features = pipeline.generate_features(
+                [encoded[i] for i in index], [int(frames[i]) for i in index], generator
             )
-            word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
-            snippets = torch.from_numpy(lengths[index] // self.unit_length).to(self.device)
-            codes = self.vae.generate(
-                word_features, sentence, mask, snippets, self.t2m_stage.initial_code, generator
-            )
-            features = t2m_normalizer.denormalize(self.decoder(codes).float().cpu().numpy())
-            for row, item in enumerate(index):
-                out[item] = features[row, : lengths[item]]
+            for item, feats in zip(index, features, strict=True):
+                out[item] = feats
         return out  # type: ignore[return-value]
 
 
@@ -678,7 +674,7 @@ def evaluate(
     # 1. models
     if backend is None:
         backend = CheckpointBackend.from_run_dir(
-            checkpoints_dir, config.device, config.which, config.batch_size
+            checkpoints_dir, config.device, config.which, config.batch_size, config.precision
         )
     data_config = getattr(backend, "data_config", None)
     if data_config is None:
@@ -687,7 +683,7 @@ def evaluate(
         data_config = DataConfig()
     # 2. data
     clips = load_split(dataset_dir, config.split, data_config)
-    semantic = semantic_scorer(dataset_dir)
+    semantic = SemanticScorer.for_dataset(dataset_dir)
     # 3. protocol
     result = run_protocol(
         clips,
@@ -706,9 +702,98 @@ def evaluate(
     return summary
 
 
-def semantic_scorer(dataset_dir: str | Path) -> SemanticScorer | None:
-    """Label detectors for a demo-corpus dataset, or None when the dataset carries no labels."""
-    return None
+def find_corpus_labels(dataset_dir: str | Path) -> Path | None:
+    """The demo corpus' ``labels.json`` behind a built dataset, or None.
+
+    Looked for in the dataset folder itself, then in the source folder its ``build_report.json``
+    names, which must be a corpus written by ``dataset_tools.synth`` (its ``source.json`` says so).
+    """
+    dataset_dir = Path(dataset_dir)
+    if (dataset_dir / "labels.json").is_file():
+        return dataset_dir / "labels.json"
+    report_path = dataset_dir / "build_report.json"
+    if not report_path.is_file():
+        return None
+    try:
+        report = json.loads(report_path.read_text(encoding="utf-8"))
+        source_dir = Path(report["config"]["input_dir"])
+        source = json.loads((source_dir / "source.json").read_text(encoding="utf-8"))
+    except (OSError, KeyError, TypeError, json.JSONDecodeError):
+        return None
+    labels = source_dir / "labels.json"
+    if source.get("generator") != "dataset_tools.synth" or not labels.is_file():
+        return None
+    return labels
+
+
+class SemanticScorer:
+    """Semantic accuracy on the demo corpus: do the corpus' own detectors find an item's labels?
+
+    An item counts as right when every labelled segment of its source clip is recovered from the
+    joints (the motion is cut in proportion to the segments' frames, see
+    ``dataset_tools.synth.detectors.clip_matches``); mirrored clips (``M`` prefix) are checked
+    against the mirrored labels. Sub-clips with their own time range are not scored.
+
+    Args:
+        labels: the content of ``labels.json`` (``{"fps", "clips": {name: {"frames",
+            "segments"}}}``).
+        fps: frame rate of the dataset's motions.
+    """
+
+    def __init__(self, labels: dict[str, Any], fps: float = 20.0):
+        self.clips = labels["clips"]
+        self.fps = fps
+
+    @classmethod
+    def for_dataset(cls, dataset_dir: str | Path) -> SemanticScorer | None:
+        """A scorer when the dataset was built from the demo corpus, else None."""
+        path = find_corpus_labels(dataset_dir)
+        if path is None:
+            return None
+        logger.info("semantic accuracy from the corpus labels in %s", path)
+        return cls(json.loads(path.read_text(encoding="utf-8")))
+
+    def segments_for(self, name: str) -> list[dict] | None:
+        """The ground-truth segments of a dataset clip name, or None when it has none."""
+        from dataset_tools.synth.detectors import mirror_label
+
+        if "#" in name:  # a captioned sub-clip: its labels are not known
+            return None
+        if name in self.clips:
+            return self.clips[name]["segments"]
+        if name.startswith("M") and name[1:] in self.clips:
+            return [mirror_label(segment) for segment in self.clips[name[1:]]["segments"]]
+        return None
+
+    def __call__(self, names: Sequence[str], motions: Sequence[np.ndarray]) -> dict[str, float]:
+        """Raw features (T_i, D) of the named items -> ``all`` (items fully right),
+        ``segments`` (segments right) and ``action_<name>`` (segments of that action right)."""
+        from dataset_tools.representation import FeatureLayout, recover_from_ric
+        from dataset_tools.synth.detectors import clip_matches
+
+        items_right, items, per_action = 0, 0, {}
+        for name, motion in zip(names, motions, strict=True):
+            segments = self.segments_for(name)
+            if segments is None:
+                continue
+            base = name[1:] if name not in self.clips else name
+            joints = recover_from_ric(motion, FeatureLayout.for_dim(motion.shape[-1]).num_joints)
+            matched = clip_matches(joints, self.fps, segments, self.clips[base]["frames"])
+            items += 1
+            items_right += all(matched)
+            for segment, ok in zip(segments, matched, strict=True):
+                tally = per_action.setdefault(segment["action"], [0, 0])
+                tally[0] += ok
+                tally[1] += 1
+        if items == 0:
+            return {}
+        scores = {"all": items_right / items}
+        scores["segments"] = sum(t[0] for t in per_action.values()) / sum(
+            t[1] for t in per_action.values()
+        )
+        for action, (right, total) in sorted(per_action.items()):
+            scores[f"action_{action}"] = right / total
+        return scores
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -754,6 +839,12 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--which", choices=("best", "latest"), default="best", help="checkpoint of each stage"
     )
+    parser.add_argument(
+        "--precision",
+        choices=("fp32", "bf16", "int8"),
+        default="fp32",
+        help="generator precision (default fp32; others are marked as deviations)",
+    )
     return parser
 
 
@@ -773,6 +864,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         seed=args.seed,
         device=args.device,
         which=args.which,
+        precision=args.precision,
     )
     if args.quick:
         config = quick_config(config)

@@ -24,7 +24,7 @@ Conventions pinned here, because published numbers depend on them:
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -326,47 +326,3 @@ def confidence_interval(values: Sequence[float] | np.ndarray) -> tuple[float, fl
     if array.size == 0:
         raise ValueError("confidence_interval needs at least one value")
     return float(array.mean()), float(CONFIDENCE_Z * array.std() / math.sqrt(array.size))
-
-
-def label_accuracy(
-    predicted: Sequence[Mapping[str, Any]],
-    truth: Sequence[Mapping[str, Any]],
-    keys: Sequence[str] | None = None,
-) -> dict[str, float]:
-    """Fraction of items whose predicted labels equal the ground truth, per key and jointly.
-
-    A key that the ground truth of an item does not carry (or carries as None) is not scored for
-    that item, since e.g. "side" is meaningless for a jump.
-
-    Args:
-        predicted: one dict of detected labels per item.
-        truth: one dict of ground-truth labels per item.
-        keys: label names to score (default: all keys present in the ground truth).
-
-    Returns:
-        ``{key: accuracy}`` for every key with at least one scored item, plus ``"all"``: the
-        fraction of items whose every scored key is right.
-    """
-    if len(predicted) != len(truth):
-        raise ValueError(f"{len(predicted)} predictions for {len(truth)} ground-truth items")
-    if len(truth) == 0:
-        raise ValueError("label_accuracy needs at least one item")
-    if keys is None:
-        keys = sorted({k for item in truth for k, v in item.items() if v is not None})
-    correct = {k: 0 for k in keys}
-    scored = {k: 0 for k in keys}
-    all_right = 0
-    for pred, true in zip(predicted, truth, strict=True):
-        item_right = True
-        for key in keys:
-            if true.get(key) is None:
-                continue
-            scored[key] += 1
-            if pred.get(key) == true[key]:
-                correct[key] += 1
-            else:
-                item_right = False
-        all_right += item_right
-    result = {k: correct[k] / scored[k] for k in keys if scored[k] > 0}
-    result["all"] = all_right / len(truth)
-    return result

@@ -281,19 +281,28 @@ class TextToMotion:
         return words_tensor, torch.from_numpy(pos).to(self.device, dtype), lengths
 
     def sample_lengths(
-        self, prepared: Sequence[PreparedText], generator: torch.Generator
+        self,
+        prepared: Sequence[PreparedText],
+        generator: torch.Generator,
+        repeats: int = 1,
+        batch_size: int = 256,
     ) -> list[int]:
-        """Draw one length in frames per prepared prompt from the text2length model."""
+        """Draw lengths in frames from the text2length model: ``repeats`` draws per prompt,
+        prompt-major (the model runs once per prompt, in batches of ``batch_size``)."""
         if self.length_model is None:
             raise ValueError("no text2length model loaded: give lengths (--length / --seconds) "
                              "or load the `length` stage (`make train-len`)")  # fmt: skip
         unit = self.data.unit_length
         # Both models share one vocabulary (checked on construction), so one encoding serves.
         encoded = [item.encoded for item in prepared]
-        words, pos, lengths = self._text_batch(encoded, self.length_vectorizer, torch.float32)
+        logits = []
         with torch.inference_mode():
-            logits = self.length_model(words, pos, lengths)
-            units = sample_lengths(logits, generator, min_units=self.data.min_frames // unit)
+            for start in range(0, len(encoded), batch_size):
+                chunk = encoded[start : start + batch_size]
+                words, pos, lengths = self._text_batch(chunk, self.length_vectorizer, torch.float32)
+                logits.append(self.length_model(words, pos, lengths).float())
+            per_draw = torch.cat(logits).repeat_interleave(repeats, dim=0)  # (N * repeats, K)
+            units = sample_lengths(per_draw, generator, min_units=self.data.min_frames // unit)
         max_units = self.data.max_frames // unit
         return [int(u) * unit for u in units.clamp(max=max_units).tolist()]
 
@@ -358,10 +367,13 @@ class TextToMotion:
         generator = torch.Generator(self.device).manual_seed(seed)
         items = [(p, r) for p in range(len(texts)) for r in range(num_samples)]
         frames = {item: fixed[item[0]] for item in items}
-        missing = [item for item in items if frames[item] is None]
-        if missing:
-            drawn = self.sample_lengths([prepared[p] for p, _ in missing], generator)
-            frames.update(zip(missing, drawn))
+        unsized = [p for p in range(len(texts)) if fixed[p] is None]
+        if unsized:
+            drawn = iter(self.sample_lengths([prepared[p] for p in unsized], generator,
+                                             repeats=num_samples, batch_size=batch_size))  # fmt: skip
+            for p in unsized:
+                for r in range(num_samples):
+                    frames[(p, r)] = next(drawn)
         # 3.-4. batches of similar lengths (stable order: ties keep prompt-major order)
         order = sorted(items, key=lambda item: -frames[item])
         results: dict[tuple[int, int], GeneratedMotion] = {}

@@ -126,7 +126,10 @@ class _StickFigure:
             self.radius = config.view_radius
             self.centers = root_xz
         else:
-            lo, hi = joints[..., [0, 2]].reshape(-1, 2).min(0), joints[..., [0, 2]].reshape(-1, 2).max(0)
+            lo, hi = (
+                joints[..., [0, 2]].reshape(-1, 2).min(0),
+                joints[..., [0, 2]].reshape(-1, 2).max(0),
+            )
             self.radius = max(config.view_radius, 0.55 * float((hi - lo).max()))
             self.centers = np.repeat(((lo + hi) / 2)[None], len(joints), axis=0)
         colors = {
@@ -262,7 +265,7 @@ def render_animation(
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    logger.info("wrote %s (%d frames)", path, len(joints))
+    logger.debug("wrote %s (%d frames)", path, len(joints))
     return path
 
 
@@ -352,3 +355,50 @@ def render_keyframes(
         if os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+def _load_joints(path: str) -> np.ndarray:
+    """Joints (T, J, 3) from a .npy file: a joints array, or features (T, D) recovered to joints."""
+    from dataset_tools.representation import FeatureLayout, recover_from_ric
+
+    try:
+        array = np.load(path)
+    except (OSError, ValueError) as error:
+        raise ValueError(f"cannot read {path}: {error}") from None
+    if array.ndim == 2:  # features: recover the joints they describe
+        FeatureLayout.for_dim(array.shape[-1])
+        return recover_from_ric(array)
+    return array
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m t2m.render IN.npy OUT.mp4|gif|png [--caption TEXT]``: render a motion file
+    (joints (T, J, 3) or features (T, D)); PNG gives a key-frame strip."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(
+        prog="python -m t2m.render",
+        description="Render joints (T, J, 3) or features (T, D) from a .npy file as an mp4 or "
+        "gif stick-figure animation, or a PNG strip of key frames.",
+    )
+    parser.add_argument("input", help=".npy joints (T, J, 3), metres, y-up, or features (T, D)")
+    parser.add_argument("output", help="output file: .mp4, .gif or .png (key-frame strip)")
+    parser.add_argument("--caption", default="", help="title shown above the figure")
+    parser.add_argument("--fps", type=float, default=20.0, help="frames per second (default 20)")
+    parser.add_argument("--keyframes", type=int, default=6, help="panels of a PNG strip")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        joints = _load_joints(args.input)
+        if args.output.lower().endswith(".png"):
+            render_keyframes(joints, args.output, args.caption, args.keyframes, args.fps)
+        else:
+            render_animation(joints, args.output, args.caption, args.fps)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

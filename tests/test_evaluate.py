@@ -206,3 +206,64 @@ def test_tiny_end_to_end_evaluation(tiny_run, tiny_dataset, tmp_path, capsys):
     text = (out / "results.md").read_text()
     assert "| Ours (sampled length) |" in text and "Deviations from the standard protocol" in text
     assert "results.md" in capsys.readouterr().out
+
+
+def _corpus_items(count: int):
+    """Demo-corpus clips as the builder makes them: y-up, 20 fps, canonical features."""
+    from dataset_tools.mirror import mirror_joints
+    from dataset_tools.representation import process_motion
+    from dataset_tools.segment import resample
+    from dataset_tools.synth.corpus import clip_name, make_clip, z_up_to_y_up
+
+    labels, names, features, mirrored = {"fps": 60, "clips": {}}, [], [], []
+    for index in range(count):
+        joints, _, label = make_clip(3, index)
+        labels["clips"][clip_name(index)] = label
+        y_up = resample(z_up_to_y_up(joints), 60, 20)
+        names.append(clip_name(index))
+        features.append(process_motion(y_up)[0])
+        mirrored.append(process_motion(mirror_joints(y_up))[0])
+    return labels, names, features, mirrored
+
+
+def test_semantic_scorer_recovers_corpus_labels_and_rejects_wrong_ones():
+    labels, names, features, mirrored = _corpus_items(8)
+    scorer = evaluate.SemanticScorer(labels)
+    right = scorer(names, features)
+    assert right["all"] >= 0.75 and right["segments"] >= 0.8
+    assert set(right) >= {"all", "segments"} and any(k.startswith("action_") for k in right)
+    # Each motion scored against another clip's labels.
+    wrong = scorer(names, features[1:] + features[:1])
+    assert wrong["all"] <= 0.25
+    # Mirrored clips are held to the mirrored labels (left and right swap).
+    assert scorer(["M" + n for n in names], mirrored)["all"] >= 0.75
+    assert scorer(["M" + n for n in names], features)["all"] < right["all"]
+    # Sub-clips and unknown clips are not scored.
+    assert scorer([names[0] + "#0.0#2.0", "elsewhere"], features[:2]) == {}
+
+
+def test_corpus_labels_are_found_through_the_build_report(tmp_path):
+    source, dataset = tmp_path / "source", tmp_path / "dataset"
+    source.mkdir()
+    dataset.mkdir()
+    assert evaluate.find_corpus_labels(dataset) is None
+    (source / "labels.json").write_text(json.dumps({"fps": 60, "clips": {}}))
+    (source / "source.json").write_text(json.dumps({"generator": "dataset_tools.synth"}))
+    report = {"config": {"input_dir": str(source)}}
+    (dataset / "build_report.json").write_text(json.dumps(report))
+    assert evaluate.find_corpus_labels(dataset) == source / "labels.json"
+    (source / "source.json").write_text(json.dumps({"generator": "someone else"}))
+    assert evaluate.find_corpus_labels(dataset) is None
+
+
+def test_semantic_accuracy_reaches_the_table():
+    def semantic(names, motions):
+        return {"all": 0.5, "segments": 0.75}
+
+    config = evaluate.EvalConfig(replications=2, mm_texts=4, mm_samples=10)
+    result = evaluate.run_protocol(_clips(64), FakeBackend(), config, semantic=semantic)
+    summary = evaluate.summarize(result)
+    for row in evaluate.ROWS:
+        assert summary["rows"][row]["semantic_accuracy"]["values"] == [0.5, 0.5]
+        assert summary["rows"][row]["semantic_accuracy_segments"]["mean"] == 0.75
+    assert "Semantic accuracy" in evaluate.format_markdown(summary)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -97,6 +98,23 @@ def test_third_party_parser_reads_the_file_and_reproduces_joints(tmp_path):
     np.testing.assert_allclose(np.linalg.norm(offsets, axis=-1)[1:], SMPL.bone_lengths[1:] * 100,
                                atol=1e-4)  # fmt: skip
     assert np.linalg.norm(positions / 100 - joints, axis=-1).max() < 0.01
+
+
+@pytest.mark.parametrize("units", ["cm", "m"])
+def test_round_trip_through_our_bvh_importer(tmp_path, units):
+    from dataset_tools.sources.bvh import BvhOptions, load_bvh_motion
+
+    joints = _reference_joints()
+    path = tmp_path / "clip.bvh"
+    write_bvh(joints, path, units=units)
+    # Our exports name the joints as SMPL does: the mapping is the identity.
+    mapping = tmp_path / "smpl.json"
+    mapping.write_text(json.dumps({name: name for name in SMPL.joint_names}))
+    motion = load_bvh_motion(path, BvhOptions(mapping=str(mapping)))
+    assert motion.fps == pytest.approx(20.0)
+    assert motion.metadata["scale"] == (0.01 if units == "cm" else 1.0)
+    assert motion.joints.shape == joints.shape
+    assert np.linalg.norm(motion.joints - joints, axis=-1).max() < 0.01
 
 
 def test_metres_units_and_euler_channels_invert_exactly(tmp_path):

@@ -21,7 +21,9 @@ from t2m.models.text_encoder import TextEncoder
 
 WORD_DIM, L = 12, 22
 AE = AutoencoderConfig(hidden_size=24, code_size=16, dropout=0.2)
-VAE = TemporalVAEConfig(text=TextEncoderConfig(hidden_size=10), hidden_size=20, latent_size=6, attention_size=8)
+VAE = TemporalVAEConfig(
+    text=TextEncoderConfig(hidden_size=10), hidden_size=20, latent_size=6, attention_size=8
+)
 
 
 def text_batch(batch: int, seed: int = 0, vocab: int = 0):
@@ -46,7 +48,11 @@ def test_autoencoder_shapes_and_loss():
     changed[..., -4:] = 5.0
     assert torch.equal(model.encode(changed), codes)
     losses = autoencoder_loss(reconstruction, motion, codes)
-    expected = F.l1_loss(reconstruction, motion) + 0.001 * codes.abs().mean() + 0.001 * (codes[:, 1:] - codes[:, :-1]).abs().mean()
+    expected = (
+        F.l1_loss(reconstruction, motion)
+        + 0.001 * codes.abs().mean()
+        + 0.001 * (codes[:, 1:] - codes[:, :-1]).abs().mean()
+    )
     assert torch.allclose(losses["loss"], expected)
     with pytest.raises(ValueError, match="multiple of 4"):
         model.encode(torch.randn(1, 10, 263))
@@ -61,7 +67,7 @@ def test_text_encoder_masks_padding_and_takes_ids():
     for row, length in enumerate(lengths.tolist()):
         assert torch.all(features[row, length:] == 0)
     noisy = words.clone()
-    noisy[0, lengths[0]:] = 100.0  # padding content must not matter
+    noisy[0, lengths[0] :] = 100.0  # padding content must not matter
     _, sentence2 = encoder(noisy, pos, lengths)
     assert torch.allclose(sentence, sentence2)
     trainable = TextEncoder(WORD_DIM, TextEncoderConfig(hidden_size=10), vocab_size=30)
@@ -73,7 +79,9 @@ def test_text_encoder_masks_padding_and_takes_ids():
 
 def test_length_estimator_and_sampling():
     torch.manual_seed(0)
-    model = LengthEstimator(WORD_DIM, LengthModelConfig(text=TextEncoderConfig(hidden_size=8), mlp_sizes=(16, 8))).eval()
+    model = LengthEstimator(
+        WORD_DIM, LengthModelConfig(text=TextEncoderConfig(hidden_size=8), mlp_sizes=(16, 8))
+    ).eval()
     logits = model(*text_batch(5))
     assert logits.shape == (5, 50)
     # all mass on class 3 (< 10 units): redraws cannot escape it, so the floor applies
@@ -86,11 +94,15 @@ def test_length_estimator_and_sampling():
     assert (draw(2) >= 10).all()
 
 
-def reference_forward(vae: TemporalVAE, words, pos, lengths, codes, initial, teacher_forcing, noise):
+def reference_forward(
+    vae: TemporalVAE, words, pos, lengths, codes, initial, teacher_forcing, noise
+):
     """The temporal VAE written plainly: concatenated inputs, attention recomputed each step."""
     features, sentence, mask = vae.encode_text(words, pos, lengths)
     batch, steps, _ = codes.shape
-    h_pri, h_pos, h_gen = (block.initial(sentence) for block in (vae.prior, vae.posterior, vae.generator))
+    h_pri, h_pos, h_gen = (
+        block.initial(sentence) for block in (vae.prior, vae.posterior, vae.generator)
+    )
     previous = initial.expand(batch, -1)
     outputs = []
     for i in range(steps):
@@ -100,8 +112,11 @@ def reference_forward(vae: TemporalVAE, words, pos, lengths, codes, initial, tea
         weights = torch.softmax(scores.masked_fill(~mask, float("-inf")), -1)
         attention = (weights[:, :, None] * values).sum(1)
         time_code = vae.time_table[torch.full((batch,), steps - i)]
-        def run(block, inputs, hidden):
-            return block.cell(F.leaky_relu(block.norm(block.input(inputs)), 0.2) + time_code, hidden)
+
+        def run(block, inputs, hidden, time_code=time_code):
+            pre = block.norm(block.input(inputs))
+            return block.cell(F.leaky_relu(pre, 0.2) + time_code, hidden)
+
         h_pos = run(vae.posterior, torch.cat([previous, codes[:, i], attention], -1), h_pos)
         h_pri = run(vae.prior, torch.cat([previous, attention], -1), h_pri)
         mean, logvar = vae.posterior_gaussian(h_pos)
@@ -135,11 +150,21 @@ def test_temporal_vae_generate_masks_lengths_and_is_seeded():
     features, sentence, mask = vae.encode_text(words, pos, lengths)
     snippets = torch.tensor([10, 4, 7])
     initial = torch.zeros(16)
-    codes = vae.generate(features, sentence, mask, snippets, initial, torch.Generator().manual_seed(5))
+    codes = vae.generate(
+        features, sentence, mask, snippets, initial, torch.Generator().manual_seed(5)
+    )
     assert codes.shape == (3, 10, 16)
-    assert torch.all(codes[1, 4:] == 0) and torch.all(codes[2, 7:] == 0) and codes[1, :4].abs().sum() > 0
-    again = vae.generate(features, sentence, mask, snippets, initial, torch.Generator().manual_seed(5))
-    other = vae.generate(features, sentence, mask, snippets, initial, torch.Generator().manual_seed(6))
+    assert (
+        torch.all(codes[1, 4:] == 0)
+        and torch.all(codes[2, 7:] == 0)
+        and codes[1, :4].abs().sum() > 0
+    )
+    again = vae.generate(
+        features, sentence, mask, snippets, initial, torch.Generator().manual_seed(5)
+    )
+    other = vae.generate(
+        features, sentence, mask, snippets, initial, torch.Generator().manual_seed(6)
+    )
     assert torch.equal(codes, again) and not torch.allclose(codes, other)
     with pytest.raises(ValueError, match="num_snippets"):
         vae.generate(features, sentence, mask, torch.tensor([0, 3, 3]), initial)
@@ -153,7 +178,9 @@ def test_temporal_vae_loss_and_kl():
     assert torch.allclose(kl, torch.tensor([[0.5]]))
     outputs = {"codes": torch.zeros(2, 3, 5), "posterior_mean": mean, "posterior_logvar": logvar,
                "prior_mean": mean, "prior_logvar": logvar}  # fmt: skip
-    losses = temporal_vae_loss(outputs, torch.ones(2, 3, 5), torch.zeros(2, 12, 7), torch.zeros(2, 12, 7))
+    losses = temporal_vae_loss(
+        outputs, torch.ones(2, 3, 5), torch.zeros(2, 12, 7), torch.zeros(2, 12, 7)
+    )
     assert torch.allclose(losses["loss"], torch.tensor(0.5))  # SmoothL1(0, 1) = 0.5, rest zero
 
 
@@ -164,7 +191,11 @@ def test_temporal_vae_backward_reaches_every_parameter():
     out = vae(features, sentence, mask, torch.randn(2, 5, 16), torch.zeros(16), False)
     (out["codes"].square().mean() + gaussian_kl(out["posterior_mean"], out["posterior_logvar"],
                                                 out["prior_mean"], out["prior_logvar"]).mean()).backward()  # fmt: skip
-    missing = [name for name, p in vae.named_parameters() if p.grad is None or not torch.isfinite(p.grad).all()]
+    missing = [
+        name
+        for name, p in vae.named_parameters()
+        if p.grad is None or not torch.isfinite(p.grad).all()
+    ]
     assert not missing
 
 
@@ -188,5 +219,7 @@ def test_evaluator_shapes_frozen_encoder_and_contrastive_loss():
         contrastive_loss(text, moving, 0)
     same = contrastive_loss(text, text, 1, margin=10.0)
     assert same["positive"] < 1e-9
-    far = contrastive_loss(torch.zeros(3, 2), torch.tensor([[0.0, 20.0], [0.0, 0.0], [0.0, 0.0]]), 1, margin=10.0)
+    far = contrastive_loss(
+        torch.zeros(3, 2), torch.tensor([[0.0, 20.0], [0.0, 0.0], [0.0, 0.0]]), 1, margin=10.0
+    )
     assert torch.allclose(far["positive"], torch.tensor(400.0 / 3), rtol=1e-4)

@@ -12,10 +12,11 @@ import torch
 import torch.multiprocessing as mp
 
 from t2m.config import apply_overrides
+from t2m.data.dataset import load_split
 from t2m.data.words import TRAINABLE
+from t2m.models.autoencoder import MovementAutoencoder
 from t2m.train.__main__ import main, run_stage
-from t2m.train.checkpoint import read_checkpoint
-from t2m.train.checkpoint import load_stage
+from t2m.train.checkpoint import load_stage, read_checkpoint
 
 
 def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
@@ -39,7 +40,14 @@ def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
     pos = torch.from_numpy(encoded.pos_onehot)[None]
     vae, decoder = t2m.models["vae"], t2m.models["decoder"]
     features, sentence, mask = vae.encode_text(words, pos, torch.tensor([encoded.length]))
-    codes = vae.generate(features, sentence, mask, torch.tensor([12]), t2m.initial_code, torch.Generator().manual_seed(0))
+    codes = vae.generate(
+        features,
+        sentence,
+        mask,
+        torch.tensor([12]),
+        t2m.initial_code,
+        torch.Generator().manual_seed(0),
+    )
     motion = decoder(codes)
     assert motion.shape == (1, 48, 263) and torch.isfinite(motion).all()
     # the ae and the evaluator share statistics and the frozen encoder
@@ -51,11 +59,15 @@ def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
 
 
 def weights(path: Path) -> dict[str, torch.Tensor]:
-    return {f"{m}.{k}": v for m, sd in read_checkpoint(path)["models"].items() for k, v in sd.items()}
+    return {
+        f"{m}.{k}": v for m, sd in read_checkpoint(path)["models"].items() for k, v in sd.items()
+    }
 
 
 @pytest.mark.parametrize("stage,kill_at", [("ae", 3), ("t2m", 5)])
-def test_resume_after_kill_equals_uninterrupted(stage, kill_at, tiny_dataset, tiny_config, tiny_run, tmp_path):
+def test_resume_after_kill_equals_uninterrupted(
+    stage, kill_at, tiny_dataset, tiny_config, tiny_run, tmp_path
+):
     config = apply_overrides(tiny_config, {f"{stage}.checkpoint_every": "1000", "ae.epochs": "2"})
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     for run_dir in (whole, killed):
@@ -65,15 +77,26 @@ def test_resume_after_kill_equals_uninterrupted(stage, kill_at, tiny_dataset, ti
                 (run_dir / "ae" / name).write_bytes((tiny_run / "ae" / name).read_bytes())
     run_stage(stage, config, tiny_dataset, whole)
     # "kill" after kill_at steps (mid-epoch, a checkpoint is written on stopping) and resume
-    run_stage(stage, apply_overrides(config, {f"{stage}.max_steps": str(kill_at)}), tiny_dataset, killed)
+    run_stage(
+        stage, apply_overrides(config, {f"{stage}.max_steps": str(kill_at)}), tiny_dataset, killed
+    )
     assert read_checkpoint(killed / stage / "latest.pt")["progress"]["step"] == kill_at
     run_stage(stage, config, tiny_dataset, killed, resume=True)
-    a, b = read_checkpoint(whole / stage / "latest.pt"), read_checkpoint(killed / stage / "latest.pt")
+    a, b = (
+        read_checkpoint(whole / stage / "latest.pt"),
+        read_checkpoint(killed / stage / "latest.pt"),
+    )
     assert a["progress"] == b["progress"]
     wa, wb = weights(whole / stage / "latest.pt"), weights(killed / stage / "latest.pt")
     assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
-    steps_a = [(r["split"], r["step"]) for r in map(json.loads, (whole / stage / "metrics.jsonl").read_text().splitlines())]
-    steps_b = [(r["split"], r["step"]) for r in map(json.loads, (killed / stage / "metrics.jsonl").read_text().splitlines())]
+    steps_a = [
+        (r["split"], r["step"])
+        for r in map(json.loads, (whole / stage / "metrics.jsonl").read_text().splitlines())
+    ]
+    steps_b = [
+        (r["split"], r["step"])
+        for r in map(json.loads, (killed / stage / "metrics.jsonl").read_text().splitlines())
+    ]
     assert steps_a == steps_b
 
 
@@ -88,7 +111,9 @@ def test_mismatched_checkpoints_are_refused(tiny_dataset, tiny_config, tiny_run,
     (run_dir / "ae" / "latest.pt").write_bytes((tiny_run / "length" / "latest.pt").read_bytes())
     with pytest.raises(ValueError, match="'length' checkpoint, not 'ae'"):
         run_stage("ae", tiny_config, tiny_dataset, run_dir, resume=True)
-    other_words = apply_overrides(tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "50"})
+    other_words = apply_overrides(
+        tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "50"}
+    )
     with pytest.raises(ValueError, match="vocabulary differs"):
         run_stage("length", other_words, tiny_dataset, run_dir, resume=True)
     with pytest.raises(ValueError, match="make train-ae"):
@@ -98,7 +123,9 @@ def test_mismatched_checkpoints_are_refused(tiny_dataset, tiny_config, tiny_run,
 
 
 def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
-    config = apply_overrides(tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "8"})
+    config = apply_overrides(
+        tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "8"}
+    )
     run_stage("length", config, tiny_dataset, tmp_path)
     trained = load_stage(tmp_path, "length")
     assert trained.vectorizer.trainable and "walk" in trained.vectorizer.index
@@ -110,13 +137,36 @@ def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
 
 
 def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
-    base = ["ae", "--preset", "tiny", "--dataset", str(tiny_dataset), "--checkpoints", str(tmp_path), "--device", "cpu"]
+    base = [
+        "ae",
+        "--preset",
+        "tiny",
+        "--dataset",
+        str(tiny_dataset),
+        "--checkpoints",
+        str(tmp_path),
+        "--device",
+        "cpu",
+    ]
     assert main(base + ["--ae.nonexistent=1"]) == 2
     assert "unknown config key" in capsys.readouterr().err
     assert main(base + ["--ae.batch_size=abc"]) == 2
     assert "expected an integer" in capsys.readouterr().err
     assert main(["ae", "--preset", "huge"]) == 2
-    assert main(["ae", "--preset", "tiny", "--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]) == 2
+    assert (
+        main(
+            [
+                "ae",
+                "--preset",
+                "tiny",
+                "--dataset",
+                str(tmp_path / "nope"),
+                "--checkpoints",
+                str(tmp_path),
+            ]
+        )
+        == 2
+    )
     assert main(base + ["--ae.max_steps=2", "--ae.epochs=1"]) == 0
     assert (tmp_path / "ae" / "best.pt").is_file()
 
@@ -127,16 +177,22 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def _ddp_worker(rank: int, world_size: int, port: int, dataset: str, run_dir: str, config_dict: dict) -> None:
+def _ddp_worker(
+    rank: int, world_size: int, port: int, dataset: str, run_dir: str, config_dict: dict
+) -> None:
     from t2m.config import from_dict
+    from t2m.train import stage as stage_module
 
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world_size),
                       LOCAL_RANK=str(rank))  # fmt: skip
-    torch.set_num_threads(1)
+    finish = stage_module.StageRun.finish
+
+    def finish_and_dump(self):  # each process's own weights, to compare across processes
+        torch.save(self.models["autoencoder"].state_dict(), Path(run_dir) / f"rank{rank}.pt")
+        finish(self)
+
+    stage_module.StageRun.finish = finish_and_dump
     run_stage("ae", from_dict(config_dict), dataset, run_dir)
-    # every process ends with the main process's weights (DDP averages the gradients)
-    trained = load_stage(run_dir, "ae", which="latest").models["autoencoder"].state_dict()
-    torch.save(trained, Path(run_dir) / f"rank{rank}.pt")
 
 
 def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
@@ -144,7 +200,12 @@ def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
     mp.start_processes(_ddp_worker, args=(2, _free_port(), str(tiny_dataset), str(tmp_path), config.to_dict()),
                        nprocs=2, join=True, start_method="spawn")  # fmt: skip
     checkpoint = read_checkpoint(tmp_path / "ae" / "latest.pt")
-    # 28 training clips, 14 per process, batches of 8: one step per epoch per process
-    assert checkpoint["progress"]["step"] == 1
-    single = read_checkpoint(tmp_path / "ae" / "latest.pt")["models"]["autoencoder"]
-    assert all(torch.isfinite(v).all() for v in single.values())
+    clips = len(load_split(tiny_dataset, "train", config.data))
+    assert checkpoint["progress"]["step"] == (clips // 2) // 8  # each process takes half an epoch
+    rank0, rank1 = (torch.load(tmp_path / f"rank{r}.pt") for r in (0, 1))
+    # the processes saw different data yet hold identical weights: gradients were averaged
+    assert all(torch.equal(rank0[k], rank1[k]) for k in rank0)
+    assert all(torch.equal(rank0[k], v) for k, v in checkpoint["models"]["autoencoder"].items())
+    torch.manual_seed(config.seed)
+    initial = MovementAutoencoder(263, config.ae.model).state_dict()
+    assert not torch.equal(initial["encoder.out.weight"], rank0["encoder.out.weight"])

@@ -186,15 +186,10 @@ def place_root(track: Track, body: Body, yaw0: float, start_xz: np.ndarray) -> n
             velocity[unknown, c] = np.interp(index[unknown], index[~unknown], velocity[~unknown, c])
     velocity[~np.isfinite(velocity)] = 0.0
     root_xz = start_xz + np.concatenate([np.zeros((1, 2)), np.cumsum(velocity, axis=0)])
+    # Nothing may go below the ground, in flight included (a landing leg can reach down).
+    root_y = np.maximum(root_y, -pos[..., 1].min(axis=1))
     root = np.stack([root_xz[:, 0], root_y, root_xz[:, 1]], axis=1)
     return pos + root[:, None, :]
-
-
-def leg_scale(body: Body) -> float:
-    """The subject's hip-to-ankle length over the mean body's."""
-    lengths = body.bone_lengths
-    mean = make_body().bone_lengths
-    return float((lengths[4] + lengths[7]) / (mean[4] + mean[7]))
 
 
 def synthesize_clip(seed: int, index: int, fps: float = FPS) -> Clip:
@@ -202,7 +197,6 @@ def synthesize_clip(seed: int, index: int, fps: float = FPS) -> Clip:
     rng = np.random.default_rng([seed, index])
     body = sample_body(rng)
     style = Style.sample(rng)
-    style.leg_scale = leg_scale(body)
     plan = plan_clip(rng)
     track, segments = _blend_tracks(plan, rng, style, fps)
     yaw0 = float(rng.uniform(0, 2 * np.pi))

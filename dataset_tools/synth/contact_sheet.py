@@ -89,7 +89,9 @@ def render_contact_sheet(
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_title(f"t={t / fps:.1f}s", fontsize=7)
-        axes[row, 0].set_ylabel("\n".join(_wrap(caption, 28)), fontsize=7, rotation=0, ha="right", va="center")
+        axes[row, 0].set_ylabel(
+            "\n".join(_wrap(caption, 28)), fontsize=7, rotation=0, ha="right", va="center"
+        )
     fig.suptitle("blue = left, red = right, green = nose (facing)", fontsize=9)
     fig.tight_layout()
     out_path = Path(out_path)

@@ -34,10 +34,10 @@ _SIDE_SPEED = {"slow": (0.25, 0.33), "normal": (0.42, 0.52), "fast": (0.62, 0.75
 # input); tests check the resulting speeds.
 _AMPLITUDES = np.arange(0.3, 1.81, 0.15)
 _WALK_STRIDES = np.array(
-    [0.513, 0.643, 0.82, 0.939, 1.088, 1.218, 1.349, 1.491, 1.623, 1.731, 1.868]
+    [0.484, 0.595, 0.765, 0.865, 1.01, 1.123, 1.224, 1.354, 1.493, 1.587, 1.698]
 )
 _RUN_STRIDES = np.array(
-    [0.703, 0.908, 1.146, 1.352, 1.554, 1.743, 1.935, 2.124, 2.329, 2.495, 2.62]
+    [0.694, 0.92, 1.108, 1.338, 1.561, 1.743, 1.959, 2.155, 2.289, 2.452, 2.631]
 )
 
 
@@ -85,7 +85,6 @@ class Style:
     head: float = 0.0
     arm_swing: float = 1.0
     tempo: float = 1.0
-    leg_scale: float = 1.0  # the subject's leg length over the mean body's: strides scale with it
 
     @classmethod
     def sample(cls, rng: np.random.Generator) -> Style:
@@ -175,8 +174,10 @@ def _lookup(table: np.ndarray, phase: np.ndarray) -> np.ndarray:
 
 # Gait cycles, phase 0 = heel strike of the leg. Thigh angle from the vertical (not from the
 # pelvis), knee flexion, and foot pitch (toe up positive; 0 = flat on the ground), degrees.
+# The thigh keeps sweeping back at an even rate through stance, from heel strike on, so that the
+# landing foot and the planted foot move alike relative to the pelvis (neither slides).
 _WALK_THIGH = _periodic_curve(
-    [(0, 20), (0.1, 18), (0.3, 2), (0.52, -16), (0.62, -10), (0.75, 12), (0.88, 23)]
+    [(0, 19), (0.1, 12.5), (0.3, -1), (0.52, -15), (0.62, -9), (0.75, 10), (0.9, 22)]
 )
 _WALK_KNEE = _periodic_curve(
     [
@@ -227,10 +228,12 @@ def forward_gait(
     Cadence and stride length both grow with speed (stride = speed / cadence); the hip amplitude
     is set from the stride so the planted foot, not a root velocity, moves the body.
     """
-    cadence = 1.15 + 0.13 * speed if run else 0.55 + 0.36 * speed  # strides per second
+    # Strides per second; a subject's tempo changes cadence, and the stride makes up for it.
+    cadence = (1.15 + 0.13 * speed if run else 0.55 + 0.36 * speed) * style.tempo
     strides = _RUN_STRIDES if run else _WALK_STRIDES
-    amplitude = float(np.interp(speed / cadence / style.leg_scale, strides, _AMPLITUDES))
-    cadence *= style.tempo
+    # Speeds are for the mean body: with the same joint angles a longer-legged subject takes
+    # longer strides and goes proportionally faster, as people do.
+    amplitude = float(np.interp(speed / cadence, strides, _AMPLITUDES))
     t = np.arange(n) / fps
     direction = -1.0 if backward else 1.0
     phase_left = rng.uniform() + direction * cadence * t
@@ -281,7 +284,7 @@ def sidestep_left(
 ) -> Track:
     """Step sideways to the left: the left leg swings out while the right leg, planted, abducts;
     then the right leg swings in while the left, planted, comes back under the body."""
-    reach = 2 * 0.88 * style.leg_scale
+    reach = 2 * 0.88  # the mean body's leg, hip to sole
     cadence = (1.5 if run else 1.0) * (0.8 + 0.4 * speed)
     abduction = np.degrees(np.arcsin(np.clip(speed / cadence / reach, 0, 0.6)))
     t = np.arange(n) / fps
@@ -356,6 +359,8 @@ def turn(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
         )
         lift[leg] = lift[leg] + np.where(active, np.sin(np.pi * np.clip(local, 0, 1)) ** 2, 0)
     heading = 0.5 * (foot_yaw["l"] + foot_yaw["r"])
+    # The foot that is not stepping carries the body.
+    stance = np.stack([1.0 - lift["l"] + lift["r"], 1.0 - lift["r"] + lift["l"]], axis=1)
     dofs = np.repeat(style.base_pose()[None], n, axis=0)
     for leg, sign in (("l", 1.0), ("r", -1.0)):
         # External hip rotation turns the left toe left and the right toe right.
@@ -364,7 +369,7 @@ def turn(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
         dofs[:, DOF[f"{leg}_knee"]] += np.radians(34 * lift[leg])
         dofs[:, DOF[f"{leg}_ankle"]] -= np.radians(8 * lift[leg])
     yaw_rate = np.diff(heading, prepend=0.0)
-    return Track(dofs, yaw_rate, np.zeros(n), np.full((n, 2), np.nan))
+    return Track(dofs, yaw_rate, np.zeros(n), np.full((n, 2), np.nan), stance)
 
 
 def jump(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
@@ -396,7 +401,8 @@ def jump(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
     land = pose_vector(
         base,
         pelvis_pitch=lean * 0.5,
-        **both(hip_flex=12 + lean, knee=10, ankle=-18, shoulder_flex=45, elbow=20, shoulder_abd=15),
+        # Legs under the body as at take-off, so an in-place jump lands where it started.
+        **both(hip_flex=lean + 2, knee=10, ankle=-18, shoulder_flex=45, elbow=20, shoulder_abd=15),
     )
     absorb = pose_vector(
         base,
@@ -435,7 +441,7 @@ def jump(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
 def hop_left(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
     """Hop ``count`` times on the left foot with the right leg held up."""
     count = params["count"]
-    air_time = 0.26
+    air_time = 0.3
     cycle = 0.2 + 0.1 + air_time + 0.1
     natural = 0.5 + count * cycle + 0.5
     base = style.base_pose()
@@ -591,7 +597,7 @@ def clap(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
     rate = params["rate_hz"]
     base = style.base_pose()
     ready = pose_vector(
-        base, **both(shoulder_flex=40, shoulder_abd=12, elbow=100, shoulder_twist=35)
+        base, **both(shoulder_flex=40, shoulder_abd=12, elbow=100, shoulder_twist=20)
     )
     natural = 0.5 + count / rate + 0.5
     t0 = _lead_in(n, fps, natural)
@@ -603,12 +609,12 @@ def clap(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
     # 0 with the hands apart, 1 at the clap (once per 1 / rate seconds).
     closing = np.where(inside, 0.5 - 0.5 * np.cos(2 * np.pi * rate * (t - t1)), 0.0)
     for s in ("l", "r"):
-        dofs[:, DOF[f"{s}_shoulder_twist"]] += np.radians(28) * closing
+        dofs[:, DOF[f"{s}_shoulder_twist"]] += np.radians(42) * closing
     return Track.still(dofs)
 
 
 def squat(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
-    """Squat down (hips back, knees forward and out, arms forward for balance) and stand, ``count`` times."""
+    """Squat down (hips back, knees forward, arms forward for balance) and stand, ``count`` times."""
     count = params["count"]
     depth = params["depth_deg"]
     base = style.base_pose()
@@ -617,7 +623,7 @@ def squat(params: dict, n: int, fps: float, rng: np.random.Generator, style: Sty
         pelvis_pitch=28,
         spine_flex=6,
         neck_flex=-10,
-        **both(hip_flex=depth, hip_abd=10, knee=depth + 20, ankle=30, shoulder_flex=80, elbow=12),
+        **both(hip_flex=depth, knee=depth + 20, ankle=30, shoulder_flex=80, elbow=12),
     )
     period = params["period_s"]
     natural = count * period
@@ -637,7 +643,7 @@ def sit(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style
         base,
         pelvis_pitch=30,
         spine_flex=10,
-        **both(hip_flex=100, hip_abd=8, knee=125, ankle=32, shoulder_flex=55, elbow=20),
+        **both(hip_flex=100, knee=125, ankle=32, shoulder_flex=55, elbow=20),
     )
     seated = pose_vector(
         base,
@@ -646,7 +652,6 @@ def sit(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style
         neck_flex=-4,
         **both(
             hip_flex=105,
-            hip_abd=6,
             knee=params["knee_deg"],
             ankle=-8,
             shoulder_flex=25,
@@ -655,10 +660,19 @@ def sit(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style
         ),
     )
     hold = params["hold_s"]
-    natural = 0.9 + 0.8 + hold + 0.8 + 0.9
+    natural = 0.9 + 0.45 + 0.55 + hold + 0.55 + 0.45 + 0.9
     t = _lead_in(n, fps, natural)
-    times = np.cumsum([t, 0.9, 0.8, hold, 0.8, 0.9]).tolist()
-    return Track.still(keyframes(times, [base, low, seated, seated, low, base], n, fps))
+    # Halfway down the buttocks approach the floor before the legs slide out (the pelvis keeps
+    # going down instead of rising as the knees straighten).
+    lowering = pose_vector(
+        base,
+        pelvis_pitch=5,
+        spine_flex=12,
+        **both(hip_flex=110, knee=105, ankle=12, shoulder_flex=45, elbow=20),
+    )
+    times = np.cumsum([t, 0.9, 0.45, 0.55, hold, 0.55, 0.45, 0.9]).tolist()
+    poses = [base, low, lowering, seated, seated, lowering, low, base]
+    return Track.still(keyframes(times, poses, n, fps))
 
 
 def bow(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
@@ -831,7 +845,7 @@ def _sample_sit(rng):
     return {
         "hold_s": round(hold, 3),
         "knee_deg": round(float(rng.uniform(15, 40)), 1),
-    }, 3.4 + hold + float(rng.uniform(0, 0.3))
+    }, 4.0 + hold + float(rng.uniform(0, 0.3))
 
 
 def _sample_bow(rng):

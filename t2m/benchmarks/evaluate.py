@@ -31,8 +31,8 @@ WORDS = (
 ).split()
 
 
-def _untrained_stages(preset_name: str) -> list:
-    """eval, length and t2m stages of a preset's sizes with random weights."""
+def _untrained_stages(preset_name: str) -> dict:
+    """eval, length and t2m stages of a preset's sizes with random weights, by name."""
     from t2m.config import preset
     from t2m.data.normalization import Normalizer
     from t2m.data.words import load_vectorizer
@@ -48,24 +48,40 @@ def _untrained_stages(preset_name: str) -> list:
     }
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
     torch.manual_seed(0)
-    stages = []
+    stages = {}
     for stage in ("eval", "length", "t2m"):
         models = build_models(stage, config, dims)
         for module in models.values():
             module.eval()
-        stages.append(
-            TrainedStage(
-                stage=stage,
-                config=config,
-                models=models,
-                normalizer=normalizer,
-                vectorizer=vectorizer,
-                progress={},
-                dims=dims,
-                initial_code=torch.zeros(config.ae.model.code_size) if stage == "t2m" else None,
-            )
+        stages[stage] = TrainedStage(
+            stage=stage,
+            config=config,
+            models=models,
+            normalizer=normalizer,
+            vectorizer=vectorizer,
+            progress={},
+            dims=dims,
+            initial_code=torch.zeros(config.ae.model.code_size) if stage == "t2m" else None,
         )
     return stages
+
+
+def _untrained_backend(preset_name: str) -> evaluate.CheckpointBackend:
+    from t2m.pipeline import TextToMotion
+
+    stages = _untrained_stages(preset_name)
+    t2m, length = stages["t2m"], stages["length"]
+    pipeline = TextToMotion(
+        vae=t2m.models["vae"],
+        decoder=t2m.models["decoder"],
+        normalizer=t2m.normalizer,
+        vectorizer=t2m.vectorizer,
+        initial_code=t2m.initial_code,
+        data=t2m.config.data,
+        length_model=length.models["length"],
+        length_vectorizer=length.vectorizer,
+    )
+    return evaluate.CheckpointBackend(stages["eval"], pipeline)
 
 
 def _synthetic_clips(count: int, rng: np.random.Generator) -> list[Clip]:
@@ -88,7 +104,7 @@ def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str]:
         backend = evaluate.CheckpointBackend.from_run_dir(DEMO_RUN)
         clips = load_split(DEMO_DATASET, "test", backend.data_config)
         return backend, clips, "trained demo run on the demo test split"
-    backend = evaluate.CheckpointBackend(*_untrained_stages("demo"))
+    backend = _untrained_backend("demo")
     clips = _synthetic_clips(SYNTHETIC_ITEMS, np.random.default_rng(0))
     return backend, clips, f"untrained demo-size models, synthetic split of {SYNTHETIC_ITEMS} items"
 
@@ -119,7 +135,7 @@ def _generation_speedup(
 
 def _paper_evaluator_forward(repeats: int) -> float:
     """Seconds for the paper-size evaluator to embed 32 captions and 32 motions of 196 frames."""
-    eval_stage = _untrained_stages("paper")[0]
+    eval_stage = _untrained_stages("paper")["eval"]
     evaluator = eval_stage.models["evaluator"]
     words = torch.randn(32, 22, eval_stage.dims["word_dim"])
     pos = torch.zeros(32, 22, 15)

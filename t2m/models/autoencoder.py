@@ -69,7 +69,9 @@ class MovementAutoencoder(nn.Module):
     def encode(self, features: torch.Tensor) -> torch.Tensor:
         """(B, T, D) normalised features (contacts included, ignored) -> (B, T // 4, C)."""
         if features.shape[1] % 4:
-            raise ValueError(f"motion length must be a multiple of 4 frames, got {features.shape[1]}")
+            raise ValueError(
+                f"motion length must be a multiple of 4 frames, got {features.shape[1]}"
+            )
         return self.encoder(features[..., : self.feature_dim - CONTACT_DIMS])
 
     def decode(self, codes: torch.Tensor) -> torch.Tensor:

@@ -81,7 +81,9 @@ class Evaluator(nn.Module):
         """Normalised features (B, T, D), T a multiple of 4 -> codes (B, T // 4, C)."""
         return self.movement_encoder(features[..., : self.feature_dim - CONTACT_DIMS])
 
-    def embed_text(self, words: torch.Tensor, pos: torch.Tensor, text_lengths: torch.Tensor) -> torch.Tensor:
+    def embed_text(
+        self, words: torch.Tensor, pos: torch.Tensor, text_lengths: torch.Tensor
+    ) -> torch.Tensor:
         """-> (B, E)."""
         return self.text(words, pos, text_lengths)
 
@@ -103,7 +105,9 @@ class Evaluator(nn.Module):
         motion_lengths: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """-> (text embeddings (B, E), motion embeddings (B, E))."""
-        return self.embed_text(words, pos, text_lengths), self.embed_motion(features, motion_lengths)
+        return self.embed_text(words, pos, text_lengths), self.embed_motion(
+            features, motion_lengths
+        )
 
 
 def contrastive_loss(
@@ -122,9 +126,15 @@ def contrastive_loss(
     """
     batch = text_embeddings.shape[0]
     if not 1 <= shift < batch:
-        raise ValueError(f"shift must be in 1..{batch - 1} (a zero shift pairs items with themselves)")
+        raise ValueError(
+            f"shift must be in 1..{batch - 1} (a zero shift pairs items with themselves)"
+        )
     positive_distance = F.pairwise_distance(text_embeddings, motion_embeddings)
     negative_distance = F.pairwise_distance(text_embeddings, motion_embeddings.roll(shift, dims=0))
     positive = positive_distance.pow(2).mean()
     negative = torch.clamp(margin - negative_distance, min=0.0).pow(2).mean()
-    return {"loss": positive + negative_weight * negative, "positive": positive, "negative": negative}
+    return {
+        "loss": positive + negative_weight * negative,
+        "positive": positive,
+        "negative": negative,
+    }

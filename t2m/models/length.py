@@ -29,7 +29,9 @@ class LengthEstimator(nn.Module):
         layers.append(nn.Linear(size, config.num_classes))
         self.head = nn.Sequential(*layers)
 
-    def forward(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
+    ) -> torch.Tensor:
         _, sentence = self.text_encoder(words, pos, lengths)
         return self.head(sentence)
 

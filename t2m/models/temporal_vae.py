@@ -33,7 +33,9 @@ from t2m.models.text_encoder import TextEncoder
 def sinusoidal_table(num_positions: int, size: int) -> torch.Tensor:
     """(num_positions, size) table: sin on even, cos on odd dimensions (Vaswani et al.)."""
     position = torch.arange(num_positions, dtype=torch.float32)[:, None]
-    frequency = torch.exp(torch.arange(0, size, 2, dtype=torch.float32) * (-math.log(10000.0) / size))
+    frequency = torch.exp(
+        torch.arange(0, size, 2, dtype=torch.float32) * (-math.log(10000.0) / size)
+    )
     table = torch.zeros(num_positions, size)
     table[:, 0::2] = torch.sin(position * frequency)
     table[:, 1::2] = torch.cos(position * frequency)[:, : size // 2]
@@ -50,7 +52,9 @@ class RecurrentBlock(nn.Module):
         self.cell = nn.GRUCell(hidden_size, hidden_size)
         self.initial = nn.Linear(sentence_size, hidden_size)
 
-    def step(self, preactivation: torch.Tensor, time_code: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
+    def step(
+        self, preactivation: torch.Tensor, time_code: torch.Tensor, hidden: torch.Tensor
+    ) -> torch.Tensor:
         """Given ``input(x)`` (B, H) already computed, the next hidden state (B, H)."""
         return self.cell(F.leaky_relu(self.norm(preactivation), 0.2) + time_code, hidden)
 
@@ -75,7 +79,9 @@ class TemporalVAE(nn.Module):
         config: sizes; vocab_size > 0 for a trainable word embedding.
     """
 
-    def __init__(self, word_dim: int, code_size: int, config: TemporalVAEConfig, vocab_size: int = 0):
+    def __init__(
+        self, word_dim: int, code_size: int, config: TemporalVAEConfig, vocab_size: int = 0
+    ):
         super().__init__()
         self.config = config
         self.code_size = code_size
@@ -91,7 +97,10 @@ class TemporalVAE(nn.Module):
         self.prior_gaussian = Gaussian(hidden, latent)
         self.posterior_gaussian = Gaussian(hidden, latent)
         self.output = nn.Sequential(
-            nn.Linear(hidden, hidden), nn.LayerNorm(hidden), nn.LeakyReLU(0.2), nn.Linear(hidden, code_size)
+            nn.Linear(hidden, hidden),
+            nn.LayerNorm(hidden),
+            nn.LeakyReLU(0.2),
+            nn.Linear(hidden, code_size),
         )
         self.register_buffer(
             "time_table", sinusoidal_table(config.max_snippets, hidden), persistent=False
@@ -111,11 +120,17 @@ class TemporalVAE(nn.Module):
     def _split_weights(self) -> dict[str, torch.Tensor]:
         """Input-Linear weights split by input part; prior/posterior/generator stacked (3H, .)."""
         c, a = self.code_size, self.config.attention_size
-        prior, post, gen = self.prior.input.weight, self.posterior.input.weight, self.generator.input.weight
+        prior, post, gen = (
+            self.prior.input.weight,
+            self.posterior.input.weight,
+            self.generator.input.weight,
+        )
         return {
             "previous": torch.cat([prior[:, :c], post[:, :c], gen[:, :c]]),  # (3H, C)
             "attention": torch.cat([prior[:, c:], post[:, 2 * c :], gen[:, c : c + a]]),  # (3H, A)
-            "bias": torch.cat([self.prior.input.bias, self.posterior.input.bias, self.generator.input.bias]),
+            "bias": torch.cat(
+                [self.prior.input.bias, self.posterior.input.bias, self.generator.input.bias]
+            ),
             "current": post[:, c : 2 * c],  # (H, C), posterior only
             "latent": gen[:, c + a :],  # (H, Z), generator only
         }
@@ -126,7 +141,9 @@ class TemporalVAE(nn.Module):
         left = left.clamp(0, self.config.max_snippets - 1)
         return self.time_table[left]
 
-    def _context(self, word_features: torch.Tensor, word_mask: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def _context(
+        self, word_features: torch.Tensor, word_mask: torch.Tensor
+    ) -> tuple[torch.Tensor, ...]:
         keys = self.key(word_features)  # (B, L, A), once per sequence
         values = self.value(word_features)
         bias = torch.zeros(word_mask.shape, dtype=keys.dtype, device=keys.device)
@@ -175,15 +192,19 @@ class TemporalVAE(nn.Module):
         current = F.linear(codes, weights["current"])  # (B, S, H)
         if teacher_forcing:
             previous_codes = torch.cat([initial_code[:, None], codes[:, :-1]], dim=1)
-            previous_all = F.linear(previous_codes, weights["previous"], weights["bias"])  # (B, S, 3H)
+            previous_all = F.linear(
+                previous_codes, weights["previous"], weights["bias"]
+            )  # (B, S, 3H)
         if noise is None:
-            noise = torch.randn(batch, steps, self.config.latent_size, device=codes.device, dtype=codes.dtype)
+            noise = torch.randn(
+                batch, steps, self.config.latent_size, device=codes.device, dtype=codes.dtype
+            )
 
         h_prior = self.prior.initial(sentence)
         h_post = self.posterior.initial(sentence)
         h_gen = self.generator.initial(sentence)
         previous = initial_code
-        outputs: dict[str, list[torch.Tensor]] = {k: [] for k in ("codes", "pm", "pl", "qm", "ql")}
+        prior_states, generator_states, codes_out, post_means, post_logvars = [], [], [], [], []
         for i in range(steps):
             attention = self._attend(h_gen, keys, values, bias)
             if teacher_forcing:
@@ -196,20 +217,28 @@ class TemporalVAE(nn.Module):
             h_post = self.posterior.step(pre_post + current[:, i], time_code, h_post)
             h_prior = self.prior.step(pre_prior, time_code, h_prior)
             post_mean, post_logvar = self.posterior_gaussian(h_post)
-            prior_mean, prior_logvar = self.prior_gaussian(h_prior)
             z = post_mean + torch.exp(0.5 * post_logvar) * noise[:, i]
             h_gen = self.generator.step(pre_gen + F.linear(z, weights["latent"]), time_code, h_gen)
-            code = self.output(h_gen)
-            previous = code.detach()
-            for key, value in zip(outputs, (code, prior_mean, prior_logvar, post_mean, post_logvar)):
-                outputs[key].append(value)
-        stacked = {key: torch.stack(values, dim=1) for key, values in outputs.items()}
+            prior_states.append(h_prior)
+            generator_states.append(h_gen)
+            post_means.append(post_mean)
+            post_logvars.append(post_logvar)
+            if not teacher_forcing:  # the next step needs this code now
+                code = self.output(h_gen)
+                codes_out.append(code)
+                previous = code.detach()
+        # Heads whose outputs the loop does not feed back run once over all steps.
+        prior_mean, prior_logvar = self.prior_gaussian(torch.stack(prior_states, dim=1))
+        if teacher_forcing:
+            codes_all = self.output(torch.stack(generator_states, dim=1))
+        else:
+            codes_all = torch.stack(codes_out, dim=1)
         return {
-            "codes": stacked["codes"],
-            "prior_mean": stacked["pm"],
-            "prior_logvar": stacked["pl"],
-            "posterior_mean": stacked["qm"],
-            "posterior_logvar": stacked["ql"],
+            "codes": codes_all,
+            "prior_mean": prior_mean,
+            "prior_logvar": prior_logvar,
+            "posterior_mean": torch.stack(post_means, dim=1),
+            "posterior_logvar": torch.stack(post_logvars, dim=1),
         }
 
     # -- generation --------------------------------------------------------------------------
@@ -259,7 +288,9 @@ class TemporalVAE(nn.Module):
         for i in range(steps):
             attention = self._attend(h_gen, keys, values, bias)
             time_code = time_codes[:, i]
-            pre_prior = F.linear(previous, prior_weight[0], prior_bias) + F.linear(attention, prior_weight[1])
+            pre_prior = F.linear(previous, prior_weight[0], prior_bias) + F.linear(
+                attention, prior_weight[1]
+            )
             h_prior = self.prior.step(pre_prior, time_code, h_prior)
             prior_mean, prior_logvar = self.prior_gaussian(h_prior)
             z = prior_mean + torch.exp(0.5 * prior_logvar) * noise[:, i]
@@ -281,7 +312,10 @@ def gaussian_kl(
 ) -> torch.Tensor:
     """KL(N(mean_q, exp(logvar_q)) || N(mean_p, exp(logvar_p))), summed over the last axis."""
     kl = 0.5 * (
-        logvar_p - logvar_q + (torch.exp(logvar_q) + (mean_q - mean_p) ** 2) / torch.exp(logvar_p) - 1.0
+        logvar_p
+        - logvar_q
+        + (torch.exp(logvar_q) + (mean_q - mean_p) ** 2) / torch.exp(logvar_p)
+        - 1.0
     )
     return kl.sum(-1)
 

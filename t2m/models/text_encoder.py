@@ -35,7 +35,9 @@ class TextEncoder(nn.Module):
         self.embedding = nn.Embedding(vocab_size, word_dim) if vocab_size > 0 else None
         self.pos_embedding = nn.Linear(NUM_POS, word_dim)
         self.input_projection = nn.Linear(word_dim, config.hidden_size)
-        self.gru = nn.GRU(config.hidden_size, config.hidden_size, batch_first=True, bidirectional=True)
+        self.gru = nn.GRU(
+            config.hidden_size, config.hidden_size, batch_first=True, bidirectional=True
+        )
         self.initial_hidden = nn.Parameter(torch.randn(2, 1, config.hidden_size) * 0.01)
 
     @property
@@ -58,9 +60,7 @@ class TextEncoder(nn.Module):
         inputs = self.embed(words, pos)
         batch, max_len = inputs.shape[:2]
         hidden = self.initial_hidden.expand(2, batch, self.hidden_size).contiguous()
-        packed = pack_padded_sequence(
-            inputs, lengths.cpu(), batch_first=True, enforce_sorted=False
-        )
+        packed = pack_padded_sequence(inputs, lengths.cpu(), batch_first=True, enforce_sorted=False)
         outputs, last = self.gru(packed, hidden)
         word_features, _ = pad_packed_sequence(outputs, batch_first=True, total_length=max_len)
         sentence = torch.cat([last[0], last[1]], dim=-1)  # (B, 2H)
@@ -83,7 +83,9 @@ class ProjectedTextEncoder(nn.Module):
             nn.Linear(hidden, output_size),
         )
 
-    def forward(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
+    ) -> torch.Tensor:
         """-> (B, output_size)."""
         _, sentence = self.encoder(words, pos, lengths)
         return self.head(sentence)

@@ -64,7 +64,9 @@ def parse_overrides(extra: list[str]) -> dict[str, str]:
     while index < len(extra):
         item = extra[index]
         if not item.startswith("--") or len(item) <= 2:
-            raise ValueError(f"unexpected argument {item!r} (overrides look like --t2m.batch_size=16)")
+            raise ValueError(
+                f"unexpected argument {item!r} (overrides look like --t2m.batch_size=16)"
+            )
         key, sep, value = item[2:].partition("=")
         if not sep:
             if index + 1 >= len(extra):
@@ -82,14 +84,24 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train one stage of T2M (Guo et al., CVPR 2022). Extra --key.sub=value "
         "arguments override config fields (e.g. --t2m.batch_size=16, --data.word_vectors=PATH).",
     )
-    parser.add_argument("stage", choices=STAGES, help="ae, length, t2m (needs ae) or eval (needs ae)")
+    parser.add_argument(
+        "stage", choices=STAGES, help="ae, length, t2m (needs ae) or eval (needs ae)"
+    )
     parser.add_argument("--preset", default="demo", help="paper, demo or tiny (default demo)")
-    parser.add_argument("--dataset", default="data/demo", help="HumanML3D-layout folder (default data/demo)")
-    parser.add_argument("--checkpoints", default=None, help="run folder (default checkpoints/<preset>)")
+    parser.add_argument(
+        "--dataset", default="data/demo", help="HumanML3D-layout folder (default data/demo)"
+    )
+    parser.add_argument(
+        "--checkpoints", default=None, help="run folder (default checkpoints/<preset>)"
+    )
     parser.add_argument("--resume", action="store_true", help="continue from <stage>/latest.pt")
-    parser.add_argument("--device", default=None, help="auto, cpu, cuda, cuda:N (default: the config's, auto)")
+    parser.add_argument(
+        "--device", default=None, help="auto, cpu, cuda, cuda:N (default: the config's, auto)"
+    )
     parser.add_argument("--bf16", action="store_true", help="bfloat16 autocast")
-    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the config's, 0)")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="random seed (default: the config's, 0)"
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 

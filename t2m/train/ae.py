@@ -14,7 +14,7 @@ from t2m.config import Config
 from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, clip_gradients, seed_step
+from t2m.train.runtime import Runtime, clip_gradients, seed_init, seed_step
 from t2m.train.stage import StageRun, load_stage_data, mean_records
 
 logger = logging.getLogger(__name__)
@@ -23,7 +23,9 @@ logger = logging.getLogger(__name__)
 class AutoencoderObjective(nn.Module):
     """The trainable module: a batch of windows -> the loss parts (what DDP wraps)."""
 
-    def __init__(self, autoencoder: MovementAutoencoder, sparsity_weight: float, smoothness_weight: float):
+    def __init__(
+        self, autoencoder: MovementAutoencoder, sparsity_weight: float, smoothness_weight: float
+    ):
         super().__init__()
         self.autoencoder = autoencoder
         self.sparsity_weight = sparsity_weight
@@ -31,17 +33,25 @@ class AutoencoderObjective(nn.Module):
 
     def forward(self, motion: torch.Tensor) -> dict[str, torch.Tensor]:
         reconstruction, codes = self.autoencoder(motion)
-        return autoencoder_loss(reconstruction, motion, codes, self.sparsity_weight, self.smoothness_weight)
+        return autoencoder_loss(
+            reconstruction, motion, codes, self.sparsity_weight, self.smoothness_weight
+        )
 
 
 @torch.no_grad()
-def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime) -> dict[str, float]:
+def validate(
+    objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime
+) -> dict[str, float]:
     """Mean losses on fixed windows of the validation clips (same windows every time)."""
     stage = config.ae
     objective.eval()
     records = []
-    for index, batch_indices in enumerate(np.array_split(np.arange(len(data)), max(1, len(data) // stage.batch_size))):
-        batch = data.window_batch(batch_indices, np.random.default_rng([config.seed, index, 99]), stage.window_frames)
+    for index, batch_indices in enumerate(
+        np.array_split(np.arange(len(data)), max(1, len(data) // stage.batch_size))
+    ):
+        batch = data.window_batch(
+            batch_indices, np.random.default_rng([config.seed, index, 99]), stage.window_frames
+        )
         with runtime.autocast():
             records.append(objective(batch["motion"].to(runtime.device)))
     objective.train()
@@ -49,7 +59,11 @@ def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime
 
 
 def train_autoencoder(
-    config: Config, dataset_dir: str | Path, run_dir: str | Path, runtime: Runtime, resume: bool = False
+    config: Config,
+    dataset_dir: str | Path,
+    run_dir: str | Path,
+    runtime: Runtime,
+    resume: bool = False,
 ) -> Path:
     """Train stage 1 into ``run_dir/ae``; returns that folder."""
     stage = config.ae
@@ -57,17 +71,22 @@ def train_autoencoder(
     data = load_stage_data(config, dataset_dir)
     dims = {"feature_dim": data.train.feature_dim}
     # 2. model, optimizer, resume
+    seed_init(config.seed)
     models = build_models("ae", config, dims)
     autoencoder = models["autoencoder"].to(runtime.device)
     objective = AutoencoderObjective(autoencoder, stage.sparsity_weight, stage.smoothness_weight)
     optimizer = torch.optim.Adam(autoencoder.parameters(), lr=stage.lr)
-    run = StageRun("ae", config, run_dir, runtime, dims, models, optimizer, data.normalizer, None, resume)
+    run = StageRun(
+        "ae", config, run_dir, runtime, dims, models, optimizer, data.normalizer, None, resume
+    )
     trainable = runtime.wrap(objective)
     trainable.train()
     # 3. the loop
     progress = run.progress
     for epoch in range(progress["epoch"], stage.epochs):
-        batches = epoch_batches(len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size)
+        batches = epoch_batches(
+            len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size
+        )
         bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"ae epoch {epoch + 1}/{stage.epochs}",
                    disable=not runtime.is_main, leave=False)  # fmt: skip
         for index in range(progress["epoch_step"], len(batches)):
@@ -75,7 +94,9 @@ def train_autoencoder(
                 break
             seed_step(config.seed, epoch, index, runtime.rank)
             rng = batch_rng(config.seed, epoch, index, runtime.rank)
-            motion = data.train.window_batch(batches[index], rng, stage.window_frames)["motion"].to(runtime.device)
+            motion = data.train.window_batch(batches[index], rng, stage.window_frames)["motion"].to(
+                runtime.device
+            )
             with runtime.autocast():
                 losses = trainable(motion)
             optimizer.zero_grad(set_to_none=True)

@@ -126,9 +126,6 @@ def check_compatible(
             f"{where}: model size differs ({'; '.join(diff[:3])}); use the same preset and "
             "overrides, or another --checkpoints folder"
         )
-    diff = _differences(checkpoint["dims"], dims)
-    if diff:
-        raise ValueError(f"{where}: data sizes differ ({'; '.join(diff[:3])})")
     stored_vocab = checkpoint.get("vocabulary")
     if (stored_vocab is None) != (vocabulary is None) or (
         stored_vocab is not None
@@ -138,6 +135,9 @@ def check_compatible(
         stored = stored_vocab and stored_vocab["source"]
         current = vocabulary and vocabulary["source"]
         raise ValueError(f"{where}: vocabulary differs ({stored!r} vs {current!r})")
+    diff = _differences(checkpoint["dims"], dims)
+    if diff:
+        raise ValueError(f"{where}: data sizes differ ({'; '.join(diff[:3])})")
 
 
 @dataclass
@@ -188,7 +188,9 @@ def build_models(stage: str, config: Config, dims: dict[str, int]) -> dict[str, 
         }
     if stage == "eval":
         return {
-            "evaluator": Evaluator(word_dim, feature_dim, config.ae.model, config.eval.model, vocab_size)
+            "evaluator": Evaluator(
+                word_dim, feature_dim, config.ae.model, config.eval.model, vocab_size
+            )
         }
     raise ValueError(f"unknown stage {stage!r}; choose one of {', '.join(STAGES)}")
 

@@ -14,7 +14,7 @@ from t2m.config import Config
 from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, clip_gradients, seed_step
+from t2m.train.runtime import Runtime, clip_gradients, seed_init, seed_step
 from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
 
 logger = logging.getLogger(__name__)
@@ -31,7 +31,11 @@ class EvaluatorObjective(nn.Module):
 
     def forward(self, batch: dict[str, torch.Tensor], shift: int) -> dict[str, torch.Tensor]:
         text, motion = self.evaluator(
-            batch["words"], batch["pos"], batch["text_lengths"], batch["motion"], batch["motion_lengths"]
+            batch["words"],
+            batch["pos"],
+            batch["text_lengths"],
+            batch["motion"],
+            batch["motion_lengths"],
         )
         losses = contrastive_loss(text, motion, shift, self.margin, self.negative_weight)
         # In-batch retrieval: how often a caption's nearest motion is its own (a cheap R@1).
@@ -46,7 +50,9 @@ def draw_shift(rng: np.random.Generator, batch_size: int) -> int:
 
 
 @torch.no_grad()
-def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime) -> dict[str, float]:
+def validate(
+    objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime
+) -> dict[str, float]:
     """Mean losses and in-batch R@1 over fixed validation batches."""
     objective.eval()
     records = []
@@ -64,13 +70,19 @@ def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime
 
 
 def train_evaluator(
-    config: Config, dataset_dir: str | Path, run_dir: str | Path, runtime: Runtime, resume: bool = False
+    config: Config,
+    dataset_dir: str | Path,
+    run_dir: str | Path,
+    runtime: Runtime,
+    resume: bool = False,
 ) -> Path:
     """Train stage 4 into ``run_dir/eval`` (needs ``run_dir/ae``); returns that folder."""
     stage = config.eval
     # 1. the frozen autoencoder and its statistics, then the data
     ae = require_stage(Path(run_dir), "ae", runtime.device)
-    config.ae.model = ae.config.ae.model  # the encoder is the trained one, whatever this preset says
+    config.ae.model = (
+        ae.config.ae.model
+    )  # the encoder is the trained one, whatever this preset says
     data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
     vectorizer = data.vectorizer
     dims = {
@@ -80,12 +92,17 @@ def train_evaluator(
         "code_size": ae.config.ae.model.code_size,
     }
     if ae.dims["feature_dim"] != dims["feature_dim"]:
-        raise ValueError(f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, the dataset has {dims['feature_dim']}")
+        raise ValueError(
+            f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, the dataset has {dims['feature_dim']}"
+        )
     # 2. model (frozen encoder copied in), optimizer, resume
+    seed_init(config.seed)
     models = build_models("eval", config, dims)
     evaluator = models["evaluator"].to(runtime.device)
     evaluator.movement_encoder.load_state_dict(ae.models["autoencoder"].encoder.state_dict())
-    optimizer = torch.optim.Adam([p for p in evaluator.parameters() if p.requires_grad], lr=stage.lr)
+    optimizer = torch.optim.Adam(
+        [p for p in evaluator.parameters() if p.requires_grad], lr=stage.lr
+    )
     run = StageRun("eval", config, run_dir, runtime, dims, models, optimizer, data.normalizer,
                    vectorizer.info(), resume)  # fmt: skip
     trainable = runtime.wrap(EvaluatorObjective(evaluator, stage.margin, stage.negative_weight))
@@ -93,7 +110,9 @@ def train_evaluator(
     # 3. the loop
     progress = run.progress
     for epoch in range(progress["epoch"], stage.epochs):
-        batches = epoch_batches(len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size)
+        batches = epoch_batches(
+            len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size
+        )
         bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"eval epoch {epoch + 1}/{stage.epochs}",
                    disable=not runtime.is_main, leave=False)  # fmt: skip
         for index in range(progress["epoch_step"], len(batches)):
@@ -125,6 +144,11 @@ def train_evaluator(
         metrics = validate(trainable, data.val, config, runtime)
         run.log("val", metrics)
         run.save(best=run.improved(metrics["loss"]))
-        logger.info("eval epoch %d: val loss %.3f, in-batch R@1 %.3f", epoch + 1, metrics["loss"], metrics["top1"])
+        logger.info(
+            "eval epoch %d: val loss %.3f, in-batch R@1 %.3f",
+            epoch + 1,
+            metrics["loss"],
+            metrics["top1"],
+        )
     run.finish()
     return run.dir

@@ -14,7 +14,7 @@ from t2m.config import Config
 from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.length import LengthEstimator, length_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, clip_gradients, seed_step
+from t2m.train.runtime import Runtime, clip_gradients, seed_init, seed_step
 from t2m.train.stage import StageRun, load_stage_data, mean_records, to_device
 
 logger = logging.getLogger(__name__)
@@ -33,13 +33,18 @@ class LengthObjective(nn.Module):
 
 
 @torch.no_grad()
-def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime) -> dict[str, float]:
+def validate(
+    objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime
+) -> dict[str, float]:
     """Mean loss and accuracy over the validation captions (fixed caption choice)."""
     objective.eval()
     records = []
     chunks = np.array_split(np.arange(len(data)), max(1, len(data) // config.length.batch_size))
     for index, indices in enumerate(chunks):
-        batch = to_device(data.length_batch(indices, np.random.default_rng([config.seed, index, 99])), runtime.device)
+        batch = to_device(
+            data.length_batch(indices, np.random.default_rng([config.seed, index, 99])),
+            runtime.device,
+        )
         with runtime.autocast():
             records.append(objective(batch))
     objective.train()
@@ -47,7 +52,11 @@ def validate(objective: nn.Module, data: MotionTextData, config: Config, runtime
 
 
 def train_length(
-    config: Config, dataset_dir: str | Path, run_dir: str | Path, runtime: Runtime, resume: bool = False
+    config: Config,
+    dataset_dir: str | Path,
+    run_dir: str | Path,
+    runtime: Runtime,
+    resume: bool = False,
 ) -> Path:
     """Train stage 2 into ``run_dir/length``; returns that folder."""
     stage = config.length
@@ -60,6 +69,7 @@ def train_length(
         "vocab_size": vectorizer.size if vectorizer.trainable else 0,
     }
     # 2. model, optimizer, resume
+    seed_init(config.seed)
     models = build_models("length", config, dims)
     estimator = models["length"].to(runtime.device)
     optimizer = torch.optim.Adam(estimator.parameters(), lr=stage.lr)
@@ -70,7 +80,9 @@ def train_length(
     # 3. the loop
     progress = run.progress
     for epoch in range(progress["epoch"], stage.epochs):
-        batches = epoch_batches(len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size)
+        batches = epoch_batches(
+            len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size
+        )
         bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"length epoch {epoch + 1}/{stage.epochs}",
                    disable=not runtime.is_main, leave=False)  # fmt: skip
         for index in range(progress["epoch_step"], len(batches)):
@@ -102,6 +114,11 @@ def train_length(
         metrics = validate(trainable, data.val, config, runtime)
         run.log("val", metrics)
         run.save(best=run.improved(metrics["loss"]))
-        logger.info("length epoch %d: val loss %.3f, accuracy %.3f", epoch + 1, metrics["loss"], metrics["accuracy"])
+        logger.info(
+            "length epoch %d: val loss %.3f, accuracy %.3f",
+            epoch + 1,
+            metrics["loss"],
+            metrics["accuracy"],
+        )
     run.finish()
     return run.dir

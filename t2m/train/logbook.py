@@ -22,7 +22,9 @@ class Logbook:
     the file reads as one run.
     """
 
-    def __init__(self, stage_dir: Path, stage: str, enabled: bool = True, resume_step: int | None = None):
+    def __init__(
+        self, stage_dir: Path, stage: str, enabled: bool = True, resume_step: int | None = None
+    ):
         self.path = stage_dir / "metrics.jsonl"
         self.curves_path = stage_dir / "curves.png"
         self.stage = stage

@@ -109,6 +109,11 @@ def finish(runtime: Runtime) -> None:
         dist.destroy_process_group()
 
 
+def seed_init(seed: int) -> None:
+    """Seed torch's global generator before models are built (their initial weights)."""
+    torch.manual_seed(seed)
+
+
 def seed_step(seed: int, epoch: int, step: int, rank: int = 0) -> None:
     """Seed torch's global generator for one step (dropout, latent noise), from its coordinates.
 
@@ -118,7 +123,9 @@ def seed_step(seed: int, epoch: int, step: int, rank: int = 0) -> None:
     torch.manual_seed((((seed * 1_000_003 + epoch) * 1_000_003 + step) * 131 + rank) % (2**63 - 1))
 
 
-def clip_gradients(parameters: Iterator[nn.Parameter] | list[nn.Parameter], max_norm: float) -> None:
+def clip_gradients(
+    parameters: Iterator[nn.Parameter] | list[nn.Parameter], max_norm: float
+) -> None:
     """Clip the total gradient norm when ``max_norm`` > 0."""
     if max_norm > 0:
         torch.nn.utils.clip_grad_norm_(list(parameters), max_norm)

@@ -54,12 +54,16 @@ def vocabulary_for(config: Config, dataset_dir: Path) -> WordVectors:
     if data.word_vectors == TRAINABLE:
         clips = load_split(dataset_dir, "train", data)
         return build_trainable_vocabulary(
-            (c.tokens for clip in clips for c in clip.captions), data.trainable_word_dim, data.max_text_tokens
+            (c.tokens for clip in clips for c in clip.captions),
+            data.trainable_word_dim,
+            data.max_text_tokens,
         )
     return load_vectorizer(data.word_vectors, data.max_text_tokens)
 
 
-def load_stage_data(config: Config, dataset_dir: str | Path, normalizer: Normalizer | None = None) -> StageData:
+def load_stage_data(
+    config: Config, dataset_dir: str | Path, normalizer: Normalizer | None = None
+) -> StageData:
     """Train/val splits of a HumanML3D-layout folder, normalised, with their vocabulary.
 
     ``normalizer`` defaults to the dataset's Mean/Std with the root/contact weighting.
@@ -71,7 +75,9 @@ def load_stage_data(config: Config, dataset_dir: str | Path, normalizer: Normali
     if normalizer is None:
         normalizer = Normalizer.from_dataset(dataset_dir, config.data.feature_bias)
     vectorizer = vocabulary_for(config, dataset_dir)
-    train = MotionTextData(load_split(dataset_dir, "train", config.data), normalizer, vectorizer, config.data)
+    train = MotionTextData(
+        load_split(dataset_dir, "train", config.data), normalizer, vectorizer, config.data
+    )
     try:
         val_clips = load_split(dataset_dir, "val", config.data)
     except ValueError:
@@ -139,14 +145,22 @@ class StageRun:
                 module.load_state_dict(checkpoint["models"][name])
             optimizer.load_state_dict(checkpoint["optimizer"])
             self.progress.update(checkpoint["progress"])
-            logger.info("%s: resumed at step %d (epoch %d)", stage, self.progress["step"], self.progress["epoch"])
+            logger.info(
+                "%s: resumed at step %d (epoch %d)",
+                stage,
+                self.progress["step"],
+                self.progress["epoch"],
+            )
         elif latest.is_file() and runtime.is_main:
             logger.warning("%s: starting afresh over the existing run in %s", stage, self.dir)
         if runtime.is_main:
             self.dir.mkdir(parents=True, exist_ok=True)
             write_config(self.dir, config)
         self.logbook = Logbook(
-            self.dir, stage, enabled=runtime.is_main, resume_step=self.progress["step"] if resume else None
+            self.dir,
+            stage,
+            enabled=runtime.is_main,
+            resume_step=self.progress["step"] if resume else None,
         )
 
     @property
@@ -179,7 +193,10 @@ class StageRun:
 
     def log(self, split: str, values: dict[str, Any]) -> None:
         """Write one record; tensors are read here (the only host sync of the loop)."""
-        plain = {k: (v.detach().float().item() if isinstance(v, torch.Tensor) else v) for k, v in values.items()}
+        plain = {
+            k: (v.detach().float().item() if isinstance(v, torch.Tensor) else v)
+            for k, v in values.items()
+        }
         self.logbook.write(split, self.step, int(self.progress["epoch"]), plain)
 
     def finish(self) -> None:

@@ -24,7 +24,7 @@ from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, clip_gradients, seed_step
+from t2m.train.runtime import Runtime, clip_gradients, seed_init, seed_step
 from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
 
 logger = logging.getLogger(__name__)
@@ -59,12 +59,17 @@ class TextToMotionObjective(nn.Module):
         return self
 
     def forward(
-        self, batch: dict[str, torch.Tensor], teacher_forcing: bool, noise: torch.Tensor | None = None
+        self,
+        batch: dict[str, torch.Tensor],
+        teacher_forcing: bool,
+        noise: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         motion = batch["motion"]  # (B, 4S, D) normalised
         with torch.no_grad():
             target_codes = self.encoder(motion[..., :-CONTACT_DIMS])  # (B, S, C)
-        word_features, sentence, word_mask = self.vae.encode_text(batch["words"], batch["pos"], batch["text_lengths"])
+        word_features, sentence, word_mask = self.vae.encode_text(
+            batch["words"], batch["pos"], batch["text_lengths"]
+        )
         outputs = self.vae(word_features, sentence, word_mask, target_codes, self.initial_code,
                            teacher_forcing, noise)  # fmt: skip
         decoded = self.decoder(outputs["codes"])
@@ -74,7 +79,9 @@ class TextToMotionObjective(nn.Module):
 
 
 @torch.no_grad()
-def mean_pose_code(encoder: MovementEncoder, feature_dim: int, device: torch.device) -> torch.Tensor:
+def mean_pose_code(
+    encoder: MovementEncoder, feature_dim: int, device: torch.device
+) -> torch.Tensor:
     """(C,) code of 4 frames of zero normalised features, i.e. the mean pose."""
     encoder.eval()
     return encoder(torch.zeros(1, 4, feature_dim - CONTACT_DIMS, device=device))[0, 0]
@@ -104,14 +111,20 @@ def validate(
 
 
 def train_text_to_motion(
-    config: Config, dataset_dir: str | Path, run_dir: str | Path, runtime: Runtime, resume: bool = False
+    config: Config,
+    dataset_dir: str | Path,
+    run_dir: str | Path,
+    runtime: Runtime,
+    resume: bool = False,
 ) -> Path:
     """Train stage 3 into ``run_dir/t2m`` (needs ``run_dir/ae``); returns that folder."""
     stage = config.t2m
     unit = config.data.unit_length
     # 1. the trained autoencoder (frozen encoder, decoder to fine-tune) and the data
     ae = require_stage(Path(run_dir), "ae", runtime.device)
-    config.ae.model = ae.config.ae.model  # the decoder is the trained one, whatever this preset says
+    config.ae.model = (
+        ae.config.ae.model
+    )  # the decoder is the trained one, whatever this preset says
     autoencoder = ae.models["autoencoder"]
     data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
     vectorizer = data.vectorizer
@@ -122,8 +135,11 @@ def train_text_to_motion(
         "code_size": config.ae.model.code_size,
     }
     if ae.dims["feature_dim"] != dims["feature_dim"]:
-        raise ValueError(f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, the dataset has {dims['feature_dim']}")
+        raise ValueError(
+            f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, the dataset has {dims['feature_dim']}"
+        )
     # 2. models, optimizer (decoder at its own rate), resume
+    seed_init(config.seed)
     models = build_models("t2m", config, dims)
     vae = models["vae"].to(runtime.device)
     decoder = models["decoder"].to(runtime.device)
@@ -153,7 +169,11 @@ def train_text_to_motion(
         batches = [items[b] for b in epoch_batches(len(items), stage.batch_size, config.seed, epoch,
                                                      runtime.rank, runtime.world_size)]  # fmt: skip
         if not batches:
-            logger.warning("t2m: fewer than %d training clips of %d frames; curriculum ends", stage.batch_size, frames)
+            logger.warning(
+                "t2m: fewer than %d training clips of %d frames; curriculum ends",
+                stage.batch_size,
+                frames,
+            )
             progress["done"] = True
             break
         bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"t2m epoch {epoch + 1} ({frames} frames)",
@@ -163,7 +183,9 @@ def train_text_to_motion(
                 break
             seed_step(config.seed, epoch, index, runtime.rank)
             rng = batch_rng(config.seed, epoch, index, runtime.rank)
-            batch = to_device(data.train.fixed_crop_batch(batches[index], rng, frames), runtime.device)
+            batch = to_device(
+                data.train.fixed_crop_batch(batches[index], rng, frames), runtime.device
+            )
             teacher_forcing = bool(rng.random() < stage.teacher_forcing)
             with runtime.autocast():
                 losses = trainable(batch, teacher_forcing)
@@ -195,7 +217,9 @@ def train_text_to_motion(
             progress["bad_epochs"] += 1
         progress["stage_epochs"] += 1
         run.log("val", {**metrics, "snippets": snippets})
-        limit = stage.max_stage_epochs + (stage.final_epochs if snippets >= stage.end_snippets else 0)
+        limit = stage.max_stage_epochs + (
+            stage.final_epochs if snippets >= stage.end_snippets else 0
+        )
         if progress["bad_epochs"] >= stage.patience or progress["stage_epochs"] >= limit:
             if snippets >= stage.end_snippets:
                 progress["done"] = True
@@ -206,6 +230,8 @@ def train_text_to_motion(
                 logger.info("t2m: curriculum moves to %d snippets", progress["snippets"])
         # best = the best model at the longest length reached so far
         run.save(best=improved)
-        logger.info("t2m epoch %d (%d snippets): val reconstruction %.4f", epoch + 1, snippets, value)
+        logger.info(
+            "t2m epoch %d (%d snippets): val reconstruction %.4f", epoch + 1, snippets, value
+        )
     run.finish()
     return run.dir

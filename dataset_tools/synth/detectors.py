@@ -1,0 +1,451 @@
+"""Label detectors and plausibility figures computed from joint positions alone.
+
+Input everywhere: joints (T, 22, 3) of the SMPL 22-joint body, y-up, metres, at any frame rate
+(``fps``), for example a 20 fps HumanML3D-canonical motion (generated or real) or a corpus clip
+turned y-up. Nothing here needs the generator: the detectors can judge any motion.
+
+``detect_labels(joints, fps)`` returns a flat, JSON-ready dict of facts about the motion:
+
+=========================  ===================================================================
+key                        meaning
+=========================  ===================================================================
+duration_s                 length of the motion
+forward_speed_mps          mean root velocity along the body's own facing (negative: backward)
+left_speed_mps             mean root velocity towards the body's own left (negative: rightward)
+path_speed_mps             mean horizontal root speed
+speed_scale                REFERENCE_LEG_M / the motion's leg length: multiply a speed by it to
+                           compare across body sizes (1 on the HumanML3D target skeleton, so on
+                           built data); speed classes and walk/run are judged on scaled speeds
+displacement_m             net horizontal root displacement
+yaw_change_deg             net change of facing, positive = turned left (counterclockwise seen
+                           from above), unwrapped (a full circle reads about +-360)
+airborne_count             episodes >= 0.1 s with every foot joint off the ground
+max_airborne_height_m      highest clearance of the lowest foot joint in those episodes
+hop_side                   "left"/"right": hops with the other foot held up throughout; or None
+pelvis_min_ratio           lowest pelvis height over leg length (standing about 1.1, squat
+                           0.5-0.75, sitting on the ground below 0.4)
+dip_count                  times the pelvis went below 0.85 leg lengths and came back up
+sit                        the pelvis came down to sitting-on-the-ground height
+trunk_max_deg              largest forward lean of the pelvis-to-neck line from the vertical
+wave_left / wave_right     wrist held above the shoulder while swinging side to side
+raise_left / raise_right   wrist held well above the head without swinging
+kick_left / kick_right     ankle brought up in front of the body with the other foot planted
+punch_left / punch_right   number of fast straight-arm extensions of that arm forward
+clap_count                 number of times the hands came together in front of the body
+limb_activity_mps          mean speed of wrists and ankles relative to the pelvis
+=========================  ===================================================================
+
+``label_matches(detected, label)`` says whether those facts agree with one ground-truth segment
+label (``{"action": ..., "params": {...}}`` as in ``labels.json``); ``clip_matches`` checks every
+segment of a clip, cutting the motion in proportion to the segments' frames. ``mirror_label``
+gives the label of a mirrored clip. ``plausibility(joints, fps)`` measures foot skating, ground
+penetration, bone-length constancy, knee and elbow angles, and jerk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from dataset_tools.skeleton import SMPL
+
+_UP = np.array([0.0, 1.0, 0.0])
+_FOOT_JOINTS = (7, 10, 8, 11)
+_SIDES = {"left": {"hip": 1, "knee": 4, "ankle": 7, "toe": 10, "shoulder": 16, "elbow": 18, "wrist": 20},
+          "right": {"hip": 2, "knee": 5, "ankle": 8, "toe": 11, "shoulder": 17, "elbow": 19, "wrist": 21}}  # fmt: skip
+_OTHER = {"left": "right", "right": "left"}
+
+# Speed-class boundaries (m/s) per gait and direction, midway between the generator's ranges.
+SPEED_BOUNDS = {
+    ("walk", "forward"): (0.92, 1.4),
+    ("walk", "backward"): (0.69, 1.05),
+    ("walk", "sideways"): (0.375, 0.57),
+    ("run", "forward"): (2.67, 3.35),
+    ("run", "backward"): (2.0, 2.5),
+    ("run", "sideways"): (0.375, 0.57),
+}
+RUN_SPEED_MPS = 1.95  # forward gaits faster than this are runs
+# Hip-to-ankle length of the HumanML3D target skeleton (and of the generator's mean body); gait
+# speeds are compared after scaling to it, since a longer-legged subject walks faster.
+REFERENCE_LEG_M = 0.821
+
+
+def _check(joints: np.ndarray, fps: float) -> np.ndarray:
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.ndim != 3 or joints.shape[1:] != (22, 3):
+        raise ValueError(f"expected joints of shape (T, 22, 3), got {joints.shape}")
+    if joints.shape[0] < 2:
+        raise ValueError("need at least 2 frames")
+    if not np.all(np.isfinite(joints)):
+        raise ValueError("joints contain NaN or infinity")
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    return joints
+
+
+def _facing(joints: np.ndarray, fps: float) -> np.ndarray:
+    """Unit horizontal facing directions (T, 3), lightly smoothed (0.05 s)."""
+    across = (joints[:, 2] - joints[:, 1]) + (joints[:, 17] - joints[:, 16])
+    forward = np.cross(_UP, across)
+    forward = gaussian_filter1d(forward, max(0.05 * fps, 0.5), axis=0, mode="nearest")
+    forward[:, 1] = 0.0
+    norm = np.linalg.norm(forward, axis=1, keepdims=True)
+    return forward / np.maximum(norm, 1e-9)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+
+
+def _count_dips(signal: np.ndarray, low: float, high: float) -> int:
+    """Episodes of ``signal`` below ``low``; two count as one unless it rose above ``high``
+    between them (hysteresis), so a dip cut by the window's edge still counts."""
+    count, armed = 0, True
+    for value in signal:
+        if armed and value < low:
+            count += 1
+            armed = False
+        elif value > high:
+            armed = True
+    return count
+
+
+def _count_above(signal: np.ndarray, high: float, low: float) -> int:
+    """Episodes of ``signal`` rising above ``high`` (re-armed once it falls below ``low``)."""
+    return _count_dips(-signal, -high, -low)
+
+
+def _leg_length(joints: np.ndarray) -> float:
+    lengths = SMPL.bone_lengths_of(joints)
+    return float(np.median(0.5 * (lengths[:, 4] + lengths[:, 5] + lengths[:, 7] + lengths[:, 8])))
+
+
+def _swing_extent(signal: np.ndarray, fps: float) -> tuple[float, int]:
+    """Peak-to-peak range and number of direction reversals of a (T,) signal."""
+    smooth = gaussian_filter1d(signal, max(0.04 * fps, 0.5))
+    velocity = np.diff(smooth)
+    threshold = 0.01 * 60.0 / fps  # metres per frame, ignore tremble
+    moving = velocity[np.abs(velocity) > threshold]
+    reversals = int(np.sum(np.diff(np.sign(moving)) != 0)) if len(moving) > 1 else 0
+    return float(np.ptp(smooth)), reversals
+
+
+def detect_labels(joints: np.ndarray, fps: float) -> dict:
+    """Facts about a motion (see the module docstring) from joints (T, 22, 3), y-up metres."""
+    joints = _check(joints, fps)
+    T = joints.shape[0]
+    ground = float(np.percentile(joints[:, list(_FOOT_JOINTS), 1].min(axis=1), 2))
+    heights = joints[..., 1] - ground
+    forward = _facing(joints, fps)
+    left = np.cross(_UP, forward)
+    root = joints[:, 0] * np.array([1.0, 0.0, 1.0])
+    velocity = np.gradient(root, axis=0) * fps
+    leg = _leg_length(joints)
+
+    facts: dict = {"duration_s": T / fps}
+    facts["forward_speed_mps"] = float(np.mean(np.sum(velocity * forward, axis=1)))
+    facts["left_speed_mps"] = float(np.mean(np.sum(velocity * left, axis=1)))
+    facts["path_speed_mps"] = float(np.mean(np.linalg.norm(velocity, axis=1)))
+    facts["displacement_m"] = float(np.linalg.norm(root[-1] - root[0]))
+    yaw = np.unwrap(np.arctan2(forward[:, 0], forward[:, 2]))
+    facts["yaw_change_deg"] = float(np.degrees(yaw[-1] - yaw[0]))
+
+    # Flight: every foot joint clear of the ground.
+    lowest_foot = heights[:, list(_FOOT_JOINTS)].min(axis=1)
+    # Sitting with the feet raised is not flight: the pelvis must be well off the ground.
+    off = (lowest_foot > 0.05) & (heights[:, 0] > 0.8 * leg)
+    airborne = [(a, b) for a, b in _runs(off) if (b - a) / fps >= 0.1]
+    facts["airborne_count"] = len(airborne)
+    facts["max_airborne_height_m"] = float(
+        max((lowest_foot[a:b].max() for a, b in airborne), default=0.0)
+    )
+    facts["hop_side"] = None
+    if airborne:
+        for side in ("left", "right"):
+            held = (
+                heights[:, _SIDES[_OTHER[side]]["ankle"]] > heights[:, _SIDES[side]["ankle"]] + 0.12
+            )
+            first, last = airborne[0][0], airborne[-1][1]
+            if held[first:last].mean() > 0.9:
+                facts["hop_side"] = side
+
+    pelvis = heights[:, 0] / leg
+    facts["pelvis_min_ratio"] = float(pelvis.min())
+    facts["dip_count"] = _count_dips(pelvis, 0.85, 0.98)
+    facts["sit"] = bool(pelvis.min() < 0.4)
+    trunk = joints[:, 12] - joints[:, 0]
+    lean = np.degrees(np.arctan2(np.sum(trunk * forward, axis=1), trunk[:, 1]))
+    facts["trunk_max_deg"] = float(lean.max())
+
+    reaches = {}
+    for side, ids in _SIDES.items():
+        wrist, shoulder, elbow = (
+            joints[:, ids["wrist"]],
+            joints[:, ids["shoulder"]],
+            joints[:, ids["elbow"]],
+        )
+        above_shoulder = wrist[:, 1] - shoulder[:, 1]
+        above_head = wrist[:, 1] - joints[:, 15, 1]
+        lateral = np.sum((wrist - elbow) * left, axis=1)
+        extent, reversals = _swing_extent(lateral, fps)
+        up = above_shoulder > 0.1
+        swing_extent, swing_reversals = (
+            _swing_extent(lateral[up], fps) if up.sum() > 2 else (0.0, 0)
+        )
+        facts[f"wave_{side}"] = bool(
+            up.mean() > 0.25 and swing_extent > 0.12 and swing_reversals >= 2
+        )
+        facts[f"raise_{side}"] = bool(
+            np.sum(above_head > 0.2) / fps >= 0.3 and not facts[f"wave_{side}"]
+        )
+        # Kick: the ankle high and in front of the pelvis while the other foot is planted.
+        ankle = joints[:, ids["ankle"]]
+        ahead = np.sum((ankle - joints[:, 0]) * forward, axis=1)
+        other = _SIDES[_OTHER[side]]
+        planted = heights[:, [other["ankle"], other["toe"]]].min(axis=1) < 0.05
+        kicking = (heights[:, ids["ankle"]] > 0.35) & (ahead > 0.3) & planted
+        facts[f"kick_{side}"] = bool(kicking.sum() >= max(1, round(0.05 * fps)))
+        # Punch: the wrist far in front of the shoulder at chest height, the arm nearly straight.
+        arm = np.median(
+            np.linalg.norm(elbow - shoulder, axis=1) + np.linalg.norm(wrist - elbow, axis=1)
+        )
+        reach = np.sum((wrist - shoulder) * forward, axis=1) / arm
+        level = np.abs(wrist[:, 1] - shoulder[:, 1]) < 0.35 * arm
+        reaches[side] = np.where(level, reach, 0.0)
+    for side in _SIDES:
+        # A punch extends one arm; both arms swinging forward together (a jump) is no punch.
+        alone = reaches[_OTHER[side]] < 0.55
+        facts[f"punch_{side}"] = _count_above(np.where(alone, reaches[side], 0.0), 0.8, 0.55)
+
+    hands = np.linalg.norm(joints[:, 20] - joints[:, 21], axis=1)
+    in_front = (
+        np.sum((0.5 * (joints[:, 20] + joints[:, 21]) - joints[:, 0]) * forward, axis=1) > 0.15
+    )
+    facts["clap_count"] = _count_dips(np.where(in_front, hands, 1.0), 0.12, 0.22)
+    relative = joints[:, [7, 8, 20, 21]] - joints[:, :1]
+    facts["limb_activity_mps"] = float(
+        np.mean(np.linalg.norm(np.diff(relative, axis=0), axis=-1)) * fps
+    )
+    facts["leg_length_m"] = leg
+    facts["speed_scale"] = REFERENCE_LEG_M / leg
+    return facts
+
+
+def _speed_class(speed: float, gait: str, direction: str) -> str:
+    key = "sideways" if direction in ("left", "right") else direction
+    key = "forward" if key in ("clockwise", "counterclockwise") else key
+    slow_max, fast_min = SPEED_BOUNDS[(gait, key)]
+    return "slow" if speed < slow_max else "fast" if speed > fast_min else "normal"
+
+
+def label_matches(detected: dict, label: dict) -> bool:
+    """Whether facts from ``detect_labels`` agree with one segment label {"action", "params"}.
+
+    Checks the action's defining property and its parameters (side, direction, count, speed
+    class, angle). Mismatched extras (a wave detected during a walk) are not held against it.
+    """
+    action, params = label["action"], label.get("params", {})
+    d = detected
+    if action in ("walk", "run"):
+        direction = params["direction"]
+        scale = d["speed_scale"]
+        if direction in ("forward", "backward", "clockwise", "counterclockwise"):
+            speed = abs(d["forward_speed_mps"]) * scale
+            ok = (
+                d["forward_speed_mps"] > 0.3
+                if direction != "backward"
+                else d["forward_speed_mps"] < -0.2
+            )
+            if direction in ("clockwise", "counterclockwise"):
+                turned = (
+                    d["yaw_change_deg"] if direction == "counterclockwise" else -d["yaw_change_deg"]
+                )
+                ok = ok and turned > 90
+            else:
+                ok = ok and abs(d["yaw_change_deg"]) < 60
+            if direction != "backward":
+                is_run = d["path_speed_mps"] * scale > RUN_SPEED_MPS
+                ok = ok and is_run == (action == "run")
+            if action == "walk":
+                ok = ok and d["airborne_count"] == 0
+        else:
+            sign = 1.0 if direction == "left" else -1.0
+            speed = sign * d["left_speed_mps"] * scale
+            ok = speed > 0.15 and abs(d["forward_speed_mps"]) < 0.5 * speed
+        if "speed" in params:
+            ok = ok and _speed_class(speed, action, direction) == params["speed"]
+        return bool(ok)
+    if action == "turn":
+        turned = d["yaw_change_deg"] if params["direction"] == "left" else -d["yaw_change_deg"]
+        angle = params.get("angle", 90)
+        return bool(abs(turned - angle) < 35 and d["displacement_m"] < 0.6)
+    if action == "jump":
+        ok = (
+            d["airborne_count"] == params.get("count", d["airborne_count"])
+            and d["airborne_count"] > 0
+        )
+        ok = ok and d["hop_side"] is None
+        if params.get("mode") == "forward":
+            ok = ok and d["displacement_m"] > 0.3 and d["forward_speed_mps"] > 0
+        elif params.get("mode") == "in_place":
+            ok = ok and d["displacement_m"] < 0.3
+        return bool(ok)
+    if action == "hop":
+        return bool(
+            d["hop_side"] == params["side"]
+            and d["airborne_count"] == params.get("count", d["airborne_count"])
+        )
+    if action in ("wave", "raise"):
+        sides = {"left": (True, False), "right": (False, True), "both": (True, True)}[
+            params["side"]
+        ]
+        seen = (d[f"{action}_left"], d[f"{action}_right"])
+        return seen == sides
+    if action == "kick":
+        return bool(d[f"kick_{params['side']}"] and not d[f"kick_{_OTHER[params['side']]}"])
+    if action == "punch":
+        side = params["side"]
+        count = params.get("count", d[f"punch_{side}"])
+        return bool(
+            d[f"punch_{side}"] == count and d[f"punch_{_OTHER[side]}"] == 0 and count > 0
+            and not d[f"raise_{side}"]
+        )  # fmt: skip
+    if action == "squat":
+        count = params.get("count", d["dip_count"])
+        return bool(
+            d["dip_count"] == count and count > 0 and not d["sit"] and d["airborne_count"] == 0
+        )
+    if action == "sit":
+        return bool(d["sit"])
+    if action == "bow":
+        return bool(
+            d["trunk_max_deg"] > 25 and d["pelvis_min_ratio"] > 0.85 and d["displacement_m"] < 0.3
+        )
+    if action == "clap":
+        count = params.get("count", d["clap_count"])
+        return bool(d["clap_count"] == count and count > 0)
+    if action == "stand":
+        return bool(
+            d["path_speed_mps"] < 0.15 and abs(d["yaw_change_deg"]) < 20 and d["airborne_count"] == 0
+            and d["pelvis_min_ratio"] > 0.95 and d["limb_activity_mps"] < 0.15
+            and d["trunk_max_deg"] < 20
+        )  # fmt: skip
+    raise ValueError(f"unknown action {action!r}")
+
+
+def segment_windows(
+    segments: list[dict], total_frames: int, num_frames: int, trim_frames: int = 0
+) -> list[tuple[int, int]]:
+    """Frame windows [a, b) in a motion of ``num_frames`` frames for the labelled segments of a
+    clip of ``total_frames`` frames, scaled proportionally; boundaries between segments move
+    inwards by ``trim_frames`` (at most a quarter of the segment) to skip the cross-fades."""
+    windows = []
+    scale = num_frames / total_frames
+    for i, seg in enumerate(segments):
+        a, b = seg["start"] * scale, seg["end"] * scale
+        margin = min(trim_frames, 0.25 * (b - a))
+        a2 = a + margin if i > 0 else a
+        b2 = b - margin if i < len(segments) - 1 else b
+        windows.append((int(round(a2)), max(int(round(b2)), int(round(a2)) + 2)))
+    return windows
+
+
+def clip_matches(
+    joints: np.ndarray, fps: float, segments: list[dict], total_frames: int | None = None
+) -> list[bool]:
+    """Per labelled segment, whether the motion's corresponding stretch matches it.
+
+    Args:
+        joints: (T, 22, 3) y-up metres at ``fps``.
+        segments: the clip's segment labels (``labels.json``: action, params, start, end).
+        total_frames: frame count the segments' start/end refer to (default: the last segment's
+            end); the motion is cut in the same proportions, whatever its own length.
+    """
+    joints = _check(joints, fps)
+    total = total_frames or segments[-1]["end"]
+    results = []
+    windows = segment_windows(segments, total, len(joints), trim_frames=round(0.1 * fps))
+    for seg, (a, b) in zip(segments, windows):
+        window = joints[a:b]
+        results.append(len(window) >= 2 and label_matches(detect_labels(window, fps), seg))
+    return results
+
+
+def mirror_label(label: dict) -> dict:
+    """The label of the mirrored motion: sides, sideways directions and turning senses swap."""
+    swap = {
+        "left": "right",
+        "right": "left",
+        "clockwise": "counterclockwise",
+        "counterclockwise": "clockwise",
+    }
+    params = dict(label.get("params", {}))
+    for key in ("side", "direction"):
+        if key in params:
+            params[key] = swap.get(params[key], params[key])
+    return {**label, "params": params}
+
+
+def plausibility(joints: np.ndarray, fps: float, floor: float = 0.0) -> dict:
+    """Physical plausibility figures of joints (T, 22, 3), y-up metres, ground at ``floor``.
+
+    Returns:
+        foot_skate_mps: mean horizontal speed of foot joints while touching the ground (within 5 mm
+            of the joint's lowest height in the clip; for an ankle, with its toe below 3 cm).
+        penetration_m: deepest any joint goes below the floor (0 if none).
+        bone_length_cv: largest relative standard deviation of a bone's length over time.
+        knee_flexion_min_deg / knee_flexion_max_deg: signed knee flexion (negative =
+            hyperextension, bending the wrong way).
+        elbow_flexion_max_deg: largest elbow flexion (180 - the shoulder-elbow-wrist angle).
+        root_jerk_mps3: 95th percentile of the pelvis' jerk magnitude (after 0.05 s smoothing).
+    """
+    joints = _check(joints, fps)
+    heights = joints[..., 1] - floor
+    horizontal = np.linalg.norm(np.diff(joints[..., [0, 2]], axis=0), axis=-1) * fps  # (T-1, J)
+    speeds = []
+    for ankle, toe in ((7, 10), (8, 11)):
+        # Contact means within 5 mm of the joint's lowest height in the clip: a foot passing low
+        # (a centimetre of clearance is normal in swing) does not count.
+        toe_low = heights[:, toe] < heights[:, toe].min() + 0.005
+        ankle_low = (heights[:, ankle] < heights[:, ankle].min() + 0.005) & (heights[:, toe] < 0.03)
+        toe_contact = toe_low[1:] & toe_low[:-1]
+        ankle_contact = ankle_low[1:] & ankle_low[:-1]
+        speeds += [horizontal[toe_contact, toe], horizontal[ankle_contact, ankle]]
+    speeds = np.concatenate(speeds)
+    lengths = SMPL.bone_lengths_of(joints)[:, 1:]
+    cv = lengths.std(axis=0) / np.maximum(lengths.mean(axis=0), 1e-9)
+    knees = []
+    across = joints[:, 1] - joints[:, 2]
+    across /= np.maximum(np.linalg.norm(across, axis=1, keepdims=True), 1e-9)
+    for hip, knee, ankle in ((1, 4, 7), (2, 5, 8)):
+        thigh = joints[:, knee] - joints[:, hip]
+        shank = joints[:, ankle] - joints[:, knee]
+        cos = np.sum(thigh * shank, axis=1) / (
+            np.linalg.norm(thigh, axis=1) * np.linalg.norm(shank, axis=1)
+        )
+        angle = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+        sign = np.sign(np.sum(np.cross(thigh, shank) * across, axis=1))
+        knees.append(np.where(angle > 3, sign * angle, angle))
+    knees = np.concatenate(knees)
+    elbows = []
+    for shoulder, elbow, wrist in ((16, 18, 20), (17, 19, 21)):
+        upper = joints[:, elbow] - joints[:, shoulder]
+        fore = joints[:, wrist] - joints[:, elbow]
+        cos = np.sum(upper * fore, axis=1) / (
+            np.linalg.norm(upper, axis=1) * np.linalg.norm(fore, axis=1)
+        )
+        elbows.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+    root = gaussian_filter1d(joints[:, 0], max(0.05 * fps, 0.5), axis=0, mode="nearest")
+    jerk = (
+        np.linalg.norm(np.diff(root, 3, axis=0), axis=1) * fps**3 if len(root) > 3 else np.zeros(1)
+    )
+    return {
+        "foot_skate_mps": float(speeds.mean()) if speeds.size else 0.0,
+        "penetration_m": float(max(0.0, -heights.min())),
+        "bone_length_cv": float(cv.max()),
+        "knee_flexion_min_deg": float(knees.min()),
+        "knee_flexion_max_deg": float(knees.max()),
+        "elbow_flexion_max_deg": float(np.concatenate(elbows).max()),
+        "root_jerk_mps3": float(np.percentile(jerk, 95)),
+    }

@@ -1,0 +1,147 @@
+"""Generation speed at ``paper`` sizes (random weights): batch-1 latency and batch-32 throughput
+per inference precision, plus rendering and BVH export costs.
+
+Latency is "text in, joints out": spaCy tagging and word vectors, the text encoder, the temporal
+VAE's 49 prior / generator steps (196 frames, the longest motion), the decoder, de-normalisation
+and joint recovery; model loading and rendering are excluded. Targets from the issue: <= 60 ms
+at batch 1 and >= 100 motions/s at batch 32 on the 2-core CPU (the original: 275 ms, 27 /s).
+The output difference against fp32 is measured on the same random-weight models and seeds; see
+the report for its effect on trained checkpoints.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from t2m.config import paper
+from t2m.data.normalization import Normalizer
+from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
+from t2m.models.autoencoder import MovementDecoder
+from t2m.models.temporal_vae import TemporalVAE
+from t2m.pipeline import PRECISIONS, TextToMotion
+
+PROMPT = "a person walks forward and waves with the right hand"
+FRAMES = 196
+BATCH = 32
+
+
+def _paper_pipeline(precision: str, modules: tuple | None = None) -> tuple[TextToMotion, tuple]:
+    """A pipeline of paper-sized random-weight models (the same weights for every precision)."""
+    config = paper()
+    vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)
+    if modules is None:
+        torch.manual_seed(0)
+        vae = TemporalVAE(vectorizer.dim, config.ae.model.code_size, config.t2m.model)
+        decoder = MovementDecoder(263, config.ae.model)
+        initial_code = torch.zeros(config.ae.model.code_size)
+        modules = (vae, decoder, initial_code)
+    vae, decoder, initial_code = modules
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    pipe = TextToMotion(vae, decoder, normalizer, vectorizer, initial_code, config.data,
+                        precision=precision)  # fmt: skip
+    return pipe, modules
+
+
+def _best_of(repeats: int, function) -> tuple[float, object]:
+    times, result = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = function()
+        times.append(time.perf_counter() - start)
+    return min(times), result
+
+
+def run(quick: bool = False) -> dict:
+    """Single-threaded measurements for every precision, then int8 at torch's default threads.
+
+    One thread is the main setting: on a shared 2-core machine, two OpenMP threads per process
+    wait on each other at every one of the ~2000 small ops of a generation, which made 2-thread
+    timings up to 10x slower whenever other processes were busy.
+    """
+    default_threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        results = _measure(quick)
+        if default_threads != 1:
+            torch.set_num_threads(default_threads)
+            pipe, _ = _paper_pipeline("int8")
+            pipe.generate(PROMPT, lengths=FRAMES, seed=0)
+            seconds, _ = _best_of(3, lambda: pipe.generate(PROMPT, lengths=FRAMES, seed=1))
+            results[f"sample.int8_batch1_best_ms_{default_threads}_threads"] = round(
+                seconds * 1e3, 1
+            )
+            seconds, _ = _best_of(1, lambda: pipe.generate([PROMPT] * BATCH, lengths=FRAMES,
+                                                           seed=0, batch_size=BATCH))  # fmt: skip
+            results[f"sample.int8_batch32_motions_per_s_{default_threads}_threads"] = round(
+                BATCH / seconds, 1)  # fmt: skip
+    finally:
+        torch.set_num_threads(default_threads)
+    return results
+
+
+def _measure(quick: bool) -> dict:
+    results: dict[str, float | str] = {
+        "sample.frames": FRAMES,
+        "sample.torch_threads": torch.get_num_threads(),
+    }
+    repeats = 3 if quick else 7
+    modules = None
+    reference = None
+    for precision in PRECISIONS:
+        pipe, modules = _paper_pipeline(precision, modules)
+        pipe.generate(PROMPT, lengths=FRAMES, seed=0)  # warm-up (spaCy, word vectors, kernels)
+        latencies = []
+        for seed in range(repeats):
+            start = time.perf_counter()
+            pipe.generate(PROMPT, lengths=FRAMES, seed=seed)
+            latencies.append(time.perf_counter() - start)
+        results[f"sample.{precision}_batch1_median_ms"] = round(
+            statistics.median(latencies) * 1e3, 1
+        )
+        results[f"sample.{precision}_batch1_best_ms"] = round(min(latencies) * 1e3, 1)
+        seconds, _ = _best_of(1 if quick else 2, lambda pipe=pipe: pipe.generate(
+            [PROMPT] * BATCH, lengths=FRAMES, seed=0, batch_size=BATCH))  # fmt: skip
+        results[f"sample.{precision}_batch32_motions_per_s"] = round(BATCH / seconds, 1)
+        final = pipe.generate(PROMPT, lengths=FRAMES, seed=123)[0][0].joints
+        if reference is None:
+            reference = final
+        else:
+            difference = np.linalg.norm(final - reference, axis=-1)
+            results[f"sample.{precision}_vs_fp32_random_weights_mean_mm"] = round(
+                float(difference.mean()) * 1e3, 2)  # fmt: skip
+    # Files: rendering and BVH export of one 196-frame motion.
+    from t2m.export import write_bvh
+    from t2m.render import RenderConfig, render_animation
+
+    with tempfile.TemporaryDirectory() as tmp:
+        joints = _walking_joints()
+        seconds, _ = _best_of(1 if quick else 3, lambda: write_bvh(joints, Path(tmp) / "a.bvh"))
+        results["sample.bvh_export_ms_per_motion"] = round(seconds * 1e3, 1)
+        frames = 40 if quick else FRAMES
+        seconds, _ = _best_of(1, lambda: render_animation(joints[:frames], Path(tmp) / "a.mp4",
+                                                          "a caption", config=RenderConfig()))  # fmt: skip
+        results["sample.render_mp4_ms_per_frame"] = round(seconds * 1e3 / frames, 2)
+    return results
+
+
+def _walking_joints() -> np.ndarray:
+    """The real reference clip when ../shared is present, else a procedural stand-in."""
+    shared = Path(__file__).resolve().parents[2].parent / "shared"
+    clip = shared / "reference" / "humanml3d" / "new_joints" / "012314.npy"
+    if clip.exists():
+        joints = np.load(clip)
+        return np.concatenate([joints, joints[::-1]])[:FRAMES]
+    from dataset_tools.skeleton import SMPL
+
+    pose = np.zeros((22, 3))
+    for joint in range(1, 22):
+        pose[joint] = pose[SMPL.parents[joint]] + SMPL.offsets[joint]
+    pose[:, 1] -= pose[:, 1].min()
+    walk = np.linspace(0, 3, FRAMES)[:, None, None] * np.array([0.0, 0.0, 1.0])
+    return pose[None] + walk

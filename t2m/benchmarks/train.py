@@ -1,0 +1,190 @@
+"""Training-step speed of every stage at ``paper`` sizes and batch sizes, on synthetic batches.
+
+One step = forward, backward and optimizer update, as in the training loops (the temporal VAE
+with the frozen encoder, the fine-tuned decoder and gradient clipping). Reported per stage:
+seconds per step and steps/s (fp32), the temporal-VAE step under bf16 autocast too, and the peak
+memory (resident set on CPU, allocated on CUDA). Word vectors are 300-d as in the paper.
+
+``python -m t2m.benchmarks.train [--quick] [--device cpu|cuda] [--threads N]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import resource
+import sys
+import time
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+
+from t2m.config import paper
+from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
+from t2m.models.evaluator import Evaluator, contrastive_loss
+from t2m.models.length import LengthEstimator, length_loss
+from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+
+FEATURE_DIM, WORD_DIM, TOKENS = 263, 300, 22
+
+
+def _text(batch: int, generator: torch.Generator, device: torch.device):
+    words = torch.randn(batch, TOKENS, WORD_DIM, generator=generator).to(device)
+    pos = (
+        F.one_hot(torch.randint(0, 15, (batch, TOKENS), generator=generator), 15).float().to(device)
+    )
+    lengths = torch.randint(5, TOKENS + 1, (batch,), generator=generator)
+    return words, pos, lengths
+
+
+def _peak_memory_mb(device: torch.device) -> float:
+    if device.type == "cuda":
+        return torch.cuda.max_memory_allocated(device) / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # kB on Linux
+
+
+def _time(step: Callable[[], None], steps: int, device: torch.device) -> float:
+    """Mean seconds per step after one warm-up step."""
+    step()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    start = time.perf_counter()
+    for _ in range(steps):
+        step()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    return (time.perf_counter() - start) / steps
+
+
+def run(quick: bool = False, device: str = "cpu", threads: int = 0) -> dict:
+    """Seconds per training step of each stage at paper sizes; see the module docstring."""
+    if threads > 0:
+        torch.set_num_threads(threads)
+    device_ = torch.device(device)
+    config = paper()
+    generator = torch.Generator().manual_seed(0)
+    torch.manual_seed(0)
+    steps = 1 if quick else 3
+    results: dict = {"device": str(device_), "torch_threads": torch.get_num_threads()}
+
+    # -- stage 1: autoencoder, batch 128 windows of 24 frames
+    ae = MovementAutoencoder(FEATURE_DIM, config.ae.model).to(device_)
+    ae_opt = torch.optim.Adam(ae.parameters(), lr=config.ae.lr)
+    windows = torch.randn(
+        config.ae.batch_size, config.ae.window_frames, FEATURE_DIM, generator=generator
+    ).to(device_)
+
+    def ae_step() -> None:
+        reconstruction, codes = ae(windows)
+        ae_opt.zero_grad(set_to_none=True)
+        autoencoder_loss(reconstruction, windows, codes)["loss"].backward()
+        ae_opt.step()
+
+    seconds = _time(ae_step, steps * 3, device_)
+    results.update(ae_step_s=round(seconds, 4), ae_steps_per_s=round(1 / seconds, 2),
+                   ae_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+
+    # -- stage 2: text2length, batch 64
+    estimator = LengthEstimator(WORD_DIM, config.length.model).to(device_)
+    len_opt = torch.optim.Adam(estimator.parameters(), lr=config.length.lr)
+    words, pos, lengths = _text(config.length.batch_size, generator, device_)
+    classes = torch.randint(10, 50, (config.length.batch_size,), generator=generator).to(device_)
+
+    def length_step() -> None:
+        len_opt.zero_grad(set_to_none=True)
+        length_loss(estimator(words, pos, lengths), classes)["loss"].backward()
+        len_opt.step()
+
+    seconds = _time(length_step, steps * 3, device_)
+    results.update(length_step_s=round(seconds, 4), length_steps_per_s=round(1 / seconds, 2),
+                   length_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+
+    # -- stage 3: temporal VAE, batch 32, 49 snippets (196 frames)
+    batch, snippets = config.t2m.batch_size, config.t2m.end_snippets
+    vae = TemporalVAE(WORD_DIM, config.ae.model.code_size, config.t2m.model).to(device_)
+    t2m_opt = torch.optim.Adam([{"params": vae.parameters(), "lr": config.t2m.lr},
+                                {"params": ae.decoder.parameters(), "lr": config.t2m.decoder_lr}])  # fmt: skip
+    words, pos, lengths = _text(batch, generator, device_)
+    motion = torch.randn(batch, snippets * 4, FEATURE_DIM, generator=generator).to(device_)
+    ae.encoder.eval().requires_grad_(False)
+    with torch.no_grad():
+        initial_code = ae.encode(torch.zeros(1, 4, FEATURE_DIM, device=device_))[0, 0]
+    trainable = [p for p in vae.parameters()] + list(ae.decoder.parameters())
+
+    def t2m_step(teacher_forcing: bool, bf16: bool) -> Callable[[], None]:
+        def step() -> None:
+            autocast = (torch.autocast(device_type=device_.type, dtype=torch.bfloat16) if bf16
+                        else contextlib.nullcontext())  # fmt: skip
+            with autocast:
+                with torch.no_grad():
+                    codes = ae.encode(motion)
+                features, sentence, mask = vae.encode_text(words, pos, lengths)
+                outputs = vae(features, sentence, mask, codes, initial_code, teacher_forcing)
+                losses = temporal_vae_loss(outputs, codes, ae.decode(outputs["codes"]), motion)
+            t2m_opt.zero_grad(set_to_none=True)
+            losses["loss"].backward()
+            torch.nn.utils.clip_grad_norm_(trainable, config.t2m.grad_clip)
+            t2m_opt.step()
+
+        return step
+
+    # the loop mixes both kinds of batch: 40% teacher-forced, 60% free-running
+    forced = _time(t2m_step(True, False), steps, device_)
+    free = _time(t2m_step(False, False), steps, device_)
+    mixed = 0.4 * forced + 0.6 * free
+    results.update(t2m_step_teacher_forced_s=round(forced, 3), t2m_step_free_running_s=round(free, 3),
+                   t2m_step_s=round(mixed, 3), t2m_steps_per_s=round(1 / mixed, 3),
+                   t2m_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+    forced_bf16 = _time(t2m_step(True, True), steps, device_)
+    free_bf16 = _time(t2m_step(False, True), steps, device_)
+    results.update(t2m_step_bf16_s=round(0.4 * forced_bf16 + 0.6 * free_bf16, 3))
+
+    # generation (sampling) of 32 motions of 49 snippets, no gradients
+    vae.eval()
+    gen = torch.Generator(device=device_).manual_seed(0)
+    num = torch.full((batch,), snippets, device=device_)
+
+    def sample_step() -> None:
+        with torch.no_grad():
+            features, sentence, mask = vae.encode_text(words, pos, lengths)
+            ae.decode(vae.generate(features, sentence, mask, num, initial_code, gen))
+
+    seconds = _time(sample_step, steps, device_)
+    results.update(t2m_generate_batch32_s=round(seconds, 3))
+
+    # -- stage 4: evaluator, batch 32, 196 frames
+    evaluator = Evaluator(WORD_DIM, FEATURE_DIM, config.ae.model, config.eval.model).to(device_)
+    eval_opt = torch.optim.Adam(
+        [p for p in evaluator.parameters() if p.requires_grad], lr=config.eval.lr
+    )
+    motion_lengths = torch.randint(10, 50, (batch,), generator=generator).to(device_) * 4
+    motion = torch.randn(batch, 196, FEATURE_DIM, generator=generator).to(device_)
+
+    def eval_step() -> None:
+        text, moving = evaluator(words, pos, lengths, motion, motion_lengths)
+        eval_opt.zero_grad(set_to_none=True)
+        contrastive_loss(text, moving, 1)["loss"].backward()
+        eval_opt.step()
+
+    seconds = _time(eval_step, steps * 3, device_)
+    results.update(eval_step_s=round(seconds, 4), eval_steps_per_s=round(1 / seconds, 2),
+                   eval_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m t2m.benchmarks.train", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--quick", action="store_true", help="one timed step per measurement")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    args = parser.parse_args(argv)
+    print(json.dumps(run(args.quick, args.device, args.threads), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,224 @@
+"""Model inputs: config overrides, word vectors + POS one-hots, normalisation, dataset reading."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny
+from t2m.data.dataset import MotionTextData, epoch_batches, load_split, parse_text_line
+from t2m.data.normalization import Normalizer
+from t2m.data.words import (
+    BUILTIN_GLOVE,
+    NUM_POS,
+    POS_INDEX,
+    WordVectors,
+    build_trainable_vocabulary,
+    load_vectorizer,
+    vectorizer_from_info,
+)
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+def test_presets_round_trip_and_paper_sizes():
+    for name in ("paper", "demo", "tiny"):
+        config = preset(name)
+        assert from_dict(config.to_dict()) == config
+    config = paper()
+    assert (
+        config.ae.model.hidden_size,
+        config.ae.model.code_size,
+        config.ae.batch_size,
+        config.ae.window_frames,
+    ) == (512, 512, 128, 24)
+    assert (
+        config.t2m.model.hidden_size,
+        config.t2m.model.latent_size,
+        config.t2m.model.attention_size,
+    ) == (1024, 128, 512)
+    assert (config.t2m.batch_size, config.t2m.lr, config.t2m.decoder_lr, config.t2m.grad_clip) == (
+        32,
+        2e-4,
+        2e-5,
+        0.5,
+    )
+    assert (config.t2m.start_snippets, config.t2m.end_snippets, config.t2m.teacher_forcing) == (
+        10,
+        49,
+        0.4,
+    )
+    assert config.length.model.num_classes == 50 and config.length.model.mlp_sizes == (
+        512,
+        256,
+        128,
+    )
+    assert config.eval.margin == 10.0 and config.t2m.kl_weight == 0.01
+    assert (
+        demo().t2m.model.hidden_size < 1024
+        and tiny().t2m.model.hidden_size < demo().t2m.model.hidden_size
+    )
+
+
+def test_overrides_are_validated():
+    config = apply_overrides(tiny(), {"t2m.model.hidden_size": "64", "bf16": "true",
+                                      "length.model.mlp_sizes": "8,4", "t2m.lr": "3e-4"})  # fmt: skip
+    assert config.t2m.model.hidden_size == 64 and config.bf16 is True
+    assert config.length.model.mlp_sizes == (8, 4) and config.t2m.lr == 3e-4
+    assert tiny().t2m.model.hidden_size != 64  # presets are not mutated
+    for key, value, message in [
+        ("t2m.model.hiden_size", "3", "unknown config key"),
+        ("nothing", "1", "unknown config key"),
+        ("t2m.batch_size", "3.5", "expected an integer"),
+        ("bf16", "maybe", "true/false"),
+        ("t2m.model", "1", "is a section"),
+        ("t2m.end_snippets", "60", "end_snippets"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            apply_overrides(tiny(), {key: value})
+    with pytest.raises(ValueError, match="unknown preset"):
+        preset("huge")
+
+
+def test_builtin_glove_pos_overrides_and_padding():
+    vectors = load_vectorizer(BUILTIN_GLOVE)
+    assert vectors.dim == 50 and vectors.size == 400000
+    encoded = vectors.encode_tokens(
+        "a/DET person/NOUN walk/VERB left/VERB slowly/ADV qwzxv/NOUN".split()
+    )
+    assert encoded.words.shape == (22, 50) and encoded.pos_onehot.shape == (22, NUM_POS)
+    assert encoded.length == 8  # sos + 6 words + eos
+    categories = encoded.pos_onehot.argmax(-1)
+    assert categories[1] == POS_INDEX["DET"] and categories[2] == POS_INDEX["NOUN"]
+    assert categories[3] == POS_INDEX["ACTION"]  # walk: a motion word overrides VERB
+    assert categories[4] == POS_INDEX["LOCATION"]  # left, whatever the tagger said
+    assert categories[5] == POS_INDEX["DESCRIPTOR"]
+    assert categories[6] == POS_INDEX["OTHER"]  # unknown word -> unk with OTHER
+    unk = vectors.vectors[vectors.index["unk"]]
+    np.testing.assert_array_equal(encoded.words[6], unk)
+    np.testing.assert_array_equal(encoded.words[8:], np.broadcast_to(unk, (14, 50)))  # padding
+    np.testing.assert_array_equal(encoded.words[0], vectors.vectors[vectors.index["sos"]])
+    assert (encoded.pos_onehot.sum(-1) == 1).all()
+    long = vectors.encode_tokens(["walk/VERB"] * 30)
+    assert long.length == 22 and long.words.shape == (22, 50)
+
+
+def test_glove_text_file_of_any_dimension_and_fingerprint(tmp_path):
+    rows = {"sos": [1, 0, 0], "eos": [0, 1, 0], "unk": [0, 0, 1], "walk": [0.5, 0.5, 0.5]}
+    path = tmp_path / "glove.3d.txt"
+    path.write_text("".join(f"{w} {' '.join(map(str, v))}\n" for w, v in rows.items()))
+    vectors = load_vectorizer(str(path))
+    assert vectors.dim == 3
+    np.testing.assert_allclose(vectors.encode_tokens(["walk/VERB"]).words[1], [0.5, 0.5, 0.5])
+    info = vectors.info()
+    assert vectorizer_from_info(info).fingerprint() == info["fingerprint"]
+    with pytest.raises(ValueError, match="differ"):
+        vectorizer_from_info({**info, "fingerprint": "0" * 16})
+    bad = tmp_path / "bad.txt"
+    bad.write_text("sos 1 2\nwalk 1 2 3\n")
+    with pytest.raises(ValueError, match="expected 2"):
+        load_vectorizer(str(bad))
+    with pytest.raises(ValueError, match="GloVe file"):
+        load_vectorizer(str(tmp_path / "missing.txt"))
+    with pytest.raises(ValueError, match="no 'unk'"):
+        WordVectors(["sos", "eos"], np.zeros((2, 3), np.float32), "x")
+
+
+def test_trainable_vocabulary_round_trip():
+    vocab = build_trainable_vocabulary(
+        [["walk/VERB", "left/ADV"], ["run/VERB", "walk/VERB"]], dim=8
+    )
+    assert vocab.words[:3] == ["sos", "eos", "unk"] and vocab.trainable
+    encoded = vocab.encode_tokens(["walk/VERB", "fly/VERB"])
+    assert encoded.words.tolist()[:4] == [
+        vocab.index["sos"],
+        vocab.index["walk"],
+        vocab.index["unk"],
+        vocab.index["eos"],
+    ]
+    again = vectorizer_from_info(vocab.info())
+    assert again.words == vocab.words and again.dim == 8
+
+
+def test_normalizer_weights_root_and_contacts():
+    mean = np.linspace(-1, 1, 263).astype(np.float32)
+    std = np.full(263, 2.0, np.float32)
+    normalizer = Normalizer.weighted(mean, std, 5.0)
+    assert np.allclose(normalizer.std[:4], 0.4) and np.allclose(normalizer.std[-4:], 0.4)
+    assert np.allclose(normalizer.std[4:-4], 2.0)
+    features = np.random.default_rng(0).normal(size=(5, 263)).astype(np.float32)
+    np.testing.assert_allclose(
+        normalizer.denormalize(normalizer.normalize(features)), features, atol=1e-5
+    )
+    with pytest.raises(ValueError, match="std is zero"):
+        Normalizer(mean, np.zeros(263))
+    with pytest.raises(ValueError, match="no feature layout"):
+        Normalizer.weighted(mean[:100], std[:100], 5.0)
+
+
+def test_real_humanml3d_statistics_load():
+    reference = SHARED / "reference" / "humanml3d"
+    if not reference.is_dir():
+        pytest.skip(f"{reference} not available")
+    normalizer = Normalizer.from_dataset(reference)
+    raw_std = np.load(reference / "Std.npy")
+    np.testing.assert_allclose(normalizer.std[4:259], raw_std[4:259])
+    np.testing.assert_allclose(normalizer.std[:4] * 5, raw_std[:4], rtol=1e-6)
+    clip = np.load(reference / "new_joint_vecs" / "012314.npy")
+    normalised = normalizer.normalize(clip)
+    assert np.isfinite(normalised).all() and abs(float(normalised[:, 4:259].mean())) < 1.0
+
+
+def test_text_lines_and_subclips(tiny_dataset, tiny_config):
+    caption, start, end = parse_text_line("a man walks#a/DET man/NOUN walk/VERB#0.0#2.5")
+    assert caption.tokens == ["a/DET", "man/NOUN", "walk/VERB"] and (start, end) == (0.0, 2.5)
+    with pytest.raises(ValueError, match="caption#tokens#from#to"):
+        parse_text_line("just a caption")
+    clips = load_split(tiny_dataset, "train", tiny_config.data)
+    names = [clip.name for clip in clips]
+    assert "000003#0.0#2.2" in names and "000003" in names  # a timed caption makes a sub-clip
+    sub = next(clip for clip in clips if clip.name == "000003#0.0#2.2")
+    assert len(sub.motion) == 44 and len(sub.captions) == 1
+    assert all(40 <= len(clip.motion) < 200 for clip in clips)
+    with pytest.raises(ValueError, match="no split file"):
+        load_split(tiny_dataset, "nosuch", tiny_config.data)
+
+
+def test_batches_are_deterministic_and_disjoint_across_processes(tiny_dataset, tiny_config):
+    clips = load_split(tiny_dataset, "train", tiny_config.data)
+    vectors = load_vectorizer(BUILTIN_GLOVE)
+    data = MotionTextData(clips, Normalizer.from_dataset(tiny_dataset), vectors, tiny_config.data)
+    first = epoch_batches(len(data), 4, seed=0, epoch=0, rank=0, world_size=2)
+    second = epoch_batches(len(data), 4, seed=0, epoch=0, rank=1, world_size=2)
+    assert not set(np.concatenate(first)) & set(np.concatenate(second))
+    assert [b.tolist() for b in first] == [
+        b.tolist() for b in epoch_batches(len(data), 4, 0, 0, 0, 2)
+    ]
+    rng = lambda: np.random.default_rng(3)  # noqa: E731
+    batch = data.unit_crop_batch(first[0], rng())
+    assert batch["motion"].shape == (4, 196, 263) and batch["words"].shape == (4, 22, 50)
+    assert (batch["motion_lengths"] % 4 == 0).all() and (batch["motion_lengths"] >= 36).all()
+    for row, length in enumerate(batch["motion_lengths"].tolist()):
+        assert (batch["motion"][row, length:] == 0).all()
+    again = data.unit_crop_batch(first[0], rng())
+    assert all((batch[k] == again[k]).all() for k in batch)
+    lengths = data.length_batch(first[0], rng())["length_class"]
+    assert lengths.tolist() == (np.minimum(data.lengths[first[0]], 196) // 4).tolist()
+    crop = data.fixed_crop_batch(data.indices_at_least(48)[:3], rng(), 48)
+    assert crop["motion"].shape == (3, 48, 263)
+
+
+def test_free_text_is_tagged_like_the_dataset():
+    pytest.importorskip("spacy")
+    vectors = load_vectorizer(BUILTIN_GLOVE)
+    (encoded,) = vectors.encode_text("A person walks forward and waves the left hand.")
+    categories = encoded.pos_onehot.argmax(-1)
+    hand = vectors.index["hand"]
+    direct = vectors.encode_tokens("a/DET person/NOUN walk/VERB forward/ADV".split())
+    np.testing.assert_array_equal(encoded.words[:5], direct.words[:5])  # "walks" -> lemma "walk"
+    assert categories[3] == POS_INDEX["ACTION"] and categories[4] == POS_INDEX["LOCATION"]
+    assert any((row == vectors.vectors[hand]).all() for row in encoded.words)
+    with pytest.raises(ValueError, match="empty"):
+        vectors.encode_text("   ")

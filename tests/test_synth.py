@@ -1,0 +1,211 @@
+"""The procedural demo corpus: bodies, clips, captions, the written folder and its command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dataset_tools.synth import captions as caption_module
+from dataset_tools.synth.body import DOF, NUM_DOFS, make_body, mirror_dofs, sample_body
+from dataset_tools.synth.captions import captions_for
+from dataset_tools.synth.cli import contact_sheet_main, main
+from dataset_tools.synth.clip import MAX_SECONDS, MIN_SECONDS, synthesize_action, synthesize_clip
+from dataset_tools.synth.corpus import (
+    load_clip,
+    make_clip,
+    write_corpus,
+    y_up_to_z_up,
+    z_up_to_y_up,
+)
+from dataset_tools.synth.motions import ACTIONS
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def test_there_are_fourteen_actions_with_parameters():
+    assert len(ACTIONS) >= 14
+    rng = np.random.default_rng(0)
+    for name, spec in ACTIONS.items():
+        params, seconds = spec.sample(rng)
+        assert 0.5 < seconds <= MAX_SECONDS, name
+        json.dumps(params)  # labels must be JSON-ready
+
+
+def test_subject_proportions_vary_within_ten_percent_and_are_symmetric():
+    mean = make_body().bone_lengths
+    rng = np.random.default_rng(1)
+    ratios = []
+    for _ in range(50):
+        lengths = sample_body(rng).bone_lengths
+        ratios.append(lengths[1:] / mean[1:])
+        for left, right in (
+            (1, 2),
+            (4, 5),
+            (7, 8),
+            (10, 11),
+            (13, 14),
+            (16, 17),
+            (18, 19),
+            (20, 21),
+        ):
+            assert lengths[left] == pytest.approx(lengths[right])
+    ratios = np.array(ratios)
+    assert ratios.min() > 0.85 and ratios.max() < 1.15
+    assert ratios.std() > 0.03  # the subjects do differ
+
+
+def test_bone_lengths_constant_and_feet_on_the_ground_in_every_clip():
+    for index in range(12):
+        clip = synthesize_clip(3, index)
+        joints = clip.joints.astype(np.float64)
+        assert MIN_SECONDS * clip.fps <= len(joints) <= MAX_SECONDS * clip.fps + 1
+        parents = np.array(
+            [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19]
+        )
+        lengths = np.linalg.norm(joints[:, 1:] - joints[:, parents[1:]], axis=-1)
+        np.testing.assert_allclose(lengths, lengths[:1].repeat(len(lengths), 0), atol=2e-5)
+        np.testing.assert_allclose(lengths[0], clip.body.bone_lengths[1:], atol=2e-5)
+        lowest = joints[:, :, 1].min(axis=1)
+        assert lowest.min() > -1e-4  # no penetration
+        airborne = sum(s.end - s.start for s in clip.segments if s.action in ("jump", "hop", "run"))
+        if airborne == 0:
+            # Some foot touches the ground: a toe joint, or the heel under an ankle (about 6 cm).
+            assert lowest.max() < 0.08
+
+
+def test_mirroring_poses_is_an_involution_that_swaps_sides():
+    rng = np.random.default_rng(2)
+    pose = rng.normal(size=(5, NUM_DOFS))
+    np.testing.assert_array_equal(mirror_dofs(mirror_dofs(pose)), pose)
+    mirrored = mirror_dofs(pose)
+    np.testing.assert_array_equal(mirrored[:, DOF["r_knee"]], pose[:, DOF["l_knee"]])
+    np.testing.assert_array_equal(mirrored[:, DOF["spine_twist"]], -pose[:, DOF["spine_twist"]])
+
+
+def test_gait_speed_follows_the_requested_speed_and_planted_feet_do_not_slide():
+    for gait, speed in (("walk", 0.7), ("walk", 1.2), ("walk", 1.7), ("run", 2.4), ("run", 3.6)):
+        params = {"gait": gait, "direction": "forward", "speed": "normal", "speed_mps": speed}
+        joints = synthesize_action(gait, params, 4.0).joints.astype(np.float64)
+        measured = (joints[-60, 0, 2] - joints[60, 0, 2]) / ((len(joints) - 120) / 60)
+        assert measured == pytest.approx(speed, rel=0.05), gait
+        # The planted foot: the lowest toe barely moves while it is down.
+        for toe in (10, 11):
+            down = joints[1:, toe, 1] < 0.004
+            step = np.linalg.norm(np.diff(joints[:, toe, [0, 2]], axis=0), axis=1)[down[:]]
+            assert np.median(step) * 60 < 0.06
+
+
+def test_arms_swing_against_the_legs_in_gait():
+    params = {"gait": "walk", "direction": "forward", "speed": "normal", "speed_mps": 1.2}
+    joints = synthesize_action("walk", params, 4.0).joints.astype(np.float64)
+    left_foot_ahead = joints[:, 7, 2] - joints[:, 8, 2]
+    left_hand_ahead = joints[:, 20, 2] - joints[:, 21, 2]
+    assert np.corrcoef(left_foot_ahead, left_hand_ahead)[0, 1] < -0.7
+
+
+def test_same_seed_same_bytes_and_worker_count_does_not_matter(tmp_path):
+    write_corpus(tmp_path / "a", 6, seed=7, progress=False)
+    write_corpus(tmp_path / "b", 6, seed=7, progress=False, workers=2)
+    write_corpus(tmp_path / "c", 6, seed=8, progress=False)
+    a, b, c = (_files(tmp_path / x) for x in "abc")
+    assert a == b
+    assert a["joints/synth_000000.npy"] != c["joints/synth_000000.npy"]
+
+
+def test_corpus_layout_and_labels(tmp_path):
+    out = tmp_path / "corpus"
+    write_corpus(out, 5, seed=3, progress=False)
+    source = json.loads((out / "source.json").read_text())
+    assert source["fps"] == 60 and source["up"] == "z" and source["skeleton"] == "smpl"
+    assert (
+        source["generator"] == "dataset_tools.synth"
+        and source["seed"] == 3
+        and source["clips"] == 5
+    )
+    labels = json.loads((out / "labels.json").read_text())
+    assert sorted(labels["clips"]) == [f"synth_{i:06d}" for i in range(5)]
+    for name, label in labels["clips"].items():
+        joints = np.load(out / "joints" / f"{name}.npy")
+        assert joints.dtype == np.float32 and joints.shape == (label["frames"], 22, 3)
+        # z-up: the head is above the pelvis above the ankles along z.
+        assert joints[0, 15, 2] > joints[0, 0, 2] > joints[0, 7, 2]
+        lines = (out / "texts" / f"{name}.txt").read_text().splitlines()
+        assert len(lines) == 3 and len(set(lines)) == 3
+        segments = label["segments"]
+        assert segments[0]["start"] == 0 and segments[-1]["end"] == label["frames"]
+        assert all(a["end"] == b["start"] for a, b in zip(segments[:-1], segments[1:]))
+        assert 1 <= len(segments) <= 3
+        assert 0.85 < label["subject"]["overall_scale"] < 1.15
+        back, texts, again = load_clip(out, name)
+        np.testing.assert_allclose(back, z_up_to_y_up(joints))
+        assert again == label and texts == lines
+
+
+def test_z_up_conversion_is_a_proper_rotation_and_matches_the_builder():
+    points = np.random.default_rng(0).normal(size=(10, 3))
+    zup = y_up_to_z_up(points)
+    np.testing.assert_allclose(z_up_to_y_up(zup), points)
+    np.testing.assert_allclose(
+        np.cross(zup[0], zup[1]), y_up_to_z_up(np.cross(points[0], points[1]))
+    )
+    sources = pytest.importorskip("dataset_tools.sources")
+    if hasattr(sources, "z_up_to_y_up"):
+        np.testing.assert_allclose(sources.z_up_to_y_up(zup), points)
+
+
+def test_captions_name_the_side_and_heldout_wording_is_disjoint():
+    rng = np.random.default_rng(4)
+    train_words, heldout_words = set(), set()
+    for index in range(60):
+        _, texts, label = make_clip(11, index)
+        for segment in label["segments"]:
+            side = segment["params"].get("side") or segment["params"].get("direction")
+            if side in ("left", "right"):
+                assert all(side in t.lower() for t in texts), (texts, segment)
+        plan = [(s["action"], s["params"]) for s in label["segments"]]
+        for text in captions_for(plan, rng):
+            train_words.add(text.lower())
+        for text in captions_for(plan, rng, heldout=True):
+            heldout_words.add(text.lower())
+    for subject in caption_module.SUBJECTS["heldout"]:
+        assert not any(t.startswith(subject) for t in train_words)
+    for subject in caption_module.SUBJECTS["train"]:
+        assert not any(t.startswith(subject + " ") for t in heldout_words)
+    # Held-out verb templates never occur in training captions.
+    for templates in caption_module._TEMPLATES.values():
+        for present, _ in templates["heldout"]:
+            head = present.split("{")[0].strip()
+            assert not any(head in t for t in train_words), head
+
+
+def test_cli_writes_a_corpus_and_rejects_bad_input(tmp_path, capsys):
+    out = tmp_path / "cli"
+    assert main(["--out", str(out), "--clips", "3", "--seed", "1", "--quiet"]) == 0
+    assert len(list((out / "joints").glob("*.npy"))) == 3
+    assert main(["--out", str(out), "--clips", "3", "--quiet"]) == 2  # exists, no --force
+    assert main(["--out", str(out), "--clips", "2", "--quiet", "--force"]) == 0
+    assert len(list((out / "joints").glob("*.npy"))) == 2
+    assert main(["--out", str(tmp_path / "x"), "--clips", "0", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "error:" in err and "\n" not in err.strip().splitlines()[-1]
+
+
+def test_contact_sheet_renders_a_png(tmp_path):
+    out = tmp_path / "cli"
+    assert main(["--out", str(out), "--clips", "3", "--seed", "2", "--quiet"]) == 0
+    png = tmp_path / "sheet.png"
+    assert (
+        contact_sheet_main(
+            ["--input", str(out), "--out", str(png), "--clips", "2", "--frames", "3"]
+        )
+        == 0
+    )
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert contact_sheet_main(["--input", str(tmp_path / "missing"), "--out", str(png)]) == 2
