@@ -41,7 +41,7 @@ lint: install
 
 dataset: install
 ifeq ($(SOURCE),synth)
-	$(PY) -m dataset_tools synth --out $(DEMO_SOURCE) --clips $(CLIPS) --seed $(SEED) --workers $(WORKERS)
+	test -f $(DEMO_SOURCE)/source.json || $(PY) -m dataset_tools synth --out $(DEMO_SOURCE) --clips $(CLIPS) --seed $(SEED) --workers $(WORKERS)
 	$(PY) -m dataset_tools build --source joints --input $(DEMO_SOURCE) --out $(OUT) --seed $(SEED) --workers $(WORKERS) $(ARGS)
 else
 	@test -n "$(INPUT)" || { echo "make dataset SOURCE=$(SOURCE) needs INPUT=DIR (the source files)"; exit 2; }

@@ -17,7 +17,6 @@ import multiprocessing
 import os
 import platform
 import sys
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
@@ -27,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools import segment, texts
+from dataset_tools.io import save_npy_atomic, write_text_atomic
 from dataset_tools.mirror import mirror_caption, mirror_joints
 from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
 from dataset_tools.skeleton import SMPL
@@ -115,30 +115,6 @@ class _WorkerContext:
 
 
 # ----------------------------------------------------------------------------- file writing
-
-
-def atomic_save_npy(path: Path, array: np.ndarray) -> None:
-    """Write ``array`` to ``path`` via a temporary file in the same folder and ``os.replace``."""
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npy.tmp")
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            np.save(stream, array)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
-
-
-def atomic_write_text(path: Path, content: str) -> None:
-    """Write UTF-8 ``content`` to ``path`` atomically (temporary file, then ``os.replace``)."""
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(content)
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
 
 
 def output_paths(out_dir: Path, name: str) -> list[Path]:
@@ -327,10 +303,10 @@ def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
 
         clock = time.perf_counter()
         for name, (features, recovered) in outputs.items():
-            atomic_save_npy(
+            save_npy_atomic(
                 context.out_dir / "new_joint_vecs" / f"{name}.npy", features.astype(np.float32)
             )
-            atomic_save_npy(
+            save_npy_atomic(
                 context.out_dir / "new_joints" / f"{name}.npy", recovered.astype(np.float32)
             )
         result.seconds["write"] = time.perf_counter() - clock
@@ -363,7 +339,7 @@ def write_captions(out_dir: Path, results: Sequence[ClipResult]) -> None:
         for caption in captions:
             lines.append(texts.format_line(caption, tagged[position]))
             position += 1
-        atomic_write_text(out_dir / "texts" / f"{name}.txt", "\n".join(lines) + "\n")
+        write_text_atomic(out_dir / "texts" / f"{name}.txt", "\n".join(lines) + "\n")
 
 
 # ----------------------------------------------------------------------------- splits
@@ -416,7 +392,7 @@ def write_splits(out_dir: Path, splits: dict[str, list[str]], all_names: Sequenc
     contents["train_val"] = sorted(splits["train"] + splits["val"])
     contents["all"] = sorted(all_names)
     for split, names in contents.items():
-        atomic_write_text(out_dir / f"{split}.txt", "".join(f"{name}\n" for name in names))
+        write_text_atomic(out_dir / f"{split}.txt", "".join(f"{name}\n" for name in names))
 
 
 # ----------------------------------------------------------------------------- the build
@@ -588,8 +564,8 @@ def build_dataset(config: BuildConfig) -> dict:
         return report
     all_names = sorted(name for task in finished for name in (task.name, "M" + task.name))
     mean, std, stats_info = compute_stats(config.out_dir, all_names)
-    atomic_save_npy(config.out_dir / "Mean.npy", mean)
-    atomic_save_npy(config.out_dir / "Std.npy", std)
+    save_npy_atomic(config.out_dir / "Mean.npy", mean)
+    save_npy_atomic(config.out_dir / "Std.npy", std)
     timings["stats_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -606,6 +582,10 @@ def build_dataset(config: BuildConfig) -> dict:
         timings[f"worker_{step}_s"] = seconds
 
     stats_info["unassigned_to_splits"] = unassigned
+    labels = config.input_dir / "labels.json"
+    if labels.is_file():
+        # Ground-truth labels of a procedural corpus travel with the dataset, for evaluation.
+        write_text_atomic(config.out_dir / "labels.json", labels.read_text(encoding="utf-8"))
     report = _report(config, tasks, built, skipped, finished, timings, started, stats_info)
     report["splits"] = {split: len(names) for split, names in splits.items()}
     _write_report(config.out_dir, report)
@@ -650,7 +630,7 @@ def _report(
 
 
 def _write_report(out_dir: Path, report: dict) -> None:
-    atomic_write_text(out_dir / "build_report.json", json.dumps(report, indent=2) + "\n")
+    write_text_atomic(out_dir / "build_report.json", json.dumps(report, indent=2) + "\n")
 
 
 # ----------------------------------------------------------------------------- command line

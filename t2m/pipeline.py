@@ -137,8 +137,9 @@ class TextToMotion:
         vectorizer: the vocabulary of the VAE's text encoder.
         initial_code: (C,) the mean-pose code fed before the first snippet.
         data: the data settings (unit length, min / max frames, max words).
-        length_model: text2length (needed only when lengths are not given) and its vocabulary.
-        device: where the models run.
+        length_model: text2length (needed only when lengths are not given).
+        length_vectorizer: its vocabulary; must be the VAE's (same fingerprint).
+        device: where the models run (the modules are moved there).
         precision: "fp32", "bf16" or "int8" (CPU only).
     """
 
