@@ -207,20 +207,26 @@ def paper() -> Config:
 
 
 def demo() -> Config:
-    """Small models that train all four stages on the demo corpus in about ten minutes of CPU."""
-    cfg = Config(preset="demo")
+    """Small models that train all four stages on the demo corpus in about ten minutes of CPU.
+
+    Measured on the 2-core development machine (shared, one thread): ae ~1.5 min, length ~0.5,
+    t2m ~5, eval ~1.5. The curriculum grows by 3 snippets per stage, one epoch per stage.
+    """
+    # One thread: these sizes are dominated by per-op overhead, where a second thread gains
+    # little and loses a lot whenever another process wants the core (--num_threads=2 to try).
+    cfg = Config(preset="demo", num_threads=1)
     cfg.ae = AEStageConfig(
         model=AutoencoderConfig(hidden_size=192, code_size=128, dropout=0.1),
         batch_size=64,
         lr=1e-3,
-        epochs=12,
-        checkpoint_every=200,
+        epochs=40,
+        checkpoint_every=500,
     )
     cfg.length = LengthStageConfig(
         model=LengthModelConfig(text=TextEncoderConfig(hidden_size=64), mlp_sizes=(128, 64)),
         batch_size=64,
         lr=1e-3,
-        epochs=8,
+        epochs=25,
     )
     cfg.t2m = T2MStageConfig(
         model=TemporalVAEConfig(
@@ -234,6 +240,7 @@ def demo() -> Config:
         decoder_lr=1e-4,
         start_snippets=10,
         end_snippets=49,
+        curriculum_step=3,
         patience=1,
         max_stage_epochs=1,
         checkpoint_every=100,
@@ -244,7 +251,7 @@ def demo() -> Config:
         ),
         batch_size=32,
         lr=1e-3,
-        epochs=6,
+        epochs=8,
     )
     return cfg
 

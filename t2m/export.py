@@ -348,16 +348,22 @@ def _propagate_twist(
     plus ``remaining`` (T,) times the previous frame's reference, turned by the shortest arc from
     the previous bone to this one, so a limb whose cues fade keeps its twist instead of snapping
     to another one. ``no_twist`` (T, 3) stands in where nothing else is defined."""
+    fallback = _perp(no_twist, bone)  # used where the cues cancel out
+    if not remaining[1:].any():  # the cues decide every frame: no sequential pass needed
+        target = _perp(cue + remaining[:, None] * no_twist, bone)
+        weak = np.linalg.norm(target, axis=-1) < 1e-6
+        target[weak] = fallback[weak]
+        return _unit(target)[0]
+    arcs = quat_to_matrix(qbetween(bone[:-1], bone[1:]))  # (T - 1, 3, 3) frame-to-frame turns
     references = np.empty_like(bone)
     previous = no_twist[0]
     for frame in range(len(bone)):
         if frame > 0:
-            arc = quat_to_matrix(qbetween(bone[frame - 1], bone[frame]))
-            previous = arc @ references[frame - 1]
+            previous = arcs[frame - 1] @ references[frame - 1]
         target = _perp(cue[frame] + remaining[frame] * previous, bone[frame])
         norm = np.linalg.norm(target)
-        if norm < 1e-6:  # cues cancel out: fall back to no twist relative to the parent
-            target, norm = _perp(no_twist[frame], bone[frame]), 1.0
+        if norm < 1e-6:
+            target, norm = fallback[frame], 1.0
         references[frame] = target / norm
     return references
 

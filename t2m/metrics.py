@@ -11,9 +11,11 @@ Conventions pinned here, because published numbers depend on them:
   rounding never turns a zero distance into NaN.
 - R-precision is computed in batches of ``batch_size`` (32) consecutive rows; rows that do not fill
   a last batch are left out, as the original evaluation loader drops its last incomplete batch.
-  By default each *motion* ranks the batch's captions (the paper's description pool); pass
-  ``query="text"`` for the orientation of the original evaluation code (each caption ranks the
-  batch's motions). The two agree for a perfect embedding and differ slightly otherwise.
+  By default each *caption* ranks the batch's motions, as the original evaluation code does
+  (its distance matrix is captions x motions, sorted along the motions), so the numbers are
+  comparable with published tables; ``query="motion"`` gives the paper's wording (each motion
+  ranks its caption among 32). The two agree for a perfect embedding and differ slightly
+  otherwise.
 - FID uses the eigen-decomposition form ``tr sqrt(S1 S2) = tr sqrt(sqrt(S1) S2 sqrt(S1))``, which
   stays real and finite for singular or nearly singular covariances (the usual
   ``scipy.linalg.sqrtm`` route can return complex or NaN values there).
@@ -108,13 +110,13 @@ def r_precision(
     motion_embeddings: Any,
     top_k: int = 3,
     batch_size: int = R_PRECISION_BATCH_SIZE,
-    query: str = "motion",
+    query: str = "text",
 ) -> np.ndarray:
     """R-precision at ranks 1..top_k over batches of matched (caption, motion) pairs.
 
     Row ``i`` of both sets belongs to the same clip. Within each batch of ``batch_size``
-    consecutive rows, each query (a motion by default, or a caption with ``query="text"``) ranks
-    the batch's other-modality items by Euclidean distance; a hit at rank k means its own partner
+    consecutive rows, each query (a caption by default, or a motion with ``query="motion"``)
+    ranks the batch's other-modality items by Euclidean distance; a hit at rank k means its own partner
     is among the k nearest. Ties keep the lower index first (stable sort).
 
     Args:
@@ -122,7 +124,8 @@ def r_precision(
         motion_embeddings: (N, D) motion embeddings.
         top_k: number of ranks to report.
         batch_size: size of each pool (32 in the protocol); an incomplete last batch is dropped.
-        query: "motion" (each motion ranks captions) or "text" (each caption ranks motions).
+        query: "text" (each caption ranks motions, the original code) or "motion" (each motion
+            ranks captions).
 
     Returns:
         (top_k,) float64 fractions in [0, 1], non-decreasing: element k-1 is top-k accuracy.

@@ -272,6 +272,13 @@ def render_animation(
 def _write_mp4(frames: Iterator[np.ndarray], target: str, fps: float, config: RenderConfig) -> None:
     import imageio_ffmpeg
 
+    try:
+        # The bundled binary, else $IMAGEIO_FFMPEG_EXE or the system's ffmpeg.
+        imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError:
+        raise ValueError(
+            "no ffmpeg found for mp4 (pip install imageio-ffmpeg, or render gif)"
+        ) from None
     size = (config.size_px, config.size_px)
     writer = imageio_ffmpeg.write_frames(
         target,

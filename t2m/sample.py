@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from t2m.pipeline import GeneratedMotion
+
 logger = logging.getLogger("t2m.sample")
 
 RENDER_CHOICES = ("mp4", "gif", "none")
@@ -76,6 +78,7 @@ def read_prompt_file(path: str | Path) -> list[Prompt]:
 
 
 def stem(prompt: int, repetition: int) -> str:
+    """File stem of one motion: ``sampleNN_repRR``."""
     return f"sample{prompt:02d}_rep{repetition:02d}"
 
 
@@ -84,7 +87,7 @@ def _save_npy(path: Path, array) -> None:
         np.save(handle, array, allow_pickle=isinstance(array, dict))
 
 
-def mdm_results(motions, num_repetitions: int) -> dict:
+def mdm_results(motions: Sequence[Sequence[GeneratedMotion]], num_repetitions: int) -> dict:
     """The ``results.npy`` dict of the MDM layout from ``motions[prompt][rep]``."""
     flat = [motions[p][r] for r in range(num_repetitions) for p in range(len(motions))]
     max_frames = max(m.num_frames for m in flat)
@@ -105,8 +108,14 @@ def _prepare_out(out: Path, overwrite: bool) -> Path:
     """Check ``out`` can be written and create the hidden temp folder beside it."""
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise ValueError(f"--out {out} exists and is not empty (choose another or add --overwrite)")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise ValueError(f"--out {out} exists and is not empty (choose another or add "
+                             "--overwrite)")  # fmt: skip
+        # --overwrite deletes the folder: only ever one that an earlier run wrote.
+        if not (out / "results.json").is_file():
+            raise ValueError(f"--overwrite refuses to replace {out}: it holds no results.json, so "
+                             "it is not an earlier sampling output")  # fmt: skip
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
@@ -149,7 +158,7 @@ def sample_to_folder(
 
     if render not in RENDER_CHOICES:
         raise ValueError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
-    out = Path(out)
+    out = Path(out).resolve()  # "." has no name to put a temp folder beside
     # 1. where to write (fails early, before any model work)
     tmp = _prepare_out(out, overwrite)
     try:
@@ -268,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
                    for p in prompts]  # fmt: skip
         out = Path(args.out or Path("outputs") / time.strftime("%Y-%m-%d_%H-%M-%S"))
         # Check the output folder before spending time on loading models.
-        _prepare_out(out, args.overwrite).rmdir()
+        _prepare_out(out.resolve(), args.overwrite).rmdir()
         need_length = any(p.frames is None for p in prompts)
         # int8 kernels exist on the CPU only: "auto" means the CPU there.
         device = "cpu" if args.precision == "int8" and args.device == "auto" else args.device

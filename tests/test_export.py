@@ -231,3 +231,17 @@ def test_bad_units_and_fps(tmp_path):
         write_bvh(pose, tmp_path / "x.bvh", units="inch")
     with pytest.raises(ValueError, match="fps"):
         write_bvh(pose, tmp_path / "x.bvh", fps=0)
+
+
+def test_cli_writes_bvh_from_joints_or_features(tmp_path, capsys):
+    from t2m.export import main
+
+    joints = _reference_joints()[:30]
+    np.save(tmp_path / "joints.npy", joints.astype(np.float32))
+    assert main([str(tmp_path / "joints.npy"), str(tmp_path / "a.bvh"), "--units", "m"]) == 0
+    positions, *_ = _read_with_bvh_package(tmp_path / "a.bvh")
+    assert np.linalg.norm(positions - joints, axis=-1).max() < 0.01
+    np.save(tmp_path / "bad.npy", np.zeros((5, 21, 3)))
+    assert main([str(tmp_path / "bad.npy"), str(tmp_path / "b.bvh")]) == 2
+    assert "22" in capsys.readouterr().err
+    assert not (tmp_path / "b.bvh").exists()

@@ -129,3 +129,22 @@ def test_bad_input_is_a_value_error_and_writes_nothing(tmp_path, joints, name, m
     with pytest.raises(ValueError, match=match):
         render_animation(joints, tmp_path / name)
     assert not list(tmp_path.iterdir())
+
+
+def test_cli_renders_joints_and_features_files(tmp_path, capsys):
+    from dataset_tools.representation import process_motion
+    from t2m.render import main
+
+    joints = _standing(45)
+    features, _ = process_motion(joints)
+    np.save(tmp_path / "joints.npy", joints)
+    np.save(tmp_path / "feats.npy", features)
+    assert main([str(tmp_path / "joints.npy"), str(tmp_path / "walk.gif")]) == 0
+    assert main([str(tmp_path / "feats.npy"), str(tmp_path / "strip.png"), "--keyframes", "3"]) == 0
+    with Image.open(tmp_path / "walk.gif") as gif:
+        assert gif.n_frames == 45
+    with Image.open(tmp_path / "strip.png") as strip:
+        assert strip.size[0] == 3 * 240
+    assert main([str(tmp_path / "missing.npy"), str(tmp_path / "x.mp4")]) == 2
+    assert main([str(tmp_path / "joints.npy"), str(tmp_path / "x.avi")]) == 2
+    assert capsys.readouterr().err.count("error:") == 2

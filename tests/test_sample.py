@@ -145,7 +145,7 @@ def test_missing_and_mismatched_checkpoints(tiny_run, tmp_path, capsys):
     shutil.copytree(tiny_run / "ae", wrong / "t2m")
     code, err = _run(capsys, "--text", "a person walks", "--checkpoints", str(wrong), "--out",
                      str(tmp_path / "out2"))  # fmt: skip
-    assert code == 2 and "'ae'" in err and err.count("\n") == 1
+    assert code == 2 and "'ae'" in err and "make train-t2m" in err and err.count("\n") == 1
     assert not (tmp_path / "out2").exists()
 
 
@@ -162,10 +162,18 @@ def test_unwritable_or_occupied_out(tiny_run, tmp_path, capsys):
             "--render", "none", "--length", "40"]  # fmt: skip
     code, err = _run(capsys, *argv)
     assert code == 2 and "not empty" in err
-    assert (occupied / "keep.txt").read_text() == "mine"
+    # --overwrite replaces only an earlier output (it deletes the folder), never other files.
     code, err = _run(capsys, *argv, "--overwrite")
+    assert code == 2 and "results.json" in err
+    assert (occupied / "keep.txt").read_text() == "mine"
+    (occupied / "keep.txt").unlink()
+    code, err = _run(capsys, *argv)
     assert code == 0, err
-    assert not (occupied / "keep.txt").exists() and (occupied / "results.npy").exists()
+    first = (occupied / "results.npy").read_bytes()
+    code, err = _run(capsys, *argv[:-2], "--length", "48", "--overwrite")
+    assert code == 0, err
+    assert (occupied / "results.npy").read_bytes() != first
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt", "occupied"]
 
 
 def test_lengths_are_rounded_and_clamped_with_a_warning(caplog):
@@ -174,6 +182,7 @@ def test_lengths_are_rounded_and_clamped_with_a_warning(caplog):
         assert frames_for(10) == 40
     assert len(caplog.records) == 2
     assert frames_for(61) == 60 and frames_for(63) == 64
+    assert frames_for(42) == 44 and frames_for(46) == 48  # halves round up, not to even
     assert frames_for_seconds(3.0) == 60
     with pytest.raises(ValueError):
         frames_for(float("nan"))
@@ -207,7 +216,9 @@ def test_reduced_precision_stays_close_to_fp32(tiny_run, pipe, precision):
     kwargs = dict(num_samples=2, lengths=48, seed=5)
     reference = pipe.generate(["a person walks forward"], **kwargs)[0]
     result = reduced.generate(["a person walks forward"], **kwargs)[0]
-    for a, b in zip(reference, result):
+    again = reduced.generate(["a person walks forward"], **kwargs)[0]
+    for a, b, c in zip(reference, result, again):
+        np.testing.assert_array_equal(b.joints, c.joints)  # deterministic too
         assert np.isfinite(b.joints).all()
         # Tiny models: the outputs must agree to well within a centimetre.
         assert np.abs(a.joints - b.joints).max() < 0.01
@@ -216,3 +227,31 @@ def test_reduced_precision_stays_close_to_fp32(tiny_run, pipe, precision):
 def test_bad_precision_is_a_value_error(tiny_run):
     with pytest.raises(ValueError, match="precision"):
         TextToMotion.from_checkpoints(tiny_run, precision="fp16")
+
+
+def test_quantized_generation_loop_is_generate_with_float_projections():
+    # The int8 path runs its own copy of TemporalVAE.generate's loop; with float projections it
+    # must give what generate gives (this fails if the two loops ever drift apart).
+    import torch
+
+    from t2m.config import TemporalVAEConfig, TextEncoderConfig
+    from t2m.models.temporal_vae import TemporalVAE
+    from t2m.pipeline import QuantizedGeneration
+
+    torch.manual_seed(0)
+    config = TemporalVAEConfig(text=TextEncoderConfig(hidden_size=16), hidden_size=32,
+                               latent_size=8, attention_size=16)  # fmt: skip
+    vae = TemporalVAE(word_dim=12, code_size=24, config=config).eval()
+    words, pos = torch.randn(3, 7, 12), torch.rand(3, 7, 15)
+    word_features, sentence, mask = vae.encode_text(words, pos, torch.tensor([7, 4, 5]))
+    num_snippets, initial = torch.tensor([10, 6, 13]), torch.randn(24)
+    expected = vae.generate(word_features, sentence, mask, num_snippets, initial,
+                            torch.Generator().manual_seed(3))  # fmt: skip
+    loop = QuantizedGeneration(vae, quantize=False)
+    got = loop(vae, word_features, sentence, mask, num_snippets, initial,
+               torch.Generator().manual_seed(3))  # fmt: skip
+    torch.testing.assert_close(got, expected, rtol=1e-5, atol=1e-6)
+    quantized = QuantizedGeneration(vae)(vae, word_features, sentence, mask, num_snippets,
+                                         initial, torch.Generator().manual_seed(3))  # fmt: skip
+    assert (quantized - expected).abs().max() < 0.1 * expected.abs().max()
+    assert (quantized[1, 6:] == 0).all()  # past its length

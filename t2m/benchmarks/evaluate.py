@@ -4,12 +4,15 @@ the evaluator's forward pass at paper sizes (the original takes 0.45 s per batch
 Timings do not depend on the weights, so the models are built untrained from the presets unless a
 trained demo run (``checkpoints/demo``) and the demo dataset (``data/demo``) are present; the
 test split is the demo corpus' when present, else a synthetic one of the same size (600 items of
-40..199 frames, 15% of 2,000 clips x 2 mirrors).
+40..199 frames, 15% of 2,000 clips x 2 mirrors). Torch runs one thread: on the shared two-core
+machine two threads oversubscribe and every small op can wait milliseconds for a descheduled
+thread (measured: up to ten times slower, and erratic).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import time
 from pathlib import Path
 
@@ -110,8 +113,9 @@ def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str]:
 
 
 def _generation_speedup(
-    backend: evaluate.CheckpointBackend, clips: list[Clip], count: int
+    backend: evaluate.CheckpointBackend, clips: list[Clip], count: int, prefix: str
 ) -> dict[str, float]:
+    """Motions per second generating ``count`` test captions batched and one at a time."""
     draw = evaluate.draw_items(clips, count, np.random.default_rng(1))
     captions, lengths = draw.caption_list(clips), draw.lengths
     backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
@@ -126,11 +130,38 @@ def _generation_speedup(
         single = time.perf_counter() - start
     finally:
         backend.batch_size = batch_size
+    pipeline = backend.pipeline
+    backend.pipeline = _with_precision(pipeline, "bf16")
+    try:
+        backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
+        start = time.perf_counter()
+        backend.generate(captions, lengths, seed=0)
+        batched_bf16 = time.perf_counter() - start
+    finally:
+        backend.pipeline = pipeline
     return {
-        "evaluate.generate_batched_motions_per_s": round(count / batched, 1),
-        "evaluate.generate_one_at_a_time_motions_per_s": round(count / single, 1),
-        "evaluate.batched_generation_speedup_x": round(single / batched, 1),
+        f"{prefix}_generate_batched_bf16_motions_per_s": round(count / batched_bf16, 1),
+        f"{prefix}_generate_batched_motions_per_s": round(count / batched, 1),
+        f"{prefix}_generate_one_at_a_time_motions_per_s": round(count / single, 1),
+        f"{prefix}_batched_generation_speedup_x": round(single / batched, 1),
     }
+
+
+def _with_precision(pipeline, precision: str):
+    """The same models behind another inference precision."""
+    from t2m.pipeline import TextToMotion
+
+    return TextToMotion(
+        vae=pipeline.vae,
+        decoder=pipeline.decoder,
+        normalizer=pipeline.normalizer,
+        vectorizer=pipeline.vectorizer,
+        initial_code=pipeline.initial_code,
+        data=pipeline.data,
+        length_model=pipeline.length_model,
+        length_vectorizer=pipeline.length_vectorizer,
+        precision=precision,
+    )
 
 
 def _paper_evaluator_forward(repeats: int) -> float:
@@ -152,9 +183,29 @@ def _paper_evaluator_forward(repeats: int) -> float:
 
 def run(quick: bool = False) -> dict:
     logging.getLogger("t2m").setLevel(logging.WARNING)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _measure(quick)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _measure(quick: bool) -> dict:
     backend, clips, source = _backend_and_clips()
-    results: dict = {"evaluate.setup": source, "evaluate.test_items": len(clips)}
-    results.update(_generation_speedup(backend, clips, 64 if quick else 256))
+    results: dict = {
+        "evaluate.setup": source,
+        "evaluate.test_items": len(clips),
+        "evaluate.torch_threads": torch.get_num_threads(),
+        "evaluate.batch_size": backend.batch_size,
+        "evaluate.load_average_1min_at_start": round(os.getloadavg()[0], 2),
+    }
+    results.update(_generation_speedup(backend, clips, 128 if quick else 512, "evaluate.demo"))
+    results.update(
+        _generation_speedup(
+            _untrained_backend("paper"), clips, 16 if quick else 64, "evaluate.paper"
+        )
+    )
     results["evaluate.paper_evaluator_forward_batch32_s"] = round(
         _paper_evaluator_forward(2 if quick else 5), 3
     )

@@ -123,6 +123,11 @@ def _measure(quick: bool) -> dict:
         final = pipe.generate(PROMPT, lengths=FRAMES, seed=123)[0][0].joints
         if reference is None:
             reference = final
+            # For scale: how far two samples (seeds) of the same prompt are from each other.
+            other = pipe.generate(PROMPT, lengths=FRAMES, seed=124)[0][0].joints
+            spread = np.linalg.norm(other - reference, axis=-1)
+            results["sample.fp32_seed_to_seed_random_weights_mean_mm"] = round(
+                float(spread.mean()) * 1e3, 2)  # fmt: skip
         else:
             difference = np.linalg.norm(final - reference, axis=-1)
             results[f"sample.{precision}_vs_fp32_random_weights_mean_mm"] = round(

@@ -45,9 +45,10 @@ def _peak_memory_mb(device: torch.device) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # kB on Linux
 
 
-def _time(step: Callable[[], None], steps: int, device: torch.device) -> float:
-    """Mean seconds per step after one warm-up step."""
-    step()
+def _time(step: Callable[[], None], steps: int, device: torch.device, warmup: bool = True) -> float:
+    """Mean seconds per step (after one warm-up step unless ``warmup`` is False)."""
+    if warmup:
+        step()
     if device.type == "cuda":
         torch.cuda.synchronize(device)
     start = time.perf_counter()
@@ -132,13 +133,13 @@ def run(quick: bool = False, device: str = "cpu", threads: int = 0) -> dict:
 
     # the loop mixes both kinds of batch: 40% teacher-forced, 60% free-running
     forced = _time(t2m_step(True, False), steps, device_)
-    free = _time(t2m_step(False, False), steps, device_)
+    free = _time(t2m_step(False, False), steps, device_, warmup=not quick)
     mixed = 0.4 * forced + 0.6 * free
     results.update(t2m_step_teacher_forced_s=round(forced, 3), t2m_step_free_running_s=round(free, 3),
                    t2m_step_s=round(mixed, 3), t2m_steps_per_s=round(1 / mixed, 3),
                    t2m_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
     forced_bf16 = _time(t2m_step(True, True), steps, device_)
-    free_bf16 = _time(t2m_step(False, True), steps, device_)
+    free_bf16 = _time(t2m_step(False, True), steps, device_, warmup=not quick)
     results.update(t2m_step_bf16_s=round(0.4 * forced_bf16 + 0.6 * free_bf16, 3))
 
     # generation (sampling) of 32 motions of 49 snippets, no gradients
@@ -151,7 +152,7 @@ def run(quick: bool = False, device: str = "cpu", threads: int = 0) -> dict:
             features, sentence, mask = vae.encode_text(words, pos, lengths)
             ae.decode(vae.generate(features, sentence, mask, num, initial_code, gen))
 
-    seconds = _time(sample_step, steps, device_)
+    seconds = _time(sample_step, steps, device_, warmup=not quick)
     results.update(t2m_generate_batch32_s=round(seconds, 3))
 
     # -- stage 4: evaluator, batch 32, 196 frames

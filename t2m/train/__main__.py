@@ -102,6 +102,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--seed", type=int, default=None, help="random seed (default: the config's, 0)"
     )
+    parser.add_argument(
+        "--print-config", action="store_true", help="print the resolved config as JSON and exit"
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     return parser
 
@@ -123,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.seed is not None:
             overrides["seed"] = str(args.seed)
         config = apply_overrides(preset(args.preset), overrides)
+        if args.print_config:
+            print(config.to_json())
+            return 0
         run_dir = Path(args.checkpoints or f"checkpoints/{args.preset}")
         start = time.time()
         stage_dir = run_stage(args.stage, config, args.dataset, run_dir, resume=args.resume)
