@@ -103,9 +103,10 @@ class AEStageConfig:
     batch_size: int = 128
     lr: float = 1e-4
     window_frames: int = 24
+    """Frames per training window; an epoch is one random window per clip."""
     sparsity_weight: float = 0.001
     smoothness_weight: float = 0.001
-    epochs: int = 60
+    epochs: int = 300
     max_steps: int = 0
     """Stop after this many optimiser steps in total (0: no limit)."""
     grad_clip: float = 0.0
@@ -202,7 +203,12 @@ class Config:
 
 
 def paper() -> Config:
-    """The sizes and optimisation settings of Guo et al. (CVPR 2022)."""
+    """The sizes and optimisation settings of Guo et al. (CVPR 2022).
+
+    Epoch counts are ours: an autoencoder epoch is one random 24-frame window per clip, and the
+    temporal VAE's curriculum advances on validation patience, so step counts differ from the
+    original scripts'.
+    """
     return Config(preset="paper")
 
 

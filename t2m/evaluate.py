@@ -461,6 +461,31 @@ def _cell(entry: dict[str, float] | None, digits: int = 3) -> str:
     return f"{entry['mean']:.{digits}f} ±{entry['interval']:.{digits}f}"
 
 
+def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
+    """Per-action semantic accuracy (segments of that action recovered), one column per row."""
+    prefix = "semantic_accuracy_action_"
+    actions = sorted(
+        {
+            key[len(prefix) :]
+            for row in ROWS
+            for key in summary["rows"][row]
+            if key.startswith(prefix)
+        }
+    )
+    if not actions:
+        return []
+    lines = [
+        "Segments recovered, per action:",
+        "",
+        "| Action | " + " | ".join(ROWS) + " |",
+        "|---|" + "---|" * len(ROWS),
+    ]
+    for action in actions:
+        cells = [_cell(summary["rows"][row].get(prefix + action)) for row in ROWS]
+        lines.append(f"| {action} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evaluation") -> str:
     """The results table (like Table 2 of Guo et al.) with a header that cannot be misread."""
     lines = [f"# {title}", ""]
@@ -506,6 +531,7 @@ def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evalua
             "Semantic accuracy: fraction of motions whose ground-truth labels (action, side, "
             "direction) the demo corpus' detectors recover from the joints."
         )
+        lines += ["", *_semantic_breakdown(summary)]
     timings = summary.get("timings_s", {})
     if "total_s" in timings:
         lines += ["", f"Wall time: {timings['total_s']:.1f} s."]
@@ -610,10 +636,15 @@ class CheckpointBackend:
         lengths = np.array([len(m) for m in motions], dtype=np.int64)
         if np.any(lengths % unit) or np.any(lengths < unit):
             raise ValueError(f"motion lengths must be positive multiples of {unit}")
+        # Every motion is zero-padded to max_frames, as the original evaluator's loader did and
+        # as the evaluator is trained: the second encoder convolution sees the padding's
+        # activations, so a shorter padding would shift the last snippets' codes and make an
+        # embedding depend on the batch it happens to be in.
+        frames = max(self.data_config.max_frames, int(lengths.max()))
         out = []
         for chunk in _chunks(len(motions), self.batch_size):
             batch = motions[chunk]
-            padded = np.zeros((len(batch), int(lengths[chunk].max()), normalizer.dim), np.float32)
+            padded = np.zeros((len(batch), frames, normalizer.dim), np.float32)
             for row, motion in enumerate(batch):
                 padded[row, : len(motion)] = normalizer.normalize(np.asarray(motion, np.float32))
             embeddings = self.evaluator.embed_motion(

@@ -180,6 +180,9 @@ def test_checkpoint_backend_generates_requested_lengths_deterministically(tiny_r
     assert all(length % 4 == 0 and 40 <= length <= 196 for length in sampled)
     embeddings = backend.embed_motions(first)
     assert embeddings.shape == (6, backend.evaluator.config.embedding_size)
+    # An embedding must not depend on the batch it is computed in.
+    alone = np.concatenate([backend.embed_motions([m]) for m in first])
+    np.testing.assert_allclose(embeddings, alone, atol=1e-4)
     assert backend.embed_texts(captions).shape == embeddings.shape
 
 
@@ -258,7 +261,7 @@ def test_corpus_labels_are_found_through_the_build_report(tmp_path):
 
 def test_semantic_accuracy_reaches_the_table():
     def semantic(names, motions):
-        return {"all": 0.5, "segments": 0.75}
+        return {"all": 0.5, "segments": 0.75, "action_walk": 0.25}
 
     config = evaluate.EvalConfig(replications=2, mm_texts=4, mm_samples=10)
     result = evaluate.run_protocol(_clips(64), FakeBackend(), config, semantic=semantic)
@@ -266,4 +269,6 @@ def test_semantic_accuracy_reaches_the_table():
     for row in evaluate.ROWS:
         assert summary["rows"][row]["semantic_accuracy"]["values"] == [0.5, 0.5]
         assert summary["rows"][row]["semantic_accuracy_segments"]["mean"] == 0.75
-    assert "Semantic accuracy" in evaluate.format_markdown(summary)
+    text = evaluate.format_markdown(summary)
+    assert "Semantic accuracy" in text
+    assert "| walk | 0.250 ±0.000 | 0.250 ±0.000 | 0.250 ±0.000 |" in text

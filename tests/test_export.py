@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -107,10 +106,8 @@ def test_round_trip_through_our_bvh_importer(tmp_path, units):
     joints = _reference_joints()
     path = tmp_path / "clip.bvh"
     write_bvh(joints, path, units=units)
-    # Our exports name the joints as SMPL does: the mapping is the identity.
-    mapping = tmp_path / "smpl.json"
-    mapping.write_text(json.dumps({name: name for name in SMPL.joint_names}))
-    motion = load_bvh_motion(path, BvhOptions(mapping=str(mapping)))
+    # Our exports name the joints as SMPL does: the built-in "smpl" mapping is detected.
+    motion = load_bvh_motion(path, BvhOptions())
     assert motion.fps == pytest.approx(20.0)
     assert motion.metadata["scale"] == (0.01 if units == "cm" else 1.0)
     assert motion.joints.shape == joints.shape

@@ -272,7 +272,12 @@ CMU_CC = JointMapping(
     drop_first_frame=True,
 )  # fmt: skip
 
-MAPPINGS: dict[str, JointMapping] = {mapping.name: mapping for mapping in (BANDAI, CMU_CC)}
+# Our own exports (t2m.export) and any BVH whose joints carry the SMPL names.
+SMPL_NAMES = JointMapping(name="smpl", joints={name: name for name in SMPL_JOINT_NAMES})
+
+MAPPINGS: dict[str, JointMapping] = {
+    mapping.name: mapping for mapping in (BANDAI, CMU_CC, SMPL_NAMES)
+}
 
 
 def _check_mapping(mapping: JointMapping, where: str) -> JointMapping:
@@ -293,7 +298,7 @@ def _check_mapping(mapping: JointMapping, where: str) -> JointMapping:
 
 
 def load_mapping(spec: str | Path) -> JointMapping:
-    """A built-in mapping by name ("bandai", "cmu_cc") or a JSON file.
+    """A built-in mapping by name ("bandai", "cmu_cc", "smpl") or a JSON file.
 
     The file holds ``{smpl_joint_name: bvh_joint_name | [bvh_a, bvh_b, t], ...}`` for all 22 SMPL
     joints, or ``{"joints": {...}, "drop_first_frame": true}``.

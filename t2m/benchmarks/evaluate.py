@@ -21,6 +21,7 @@ import torch
 
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip
+from t2m.pipeline import TextToMotion
 
 logger = logging.getLogger(__name__)
 
@@ -70,8 +71,6 @@ def _untrained_stages(preset_name: str) -> dict:
 
 
 def _untrained_backend(preset_name: str) -> evaluate.CheckpointBackend:
-    from t2m.pipeline import TextToMotion
-
     stages = _untrained_stages(preset_name)
     t2m, length = stages["t2m"], stages["length"]
     pipeline = TextToMotion(
@@ -100,16 +99,18 @@ def _synthetic_clips(count: int, rng: np.random.Generator) -> list[Clip]:
     return clips
 
 
-def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str]:
+def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str, bool]:
+    """The backend, the test items, a description, and whether they are the real demo run."""
     if (DEMO_RUN / "eval" / "best.pt").is_file() and (DEMO_DATASET / "test.txt").is_file():
         from t2m.data.dataset import load_split
 
         backend = evaluate.CheckpointBackend.from_run_dir(DEMO_RUN)
         clips = load_split(DEMO_DATASET, "test", backend.data_config)
-        return backend, clips, "trained demo run on the demo test split"
+        return backend, clips, "trained demo run on the demo test split", True
     backend = _untrained_backend("demo")
     clips = _synthetic_clips(SYNTHETIC_ITEMS, np.random.default_rng(0))
-    return backend, clips, f"untrained demo-size models, synthetic split of {SYNTHETIC_ITEMS} items"
+    source = f"untrained demo-size models, synthetic split of {SYNTHETIC_ITEMS} items"
+    return backend, clips, source, False
 
 
 def _generation_speedup(
@@ -147,10 +148,8 @@ def _generation_speedup(
     }
 
 
-def _with_precision(pipeline, precision: str):
+def _with_precision(pipeline: TextToMotion, precision: str) -> TextToMotion:
     """The same models behind another inference precision."""
-    from t2m.pipeline import TextToMotion
-
     return TextToMotion(
         vae=pipeline.vae,
         decoder=pipeline.decoder,
@@ -192,7 +191,7 @@ def run(quick: bool = False) -> dict:
 
 
 def _measure(quick: bool) -> dict:
-    backend, clips, source = _backend_and_clips()
+    backend, clips, source, real_demo = _backend_and_clips()
     results: dict = {
         "evaluate.setup": source,
         "evaluate.test_items": len(clips),
@@ -203,7 +202,7 @@ def _measure(quick: bool) -> dict:
     results.update(_generation_speedup(backend, clips, 128 if quick else 512, "evaluate.demo"))
     results.update(
         _generation_speedup(
-            _untrained_backend("paper"), clips, 16 if quick else 64, "evaluate.paper"
+            _untrained_backend("paper"), clips, 32 if quick else 128, "evaluate.paper"
         )
     )
     results["evaluate.paper_evaluator_forward_batch32_s"] = round(
@@ -211,15 +210,16 @@ def _measure(quick: bool) -> dict:
     )
     replications = 2 if quick else 20
     config = evaluate.EvalConfig(replications=replications)
+    semantic = evaluate.SemanticScorer.for_dataset(DEMO_DATASET) if real_demo else None
     start = time.perf_counter()
-    result = evaluate.run_protocol(clips, backend, config)
+    result = evaluate.run_protocol(clips, backend, config, semantic=semantic)
     elapsed = time.perf_counter() - start
     per_replication = elapsed / replications
     results["evaluate.protocol_items"] = result.num_items
     results["evaluate.replication_s"] = round(per_replication, 2)
     key = "evaluate.20_replications_s" + ("_estimated_from_2" if quick else "")
     results[key] = round(per_replication * 20, 1)
-    for part in ("generate_s", "embed_s", "metrics_s"):
+    for part in ("generate_s", "embed_s", "metrics_s", "semantic_s"):
         results[f"evaluate.{part.removesuffix('_s')}_share_pct"] = round(
             100 * result.timings_s[part] / elapsed, 1
         )

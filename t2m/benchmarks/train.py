@@ -5,7 +5,7 @@ with the frozen encoder, the fine-tuned decoder and gradient clipping). Reported
 seconds per step and steps/s (fp32), the temporal-VAE step under bf16 autocast too, and the peak
 memory (resident set on CPU, allocated on CUDA). Word vectors are 300-d as in the paper.
 
-``python -m t2m.benchmarks.train [--quick] [--device cpu|cuda] [--threads N]``
+``python -m t2m.benchmarks.train [--quick] [--device auto|cpu|cuda] [--threads N]``
 """
 
 from __future__ import annotations
@@ -59,10 +59,15 @@ def _time(step: Callable[[], None], steps: int, device: torch.device, warmup: bo
     return (time.perf_counter() - start) / steps
 
 
-def run(quick: bool = False, device: str = "cpu", threads: int = 0) -> dict:
-    """Seconds per training step of each stage at paper sizes; see the module docstring."""
+def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
+    """Seconds per training step of each stage at paper sizes; see the module docstring.
+
+    ``device`` "auto" is CUDA when present, else CPU.
+    """
     if threads > 0:
         torch.set_num_threads(threads)
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
     device_ = torch.device(device)
     config = paper()
     generator = torch.Generator().manual_seed(0)
@@ -180,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m t2m.benchmarks.train", description=__doc__.splitlines()[0]
     )
     parser.add_argument("--quick", action="store_true", help="one timed step per measurement")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     args = parser.parse_args(argv)
     print(json.dumps(run(args.quick, args.device, args.threads), indent=2))

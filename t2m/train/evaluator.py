@@ -10,7 +10,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from t2m.config import Config
+from t2m.config import Config, from_dict
 from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.train.checkpoint import build_models
@@ -77,12 +77,12 @@ def train_evaluator(
     resume: bool = False,
 ) -> Path:
     """Train stage 4 into ``run_dir/eval`` (needs ``run_dir/ae``); returns that folder."""
-    stage = config.eval
     # 1. the frozen autoencoder and its statistics, then the data
     ae = require_stage(Path(run_dir), "ae", runtime.device)
-    config.ae.model = (
-        ae.config.ae.model
-    )  # the encoder is the trained one, whatever this preset says
+    # The encoder is the trained one, whatever this preset says; copy: the caller's config stays.
+    config = from_dict(config.to_dict())
+    config.ae.model = ae.config.ae.model
+    stage = config.eval
     data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
     vectorizer = data.vectorizer
     dims = {

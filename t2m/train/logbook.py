@@ -30,6 +30,7 @@ class Logbook:
         self.stage = stage
         self.enabled = enabled
         self.start = time.time()
+        self._drawn_at = time.time()
         if not enabled:
             return
         stage_dir.mkdir(parents=True, exist_ok=True)
@@ -47,7 +48,7 @@ class Logbook:
                   "elapsed_s": round(time.time() - self.start, 2)}  # fmt: skip
         for key, value in values.items():
             value = float(value) if not isinstance(value, (str, int)) else value
-            record[key] = value if not (isinstance(value, float) and math.isnan(value)) else None
+            record[key] = None if isinstance(value, float) and not math.isfinite(value) else value
         with open(self.path, "a", encoding="utf-8") as handle:
             handle.write(json.dumps(record) + "\n")
 
@@ -56,10 +57,17 @@ class Logbook:
             return []
         return [json.loads(line) for line in self.path.read_text().splitlines() if line.strip()]
 
-    def draw(self) -> None:
-        """Plot every numeric metric against the step, train and val, one panel per metric."""
+    def draw(self, force: bool = True, min_interval_s: float = 60.0) -> None:
+        """Plot every numeric metric against the step, train and val, one panel per metric.
+
+        With ``force`` False, skip when the last drawing is younger than ``min_interval_s`` (the
+        loops redraw after each validation; plotting costs a fraction of a second).
+        """
         if not self.enabled:
             return
+        if not force and time.time() - self._drawn_at < min_interval_s:
+            return
+        self._drawn_at = time.time()
         records = self.records()
         if not records:
             return

@@ -192,12 +192,23 @@ class StageRun:
         return False
 
     def log(self, split: str, values: dict[str, Any]) -> None:
-        """Write one record; tensors are read here (the only host sync of the loop)."""
+        """Write one record; tensors are read here (the only host sync of the loop).
+
+        Validation records also refresh curves.png (at most once a minute).
+        """
         plain = {
             k: (v.detach().float().item() if isinstance(v, torch.Tensor) else v)
             for k, v in values.items()
         }
+        loss = plain.get("loss")
+        if isinstance(loss, float) and not math.isfinite(loss):
+            raise ValueError(
+                f"{self.stage}: {split} loss is {loss} at step {self.step}; lower the learning "
+                "rate or resume from the last good checkpoint"
+            )
         self.logbook.write(split, self.step, int(self.progress["epoch"]), plain)
+        if split == "val":
+            self.logbook.draw(force=False)
 
     def finish(self) -> None:
         """Draw the curves; make sure best.pt exists (a run too short to validate saves latest)."""

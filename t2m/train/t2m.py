@@ -19,7 +19,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from t2m.config import Config
+from t2m.config import Config, from_dict
 from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
@@ -118,13 +118,13 @@ def train_text_to_motion(
     resume: bool = False,
 ) -> Path:
     """Train stage 3 into ``run_dir/t2m`` (needs ``run_dir/ae``); returns that folder."""
-    stage = config.t2m
     unit = config.data.unit_length
     # 1. the trained autoencoder (frozen encoder, decoder to fine-tune) and the data
     ae = require_stage(Path(run_dir), "ae", runtime.device)
-    config.ae.model = (
-        ae.config.ae.model
-    )  # the decoder is the trained one, whatever this preset says
+    # The decoder is the trained one, whatever this preset says; copy: the caller's config stays.
+    config = from_dict(config.to_dict())
+    config.ae.model = ae.config.ae.model
+    stage = config.t2m
     autoencoder = ae.models["autoencoder"]
     data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
     vectorizer = data.vectorizer
