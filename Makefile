@@ -71,5 +71,8 @@ sample: install
 eval: install
 	$(PY) -m t2m.evaluate --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
 
+demo: install
+	$(PY) -m t2m.demo $(ARGS)
+
 bench: install
 	$(PY) -m t2m.bench $(ARGS)

@@ -212,15 +212,18 @@ def draw_items(
     rng: np.random.Generator,
     unit_length: int = 4,
     max_frames: int = 196,
+    candidates: np.ndarray | None = None,
 ) -> Draw:
     """Draw ``num_rows`` distinct items in random order, a caption and a unit crop for each.
 
-    The crop keeps ``min(T, max_frames) // unit`` units, one fewer with probability 1/3 (the
-    original evaluation loader's rule), from a uniformly random start.
+    Items come from ``candidates`` (indices into ``clips``; default: all clips). The crop keeps
+    ``min(T, max_frames) // unit`` units, one fewer with probability 1/3 (the original
+    evaluation loader's rule), from a uniformly random start.
     """
-    if num_rows > len(clips):
-        raise ValueError(f"cannot draw {num_rows} items from {len(clips)} clips")
-    items = rng.permutation(len(clips))[:num_rows]
+    candidates = np.arange(len(clips)) if candidates is None else np.asarray(candidates)
+    if num_rows > len(candidates):
+        raise ValueError(f"cannot draw {num_rows} items from {len(candidates)} clips")
+    items = candidates[rng.permutation(len(candidates))[:num_rows]]
     captions = np.empty(num_rows, dtype=np.int64)
     starts = np.empty(num_rows, dtype=np.int64)
     lengths = np.empty(num_rows, dtype=np.int64)
@@ -372,8 +375,12 @@ def run_protocol(
         rng = np.random.default_rng([config.seed, rep, 1])
         metric_rng = np.random.default_rng([config.seed, rep, 2])
 
+        # A subset (max_items) is drawn once per replication, so that the reference, the real
+        # row and the generated rows all describe the same clips.
+        candidates = None if available == len(clips) else rng.permutation(len(clips))[:available]
+
         def new_draw() -> Draw:
-            return draw_items(clips, num_items, rng, unit_length, max_frames)  # noqa: B023
+            return draw_items(clips, num_items, rng, unit_length, max_frames, candidates)  # noqa: B023
 
         reference_draw = new_draw()
         reference = metrics.gaussian_statistics(

@@ -272,3 +272,11 @@ def test_semantic_accuracy_reaches_the_table():
     text = evaluate.format_markdown(summary)
     assert "Semantic accuracy" in text
     assert "| walk | 0.250 ±0.000 | 0.250 ±0.000 | 0.250 ±0.000 |" in text
+
+
+def test_a_subset_is_shared_by_all_draws_of_a_replication():
+    # 64 of 70 clips: the reference and the real row must describe the same clips, so real
+    # motions (whose embedding ignores the crop here) are at FID 0 from the reference.
+    config = evaluate.EvalConfig(replications=2, max_items=64, mm_texts=4, mm_samples=10)
+    result = evaluate.run_protocol(_clips(70), FakeBackend(), config)
+    np.testing.assert_allclose(result.values[evaluate.REAL]["fid"], 0.0, atol=1e-6)

@@ -17,6 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from dataset_tools.io import write_json_atomic
 from t2m.config import Config
 from t2m.data.dataset import MotionTextData, load_split
 from t2m.data.normalization import Normalizer
@@ -36,6 +37,9 @@ from t2m.train.logbook import Logbook
 from t2m.train.runtime import Runtime, unwrap
 
 logger = logging.getLogger(__name__)
+
+# Written into the stage folder when its loop ends normally.
+FINISHED = "finished.json"
 
 
 @dataclass
@@ -155,6 +159,7 @@ class StageRun:
             logger.warning("%s: starting afresh over the existing run in %s", stage, self.dir)
         if runtime.is_main:
             self.dir.mkdir(parents=True, exist_ok=True)
+            (self.dir / FINISHED).unlink(missing_ok=True)
             write_config(self.dir, config)
         self.logbook = Logbook(
             self.dir,
@@ -211,13 +216,16 @@ class StageRun:
             self.logbook.draw(force=False)
 
     def finish(self) -> None:
-        """Draw the curves; make sure best.pt exists (a run too short to validate saves latest)."""
+        """Draw the curves; make sure best.pt exists (a run too short to validate saves latest);
+        mark the stage finished (``finished.json``), so a driver such as ``make demo`` can tell a
+        completed stage from an interrupted one."""
+        if self.runtime.is_main and not (self.dir / "best.pt").is_file():
+            self.save(best=True)  # waits at the barrier itself
+        else:
+            self.runtime.barrier()
         if self.runtime.is_main:
             self.logbook.draw()
-            if not (self.dir / "best.pt").is_file():
-                self.save(best=True)
-                return
-        self.runtime.barrier()
+            write_json_atomic(self.dir / FINISHED, dict(self.progress))
 
 
 def mean_records(records: list[dict[str, torch.Tensor]]) -> dict[str, float]:
