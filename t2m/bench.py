@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import logging
 import os
-import platform
 import pkgutil
+import platform
 import sys
 import time
 import traceback

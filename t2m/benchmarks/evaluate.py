@@ -4,9 +4,11 @@ the evaluator's forward pass at paper sizes (the original takes 0.45 s per batch
 Timings do not depend on the weights, so the models are built untrained from the presets unless a
 trained demo run (``checkpoints/demo``) and the demo dataset (``data/demo``) are present; the
 test split is the demo corpus' when present, else a synthetic one of the same size (600 items of
-40..199 frames, 15% of 2,000 clips x 2 mirrors). Torch runs one thread: on the shared two-core
-machine two threads oversubscribe and every small op can wait milliseconds for a descheduled
-thread (measured: up to ten times slower, and erratic).
+40..199 frames, 15% of 2,000 clips x 2 mirrors). Torch keeps its default thread count, which is
+recorded with the load average: on a busy two-core machine two threads oversubscribe and every
+small op can wait milliseconds for a descheduled thread (measured up to ten times slower, and
+erratic), so compare numbers taken on a quiet machine, or run ``python -m t2m.evaluate
+--threads 1`` there.
 """
 
 from __future__ import annotations
@@ -182,15 +184,6 @@ def _paper_evaluator_forward(repeats: int) -> float:
 
 def run(quick: bool = False) -> dict:
     logging.getLogger("t2m").setLevel(logging.WARNING)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        return _measure(quick)
-    finally:
-        torch.set_num_threads(threads)
-
-
-def _measure(quick: bool) -> dict:
     backend, clips, source, real_demo = _backend_and_clips()
     results: dict = {
         "evaluate.setup": source,
