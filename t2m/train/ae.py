@@ -14,7 +14,7 @@ from t2m.config import Config
 from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, clip_gradients, seed_init, seed_step
+from t2m.train.runtime import Runtime, seed_init, seed_step
 from t2m.train.stage import StageRun, load_stage_data, mean_records
 
 logger = logging.getLogger(__name__)
@@ -99,24 +99,16 @@ def train_autoencoder(
             )
             with runtime.autocast():
                 losses = trainable(motion)
-            optimizer.zero_grad(set_to_none=True)
-            losses["loss"].backward()
-            clip_gradients(autoencoder.parameters(), stage.grad_clip)
-            optimizer.step()
-            progress["step"] += 1
-            progress["epoch_step"] = index + 1
-            bar.update()
-            if run.step % stage.log_every == 0:
-                run.log("train", losses)
-                bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4f}")
-            if run.step % stage.checkpoint_every == 0:
-                run.save()
-        bar.close()
-        if run.reached_max_steps(stage.max_steps) and progress["epoch_step"] < len(batches):
-            run.save()
+            run.optimize(
+                losses,
+                autoencoder.parameters(),
+                stage.grad_clip,
+                bar,
+                stage.log_every,
+                stage.checkpoint_every,
+            )
+        if run.close_epoch(bar, len(batches), stage.max_steps):
             break
-        progress["epoch"] = epoch + 1
-        progress["epoch_step"] = 0
         metrics = validate(trainable, data.val, config, runtime)
         run.log("val", metrics)
         run.save(best=run.improved(metrics["loss"]))

@@ -34,7 +34,7 @@ from t2m.train.checkpoint import (
     write_config,
 )
 from t2m.train.logbook import Logbook
-from t2m.train.runtime import Runtime, unwrap
+from t2m.train.runtime import Runtime, clip_gradients, unwrap
 
 logger = logging.getLogger(__name__)
 
@@ -187,6 +187,43 @@ class StageRun:
             if best:
                 atomic_save(checkpoint, self.dir / "best.pt")
         self.runtime.barrier()
+
+    def optimize(
+        self,
+        losses: dict[str, torch.Tensor],
+        parameters: Any,
+        grad_clip: float,
+        bar: Any,
+        log_every: int,
+        checkpoint_every: int,
+        extra: dict[str, Any] | None = None,
+    ) -> None:
+        """One optimizer step on ``losses["loss"]`` and the bookkeeping every stage shares:
+        counters, progress bar, a train record every ``log_every`` steps, ``latest.pt`` every
+        ``checkpoint_every`` steps."""
+        self.optimizer.zero_grad(set_to_none=True)
+        losses["loss"].backward()
+        clip_gradients(parameters, grad_clip)
+        self.optimizer.step()
+        self.progress["step"] += 1
+        self.progress["epoch_step"] += 1
+        bar.update()
+        if self.step % log_every == 0:
+            self.log("train", {**losses, **(extra or {})})
+            bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4g}")
+        if self.step % checkpoint_every == 0:
+            self.save()
+
+    def close_epoch(self, bar: Any, num_batches: int, max_steps: int) -> bool:
+        """End an epoch's batches. True when ``max_steps`` cut the epoch short (latest.pt is
+        saved so a resume continues mid-epoch); otherwise the counters move to the next epoch."""
+        bar.close()
+        if self.reached_max_steps(max_steps) and self.progress["epoch_step"] < num_batches:
+            self.save()
+            return True
+        self.progress["epoch"] += 1
+        self.progress["epoch_step"] = 0
+        return False
 
     def improved(self, value: float) -> bool:
         """Record a validation value (rank 0's); True (and best updated) when it is the best yet."""

@@ -24,7 +24,7 @@ from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, clip_gradients, seed_init, seed_step
+from t2m.train.runtime import Runtime, seed_init, seed_step
 from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
 
 logger = logging.getLogger(__name__)
@@ -189,25 +189,18 @@ def train_text_to_motion(
             teacher_forcing = bool(rng.random() < stage.teacher_forcing)
             with runtime.autocast():
                 losses = trainable(batch, teacher_forcing)
-            optimizer.zero_grad(set_to_none=True)
-            losses["loss"].backward()
-            clip_gradients(trainable_parameters, stage.grad_clip)
-            optimizer.step()
-            progress["step"] += 1
-            progress["epoch_step"] = index + 1
-            bar.update()
-            if run.step % stage.log_every == 0:
-                run.log("train", {**losses, "snippets": snippets})
-                bar.set_postfix(loss=f"{float(losses['loss'].detach()):.3f}")
-            if run.step % stage.checkpoint_every == 0:
-                run.save()
-        bar.close()
-        if run.reached_max_steps(stage.max_steps) and progress["epoch_step"] < len(batches):
-            run.save()
+            run.optimize(
+                losses,
+                trainable_parameters,
+                stage.grad_clip,
+                bar,
+                stage.log_every,
+                stage.checkpoint_every,
+                extra={"snippets": snippets},
+            )
+        if run.close_epoch(bar, len(batches), stage.max_steps):
             break
         # 4. end of epoch: validate, then move along the curriculum
-        progress["epoch"] = epoch + 1
-        progress["epoch_step"] = 0
         metrics = validate(trainable, data.val, config, runtime, snippets)
         value = runtime.broadcast_float(metrics.get("reconstruction", math.inf))
         improved = value < progress["stage_best"]
