@@ -1,0 +1,273 @@
+"""Reading a HumanML3D-layout folder and cutting batches from it.
+
+:func:`load_split` reads the clips of one split: features from ``new_joint_vecs/``, captions from
+``texts/`` (``caption#word/POS ...#from#to``). A caption with a time range makes its own sub-clip
+(as the original does); clips outside ``min_frames <= T < length_limit`` are skipped.
+
+:class:`MotionTextData` keeps the normalised motions and the captions as vocabulary ids, and cuts
+batches for each stage. Every batch is a pure function of the item indices and a
+``numpy.random.Generator``; the training loops seed that generator from (seed, epoch, step), which
+is what makes resuming a killed run exact.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from dataset_tools.representation import FeatureLayout
+from dataset_tools.skeleton import skeleton_for
+from t2m.config import DataConfig
+from t2m.data.normalization import Normalizer
+from t2m.data.words import WordVectors, pos_onehot
+
+logger = logging.getLogger(__name__)
+
+SPLITS = ("train", "val", "test", "train_val", "all")
+
+
+@dataclass
+class Caption:
+    """One caption line: the text and its ``word/POS`` tokens."""
+
+    text: str
+    tokens: list[str]
+
+
+@dataclass
+class Clip:
+    """A motion (T, D) float32 (raw features) with the captions that describe all of it."""
+
+    name: str
+    motion: np.ndarray
+    captions: list[Caption]
+
+
+def parse_text_line(line: str) -> tuple[Caption, float, float]:
+    """``caption#word/POS ...#from#to`` -> (Caption, from, to); ValueError when malformed."""
+    fields = line.strip().split("#")
+    if len(fields) != 4:
+        raise ValueError(f"expected 'caption#tokens#from#to', got {line.strip()[:60]!r}")
+    text, tokens, start, end = fields
+    try:
+        start_s = float(start) if start.strip() else 0.0
+        end_s = float(end) if end.strip() else 0.0
+    except ValueError:
+        raise ValueError(f"bad time range in {line.strip()[:60]!r}") from None
+    if start_s != start_s or end_s != end_s:  # NaN
+        start_s, end_s = 0.0, 0.0
+    return Caption(text.strip(), tokens.split()), start_s, end_s
+
+
+def read_split_names(dataset_dir: Path, split: str) -> list[str]:
+    """Clip names listed in ``<split>.txt``."""
+    path = dataset_dir / f"{split}.txt"
+    if not path.is_file():
+        raise ValueError(f"{dataset_dir}: no split file {path.name}")
+    return [line.strip() for line in path.read_text().splitlines() if line.strip()]
+
+
+def load_split(
+    dataset_dir: str | Path, split: str, config: DataConfig, limit: int | None = None
+) -> list[Clip]:
+    """The usable clips of a split, sorted by name (deterministic), sub-clips included.
+
+    Raises ValueError when the folder or split is missing or no clip is usable.
+    """
+    dataset_dir = Path(dataset_dir)
+    if not (dataset_dir / "new_joint_vecs").is_dir():
+        raise ValueError(f"{dataset_dir}: not a HumanML3D-layout folder (no new_joint_vecs/)")
+    names = sorted(set(read_split_names(dataset_dir, split)))
+    if limit is not None:
+        names = names[:limit]
+    clips: list[Clip] = []
+    missing = 0
+    fps = None
+    for name in tqdm(names, desc=f"loading {split}", unit="clip", leave=False, mininterval=2.0):
+        motion_path = dataset_dir / "new_joint_vecs" / f"{name}.npy"
+        text_path = dataset_dir / "texts" / f"{name}.txt"
+        if not motion_path.is_file() or not text_path.is_file():
+            missing += 1
+            continue
+        motion = np.load(motion_path).astype(np.float32, copy=False)
+        if motion.ndim != 2 or not np.isfinite(motion).all():
+            raise ValueError(f"{motion_path}: expected finite (T, D) features")
+        if fps is None:
+            fps = skeleton_for(FeatureLayout.for_dim(motion.shape[1]).num_joints).fps
+        whole: list[Caption] = []
+        for number, line in enumerate(text_path.read_text(encoding="utf-8").splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                caption, start, end = parse_text_line(line)
+            except ValueError as error:
+                raise ValueError(f"{text_path}:{number}: {error}") from None
+            if start == 0.0 and end == 0.0:
+                whole.append(caption)
+                continue
+            part = motion[int(start * fps) : int(end * fps)]
+            if config.min_frames <= len(part) < config.length_limit:
+                clips.append(Clip(f"{name}#{start:.1f}#{end:.1f}", part, [caption]))
+        if whole and config.min_frames <= len(motion) < config.length_limit:
+            clips.append(Clip(name, motion, whole))
+    if missing:
+        logger.warning(
+            "%s: %d clips of %s.txt have no features or texts", dataset_dir, missing, split
+        )
+    if not clips:
+        raise ValueError(f"{dataset_dir}: no usable clip in split {split!r}")
+    clips.sort(key=lambda clip: clip.name)
+    return clips
+
+
+def epoch_batches(
+    num_items: int, batch_size: int, seed: int, epoch: int, rank: int = 0, world_size: int = 1
+) -> list[np.ndarray]:
+    """Shuffled item indices for one epoch of one process, cut into full batches.
+
+    Every process draws the same permutation and takes every ``world_size``-th item, so the
+    processes of a DDP run see disjoint data and the same number of batches.
+    """
+    order = np.random.default_rng([seed, epoch, 7]).permutation(num_items)
+    per_rank = num_items // world_size
+    mine = order[rank::world_size][:per_rank]
+    count = per_rank // batch_size
+    return [mine[i * batch_size : (i + 1) * batch_size] for i in range(count)]
+
+
+def batch_rng(seed: int, epoch: int, step: int, rank: int = 0) -> np.random.Generator:
+    """The generator of one batch's random choices (captions, crops)."""
+    return np.random.default_rng([seed, epoch, step, rank, 11])
+
+
+class MotionTextData:
+    """Normalised motions with their captions as vocabulary ids, and the batch makers.
+
+    Args:
+        clips: from :func:`load_split` (raw features).
+        normalizer: mean/std used for every motion.
+        vectorizer: the vocabulary.
+        config: the data settings.
+    """
+
+    def __init__(
+        self,
+        clips: list[Clip],
+        normalizer: Normalizer,
+        vectorizer: WordVectors,
+        config: DataConfig,
+    ):
+        if clips and clips[0].motion.shape[1] != normalizer.dim:
+            raise ValueError(
+                f"features have {clips[0].motion.shape[1]} dimensions but the statistics "
+                f"have {normalizer.dim}"
+            )
+        self.config = config
+        self.normalizer = normalizer
+        self.vectorizer = vectorizer
+        self.names = [clip.name for clip in clips]
+        self.motions = [normalizer.normalize(clip.motion) for clip in clips]
+        self.lengths = np.array([len(m) for m in self.motions], dtype=np.int64)
+        self.captions = [[c.text for c in clip.captions] for clip in clips]
+        # Per clip, the encoded captions: rows (C, L), POS indices (C, L), lengths (C,).
+        self.tokens: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        for clip in clips:
+            encoded = [vectorizer.token_ids(c.tokens) for c in clip.captions]
+            self.tokens.append(
+                (
+                    np.stack([e[0] for e in encoded]),
+                    np.stack([e[1] for e in encoded]),
+                    np.array([e[2] for e in encoded], dtype=np.int64),
+                )
+            )
+
+    def __len__(self) -> int:
+        return len(self.motions)
+
+    @property
+    def feature_dim(self) -> int:
+        return self.normalizer.dim
+
+    def indices_at_least(self, frames: int) -> np.ndarray:
+        """Indices of the clips with at least ``frames`` frames."""
+        return np.flatnonzero(self.lengths >= frames)
+
+    # -- text ---------------------------------------------------------------------------------
+
+    def text_batch(self, indices: np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        """One random caption per item: ``words`` (B, L, Dw) or (B, L) ids, ``pos`` (B, L, 15),
+        ``text_lengths`` (B,)."""
+        rows, cats, lengths = [], [], []
+        for index in indices:
+            clip_rows, clip_cats, clip_lengths = self.tokens[index]
+            choice = rng.integers(len(clip_lengths))
+            rows.append(clip_rows[choice])
+            cats.append(clip_cats[choice])
+            lengths.append(clip_lengths[choice])
+        return {
+            "words": torch.from_numpy(self.vectorizer.lookup(np.stack(rows))),
+            "pos": torch.from_numpy(pos_onehot(np.stack(cats))),
+            "text_lengths": torch.tensor(lengths, dtype=torch.long),
+        }
+
+    # -- motion -------------------------------------------------------------------------------
+
+    def window_batch(
+        self, indices: np.ndarray, rng: np.random.Generator, frames: int
+    ) -> dict[str, torch.Tensor]:
+        """A random ``frames``-long window of each item: ``motion`` (B, frames, D)."""
+        windows = []
+        for index in indices:
+            motion = self.motions[index]
+            start = rng.integers(0, len(motion) - frames + 1)
+            windows.append(motion[start : start + frames])
+        return {"motion": torch.from_numpy(np.stack(windows))}
+
+    def unit_crop_batch(
+        self, indices: np.ndarray, rng: np.random.Generator
+    ) -> dict[str, torch.Tensor]:
+        """Caption + motion cropped to whole units (the original's evaluation crop), padded.
+
+        Each motion keeps ``T // unit`` units, or one unit fewer with probability 1/3, from a
+        random start, clipped to ``max_frames``; zero-padded to ``max_frames``.
+        Returns the text batch plus ``motion`` (B, max_frames, D) and ``motion_lengths`` (B,).
+        """
+        unit, max_frames = self.config.unit_length, self.config.max_frames
+        batch = self.text_batch(indices, rng)
+        padded = np.zeros((len(indices), max_frames, self.feature_dim), dtype=np.float32)
+        lengths = np.empty(len(indices), dtype=np.int64)
+        for row, index in enumerate(indices):
+            motion = self.motions[index]
+            units = min(len(motion), max_frames) // unit
+            if units > 1 and rng.random() < 1 / 3:
+                units -= 1
+            frames = units * unit
+            start = rng.integers(0, len(motion) - frames + 1)
+            padded[row, :frames] = motion[start : start + frames]
+            lengths[row] = frames
+        batch["motion"] = torch.from_numpy(padded)
+        batch["motion_lengths"] = torch.from_numpy(lengths)
+        return batch
+
+    def length_batch(
+        self, indices: np.ndarray, rng: np.random.Generator
+    ) -> dict[str, torch.Tensor]:
+        """Caption + length class (frames // unit, capped at ``max_frames``): ``length_class`` (B,)."""
+        batch = self.text_batch(indices, rng)
+        frames = np.minimum(self.lengths[indices], self.config.max_frames)
+        batch["length_class"] = torch.from_numpy(frames // self.config.unit_length)
+        return batch
+
+    def fixed_crop_batch(
+        self, indices: np.ndarray, rng: np.random.Generator, frames: int
+    ) -> dict[str, torch.Tensor]:
+        """Caption + a random ``frames``-long crop of each item (all items must be long enough)."""
+        batch = self.text_batch(indices, rng)
+        batch.update(self.window_batch(indices, rng, frames))
+        batch["motion_lengths"] = torch.full((len(indices),), frames, dtype=torch.long)
+        return batch

