@@ -73,7 +73,10 @@ def run_all(names: list[str], quick: bool) -> dict:
             status = "ok"
         except Exception as error:  # one part failing must not hide the others' numbers
             logger.error("benchmark %s failed: %s", name, error)
-            measured = {"error": f"{type(error).__name__}: {error}", "trace": traceback.format_exc()}
+            measured = {
+                "error": f"{type(error).__name__}: {error}",
+                "trace": traceback.format_exc(),
+            }
             status = "failed"
         results["parts"][name] = {
             "status": status,
@@ -105,7 +108,9 @@ def to_markdown(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m t2m.bench", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m t2m.bench", description=__doc__.split("\n\n")[0]
+    )
     parser.add_argument("--only", nargs="*", help=f"parts to run (default: all of {available()})")
     parser.add_argument("--quick", action="store_true", help="fewer repetitions (a smoke run)")
     parser.add_argument("--out", default="bench", help="output folder (default: bench)")
