@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from t2m.config import Config, from_dict
-from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
+from t2m.data.dataset import MotionTextData, epoch_batches
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, seed_init, seed_step
+from t2m.train.runtime import Runtime, seed_init
 from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
 
 logger = logging.getLogger(__name__)
@@ -113,13 +112,8 @@ def train_evaluator(
         batches = epoch_batches(
             len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size
         )
-        bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"eval epoch {epoch + 1}/{stage.epochs}",
-                   disable=not runtime.is_main, leave=False)  # fmt: skip
-        for index in range(progress["epoch_step"], len(batches)):
-            if run.reached_max_steps(stage.max_steps):
-                break
-            seed_step(config.seed, epoch, index, runtime.rank)
-            rng = batch_rng(config.seed, epoch, index, runtime.rank)
+        description = f"eval epoch {epoch + 1}/{stage.epochs}"
+        for index, rng in run.steps(epoch, len(batches), description, stage.max_steps):
             batch = to_device(data.train.unit_crop_batch(batches[index], rng), runtime.device)
             with runtime.autocast():
                 losses = trainable(batch, draw_shift(rng, len(batches[index])))
@@ -127,11 +121,10 @@ def train_evaluator(
                 losses,
                 [p for p in evaluator.parameters() if p.requires_grad],
                 stage.grad_clip,
-                bar,
                 stage.log_every,
                 stage.checkpoint_every,
             )
-        if run.close_epoch(bar, len(batches), stage.max_steps):
+        if run.close_epoch(len(batches), stage.max_steps):
             break
         metrics = validate(trainable, data.val, config, runtime)
         run.log("val", metrics)

@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from t2m.config import Config
-from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
+from t2m.data.dataset import MotionTextData, epoch_batches
 from t2m.models.length import LengthEstimator, length_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, seed_init, seed_step
+from t2m.train.runtime import Runtime, seed_init
 from t2m.train.stage import StageRun, load_stage_data, mean_records, to_device
 
 logger = logging.getLogger(__name__)
@@ -83,13 +82,8 @@ def train_length(
         batches = epoch_batches(
             len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size
         )
-        bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"length epoch {epoch + 1}/{stage.epochs}",
-                   disable=not runtime.is_main, leave=False)  # fmt: skip
-        for index in range(progress["epoch_step"], len(batches)):
-            if run.reached_max_steps(stage.max_steps):
-                break
-            seed_step(config.seed, epoch, index, runtime.rank)
-            rng = batch_rng(config.seed, epoch, index, runtime.rank)
+        description = f"length epoch {epoch + 1}/{stage.epochs}"
+        for index, rng in run.steps(epoch, len(batches), description, stage.max_steps):
             batch = to_device(data.train.length_batch(batches[index], rng), runtime.device)
             with runtime.autocast():
                 losses = trainable(batch)
@@ -97,11 +91,10 @@ def train_length(
                 losses,
                 estimator.parameters(),
                 stage.grad_clip,
-                bar,
                 stage.log_every,
                 stage.checkpoint_every,
             )
-        if run.close_epoch(bar, len(batches), stage.max_steps):
+        if run.close_epoch(len(batches), stage.max_steps):
             break
         metrics = validate(trainable, data.val, config, runtime)
         run.log("val", metrics)

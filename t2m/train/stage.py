@@ -10,16 +10,19 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
+from tqdm import tqdm
 
 from dataset_tools.io import write_json_atomic
 from t2m.config import Config
-from t2m.data.dataset import MotionTextData, load_split
+from t2m.data.dataset import MotionTextData, batch_rng, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import TRAINABLE, WordVectors, build_trainable_vocabulary, load_vectorizer
 from t2m.train.checkpoint import (
@@ -34,7 +37,7 @@ from t2m.train.checkpoint import (
     write_config,
 )
 from t2m.train.logbook import Logbook
-from t2m.train.runtime import Runtime, clip_gradients, unwrap
+from t2m.train.runtime import Runtime, clip_gradients, seed_step, unwrap
 
 logger = logging.getLogger(__name__)
 
@@ -188,12 +191,25 @@ class StageRun:
                 atomic_save(checkpoint, self.dir / "best.pt")
         self.runtime.barrier()
 
+    def steps(
+        self, epoch: int, num_batches: int, description: str, max_steps: int
+    ) -> Iterator[tuple[int, np.random.Generator]]:
+        """The batches of one epoch still to run, from where a resumed run stopped: yields
+        (batch index, the batch's random generator) after seeding torch for that step, and
+        keeps the epoch's progress bar; stops early at ``max_steps``."""
+        self.bar = tqdm(total=num_batches, initial=self.progress["epoch_step"], desc=description,
+                        disable=not self.runtime.is_main, leave=False)  # fmt: skip
+        for index in range(self.progress["epoch_step"], num_batches):
+            if self.reached_max_steps(max_steps):
+                break
+            seed_step(self.config.seed, epoch, index, self.runtime.rank)
+            yield index, batch_rng(self.config.seed, epoch, index, self.runtime.rank)
+
     def optimize(
         self,
         losses: dict[str, torch.Tensor],
         parameters: Any,
         grad_clip: float,
-        bar: Any,
         log_every: int,
         checkpoint_every: int,
         extra: dict[str, Any] | None = None,
@@ -207,17 +223,17 @@ class StageRun:
         self.optimizer.step()
         self.progress["step"] += 1
         self.progress["epoch_step"] += 1
-        bar.update()
+        self.bar.update()
         if self.step % log_every == 0:
             self.log("train", {**losses, **(extra or {})})
-            bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4g}")
+            self.bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4g}")
         if self.step % checkpoint_every == 0:
             self.save()
 
-    def close_epoch(self, bar: Any, num_batches: int, max_steps: int) -> bool:
+    def close_epoch(self, num_batches: int, max_steps: int) -> bool:
         """End an epoch's batches. True when ``max_steps`` cut the epoch short (latest.pt is
         saved so a resume continues mid-epoch); otherwise the counters move to the next epoch."""
-        bar.close()
+        self.bar.close()
         if self.reached_max_steps(max_steps) and self.progress["epoch_step"] < num_batches:
             self.save()
             return True

@@ -17,14 +17,13 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from t2m.config import Config, from_dict
-from t2m.data.dataset import MotionTextData, batch_rng, epoch_batches
+from t2m.data.dataset import MotionTextData, epoch_batches
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
 from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, seed_init, seed_step
+from t2m.train.runtime import Runtime, seed_init
 from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
 
 logger = logging.getLogger(__name__)
@@ -176,13 +175,8 @@ def train_text_to_motion(
             )
             progress["done"] = True
             break
-        bar = tqdm(total=len(batches), initial=progress["epoch_step"], desc=f"t2m epoch {epoch + 1} ({frames} frames)",
-                   disable=not runtime.is_main, leave=False)  # fmt: skip
-        for index in range(progress["epoch_step"], len(batches)):
-            if run.reached_max_steps(stage.max_steps):
-                break
-            seed_step(config.seed, epoch, index, runtime.rank)
-            rng = batch_rng(config.seed, epoch, index, runtime.rank)
+        description = f"t2m epoch {epoch + 1} ({frames} frames)"
+        for index, rng in run.steps(epoch, len(batches), description, stage.max_steps):
             batch = to_device(
                 data.train.fixed_crop_batch(batches[index], rng, frames), runtime.device
             )
@@ -193,12 +187,11 @@ def train_text_to_motion(
                 losses,
                 trainable_parameters,
                 stage.grad_clip,
-                bar,
                 stage.log_every,
                 stage.checkpoint_every,
                 extra={"snippets": snippets},
             )
-        if run.close_epoch(bar, len(batches), stage.max_steps):
+        if run.close_epoch(len(batches), stage.max_steps):
             break
         # 4. end of epoch: validate, then move along the curriculum
         metrics = validate(trainable, data.val, config, runtime, snippets)
