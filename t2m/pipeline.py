@@ -27,7 +27,6 @@ smaller weights are faster.
 from __future__ import annotations
 
 import copy
-import functools
 import logging
 import math
 import warnings
@@ -129,87 +128,6 @@ def _quantized(module: nn.Module) -> nn.Module:
         return quantize_dynamic(copy.deepcopy(module), targets, dtype=torch.qint8)
 
 
-class QuantizedGeneration(nn.Module):
-    """:meth:`TemporalVAE.generate` with every per-step projection in int8.
-
-    ``generate`` reads the prior's and generator's input-Linear weights as raw tensors, split by
-    input part (previous code, attention, latent), so dynamic quantisation cannot reach them and
-    they would stay float32: 2.2 M weights (9 MB) read at every step at paper sizes. Here the same
-    split weights become three Linears (prior and generator rows stacked) that are quantised like
-    the rest. The loop is ``generate``'s own, built from the VAE's own pieces (attention, time
-    codes, recurrent steps, Gaussians, output); a test checks that with float projections it
-    reproduces ``generate``.
-
-    Args:
-        vae: the (float) temporal VAE whose input projections are taken.
-        quantize: int8 projections (False keeps them float, for the equivalence test).
-    """
-
-    def __init__(self, vae: TemporalVAE, quantize: bool = True) -> None:
-        super().__init__()
-        hidden = vae.config.hidden_size
-        weights = vae._split_weights()
-        prior, gen = slice(0, hidden), slice(2 * hidden, 3 * hidden)  # rows of the (3H, .) stacks
-
-        def linear(weight: torch.Tensor, bias: torch.Tensor | None = None) -> nn.Linear:
-            layer = nn.Linear(weight.shape[1], weight.shape[0], bias=bias is not None)
-            layer.weight.data.copy_(weight)
-            if bias is not None:
-                layer.bias.data.copy_(bias)
-            return layer
-
-        with torch.no_grad():
-            projections = nn.ModuleDict({
-                "previous": linear(torch.cat([weights["previous"][prior], weights["previous"][gen]]),
-                                   torch.cat([weights["bias"][prior], weights["bias"][gen]])),
-                "attention": linear(torch.cat([weights["attention"][prior],
-                                               weights["attention"][gen]])),
-                "latent": linear(weights["latent"]),
-            })  # fmt: skip
-        self.projections = _quantized(projections) if quantize else projections
-
-    @torch.no_grad()
-    def forward(
-        self,
-        vae: TemporalVAE,
-        word_features: torch.Tensor,
-        sentence: torch.Tensor,
-        word_mask: torch.Tensor,
-        num_snippets: torch.Tensor,
-        initial_code: torch.Tensor,
-        generator: torch.Generator | None = None,
-    ) -> torch.Tensor:
-        """Codes (B, max(num_snippets), C), zero past each item's length (see ``generate``)."""
-        batch = word_features.shape[0]
-        hidden = vae.config.hidden_size
-        num_snippets = num_snippets.to(word_features.device).long()
-        steps = int(num_snippets.max())
-        if steps >= vae.config.max_snippets or int(num_snippets.min()) < 1:
-            raise ValueError(f"num_snippets must be in 1..{vae.config.max_snippets - 1}")
-        keys, values, bias = vae._context(word_features, word_mask)
-        time_codes = vae._time_codes(num_snippets, steps)
-        noise = torch.randn(batch, steps, vae.config.latent_size, generator=generator,
-                            device=word_features.device, dtype=word_features.dtype)  # fmt: skip
-        h_prior = vae.prior.initial(sentence)
-        h_gen = vae.generator.initial(sentence)
-        previous = initial_code.expand(batch, vae.code_size)
-        codes = []
-        for i in range(steps):
-            attention = vae._attend(h_gen, keys, values, bias)
-            time_code = time_codes[:, i]
-            pre = self.projections["previous"](previous) + self.projections["attention"](attention)
-            pre_prior, pre_gen = pre.split(hidden, dim=-1)  # (B, H) each
-            h_prior = vae.prior.step(pre_prior, time_code, h_prior)
-            prior_mean, prior_logvar = vae.prior_gaussian(h_prior)
-            z = prior_mean + torch.exp(0.5 * prior_logvar) * noise[:, i]
-            h_gen = vae.generator.step(pre_gen + self.projections["latent"](z), time_code, h_gen)
-            previous = vae.output(h_gen)
-            codes.append(previous)
-        stacked = torch.stack(codes, dim=1)  # (B, S, C)
-        valid = torch.arange(steps, device=stacked.device)[None, :] < num_snippets[:, None]
-        return stacked * valid[..., None]
-
-
 class TextToMotion:
     """Trained T2M models ready to turn prompts into motions.
 
@@ -252,9 +170,10 @@ class TextToMotion:
         self.layout = FeatureLayout.for_dim(normalizer.dim)
         vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
-        self.quantized_generation = None
+        # Generation's per-step input projections, int8 copies for the int8 path (None: float).
+        self.projections = None
         if precision == "int8":
-            self.quantized_generation = QuantizedGeneration(vae)
+            self.projections = _quantized(vae.generation_projections())
             vae = _quantized(vae)
         elif precision == "bf16":
             vae = copy.deepcopy(vae).to(torch.bfloat16)
@@ -417,13 +336,8 @@ class TextToMotion:
         words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
         word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
-        generate = (
-            self.vae.generate
-            if self.quantized_generation is None
-            else functools.partial(self.quantized_generation, self.vae)
-        )
-        codes = generate(word_features, sentence, mask, num_snippets.to(self.device),
-                         self.initial_code, generator)  # fmt: skip
+        codes = self.vae.generate(word_features, sentence, mask, num_snippets.to(self.device),
+                                  self.initial_code, generator, self.projections)  # fmt: skip
         normalised = self.decoder(codes.to(self.decoder_dtype)).float()  # (B, 4 S, D)
         features = self.normalizer.denormalize(normalised).cpu().numpy()
         return [features[i, :length] for i, length in enumerate(frames)]

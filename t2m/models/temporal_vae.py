@@ -162,6 +162,28 @@ class Gaussian(nn.Module):
         return self.mean(hidden), self.logvar(hidden)
 
 
+class GenerationProjections(nn.Module):
+    """The three per-step input projections of generation (see
+    :meth:`TemporalVAE.generation_projections`)."""
+
+    def __init__(self, previous: nn.Module, attention: nn.Module, latent: nn.Module):
+        super().__init__()
+        self.previous, self.attention, self.latent = previous, attention, latent
+
+
+def _linear(weight: torch.Tensor, bias: torch.Tensor | None = None) -> nn.Linear:
+    """An ``nn.Linear`` holding (detached copies of) the given weight and bias."""
+    # skip_init: the copy below replaces the weights, so don't pay for a random initialisation.
+    layer = torch.nn.utils.skip_init(nn.Linear, weight.shape[1], weight.shape[0],
+                                     bias=bias is not None, device=weight.device,
+                                     dtype=weight.dtype)  # fmt: skip
+    with torch.no_grad():
+        layer.weight.copy_(weight)
+        if bias is not None:
+            layer.bias.copy_(bias)
+    return layer.requires_grad_(False)
+
+
 class TemporalVAE(nn.Module):
     """Text encoder + prior / posterior / generator with word attention.
 
@@ -227,6 +249,25 @@ class TemporalVAE(nn.Module):
             "current": post[:, c : 2 * c],  # (H, C), posterior only
             "latent": gen[:, c + a :],  # (H, Z), generator only
         }
+
+    def generation_projections(self) -> GenerationProjections:
+        """The prior's and generator's input Linears, split by input part, as modules.
+
+        ``previous`` and ``attention`` stack the prior's rows over the generator's (2H out);
+        ``latent`` is the generator's alone. Built once per sequence; modules (not raw weights)
+        so that dynamic int8 quantisation can reach them.
+        """
+        hidden_size = self.config.hidden_size
+        weights = self._split_weights()
+        rows = torch.cat(
+            [torch.arange(hidden_size), torch.arange(2 * hidden_size, 3 * hidden_size)]
+        )
+        rows = rows.to(weights["bias"].device)
+        return GenerationProjections(
+            _linear(weights["previous"][rows], weights["bias"][rows]),
+            _linear(weights["attention"][rows]),
+            _linear(weights["latent"]),
+        )
 
     def _time_codes(self, num_snippets: torch.Tensor, steps: int) -> torch.Tensor:
         """(B, S, H) encodings of the snippets left before the end: num_snippets - i."""
@@ -354,6 +395,7 @@ class TemporalVAE(nn.Module):
         num_snippets: torch.Tensor,
         initial_code: torch.Tensor,
         generator: torch.Generator | None = None,
+        projections: GenerationProjections | None = None,
     ) -> torch.Tensor:
         """Sample codes from the prior, each item for its own number of snippets.
 
@@ -362,6 +404,8 @@ class TemporalVAE(nn.Module):
             num_snippets: (B,) int, snippets per item (frames // 4), 1 .. max_snippets - 1.
             initial_code: (C,) or (B, C) mean-pose code.
             generator: the source of the latent draws (on the model's device).
+            projections: the per-step input projections of the prior and generator (default:
+                :meth:`generation_projections`, float); an int8 copy of them can be passed in.
 
         Returns: (B, max(num_snippets), C); rows past an item's length are zero.
         """
@@ -371,18 +415,14 @@ class TemporalVAE(nn.Module):
         steps = int(num_snippets.max())  # the one host sync: the loop's length
         if steps >= self.config.max_snippets or int(num_snippets.min()) < 1:
             raise ValueError(f"num_snippets must be in 1..{self.config.max_snippets - 1}")
-        weights = self._split_weights()
+        if projections is None:
+            projections = self.generation_projections()
         keys, values, bias = self._context(word_features, word_mask)
         time_codes = self._time_codes(num_snippets, steps)
         noise = torch.randn(
             batch, steps, self.config.latent_size, generator=generator,
             device=word_features.device, dtype=word_features.dtype,
         )  # fmt: skip
-        prior_weight = weights["previous"][:hidden_size], weights["attention"][:hidden_size]
-        gen_slice = slice(2 * hidden_size, 3 * hidden_size)
-        gen_weight = weights["previous"][gen_slice], weights["attention"][gen_slice]
-        prior_bias, gen_bias = weights["bias"][:hidden_size], weights["bias"][gen_slice]
-
         h_prior = self.prior.initial(sentence)
         h_gen = self.generator.initial(sentence)
         previous = initial_code.expand(batch, self.code_size)
@@ -390,18 +430,13 @@ class TemporalVAE(nn.Module):
         for i in range(steps):
             attention = self._attend(h_gen, keys, values, bias)
             time_code = time_codes[:, i]
-            pre_prior = F.linear(previous, prior_weight[0], prior_bias) + F.linear(
-                attention, prior_weight[1]
-            )
+            # Prior and generator rows in one product each: (B, 2H), split below.
+            pre = projections.previous(previous) + projections.attention(attention)
+            pre_prior, pre_gen = pre.split(hidden_size, dim=-1)
             h_prior = self.prior.step(pre_prior, time_code, h_prior)
             prior_mean, prior_logvar = self.prior_gaussian(h_prior)
             z = prior_mean + torch.exp(0.5 * prior_logvar) * noise[:, i]
-            pre_gen = (
-                F.linear(previous, gen_weight[0], gen_bias)
-                + F.linear(attention, gen_weight[1])
-                + F.linear(z, weights["latent"])
-            )
-            h_gen = self.generator.step(pre_gen, time_code, h_gen)
+            h_gen = self.generator.step(pre_gen + projections.latent(z), time_code, h_gen)
             previous = self.output(h_gen)
             codes.append(previous)
         codes_tensor = torch.stack(codes, dim=1)  # (B, S, C)
