@@ -123,6 +123,7 @@ def run_demo(
     workers: int = 2,
     num_samples: int = 3,
     render: str = "mp4",
+    preset_name: str = "demo",
 ) -> str:
     """Run every step that has no result yet; return the summary text."""
     start = time.perf_counter()
@@ -133,7 +134,7 @@ def run_demo(
         build_dataset(dataset, source, clips, seed, workers)
     report = json.loads((dataset / "build_report.json").read_text(encoding="utf-8"))
     # 2. training
-    status = train_stages(dataset, run_dir, "demo")
+    status = train_stages(dataset, run_dir, preset_name)
     # 3. samples
     sample_prompts(run_dir, out, num_samples, render, seed)
     # 4. evaluation
@@ -176,11 +177,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--preset", default="demo", help="training preset (default demo)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         summary = run_demo(args.dataset, args.source, args.checkpoints, args.out, args.clips,
-                           args.seed, args.workers, args.samples, args.render)  # fmt: skip
+                           args.seed, args.workers, args.samples, args.render, args.preset)  # fmt: skip
     except (RuntimeError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
