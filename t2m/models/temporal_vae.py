@@ -172,16 +172,16 @@ class GenerationProjections(nn.Module):
 
 
 def _linear(weight: torch.Tensor, bias: torch.Tensor | None = None) -> nn.Linear:
-    """An ``nn.Linear`` holding (detached copies of) the given weight and bias."""
+    """An ``nn.Linear`` holding the given (freshly made) weight and bias, detached."""
     # skip_init: the copy below replaces the weights, so don't pay for a random initialisation.
     layer = torch.nn.utils.skip_init(nn.Linear, weight.shape[1], weight.shape[0],
                                      bias=bias is not None, device=weight.device,
                                      dtype=weight.dtype)  # fmt: skip
-    with torch.no_grad():
-        layer.weight.copy_(weight)
-        if bias is not None:
-            layer.bias.copy_(bias)
-    return layer.requires_grad_(False)
+    # The tensors are fresh copies already: adopt them rather than copying again.
+    layer.weight = nn.Parameter(weight.detach(), requires_grad=False)
+    if bias is not None:
+        layer.bias = nn.Parameter(bias.detach(), requires_grad=False)
+    return layer
 
 
 class TemporalVAE(nn.Module):
@@ -257,16 +257,19 @@ class TemporalVAE(nn.Module):
         ``latent`` is the generator's alone. Built once per sequence; modules (not raw weights)
         so that dynamic int8 quantisation can reach them.
         """
-        hidden_size = self.config.hidden_size
-        weights = self._split_weights()
-        rows = torch.cat(
-            [torch.arange(hidden_size), torch.arange(2 * hidden_size, 3 * hidden_size)]
-        )
-        rows = rows.to(weights["bias"].device)
+        c, a = self.code_size, self.config.attention_size
+        prior, gen = self.prior.input, self.generator.input
+        weights = (prior.weight, gen.weight, prior.bias, gen.bias)
+        device_type = prior.weight.device.type
+        if torch.is_autocast_enabled(device_type):
+            dtype = torch.get_autocast_dtype(device_type)
+            weights = tuple(w.to(dtype) for w in weights)
+        prior_w, gen_w, prior_b, gen_b = weights
+        # Only the prior's and generator's rows are copied (the posterior's are not needed).
         return GenerationProjections(
-            _linear(weights["previous"][rows], weights["bias"][rows]),
-            _linear(weights["attention"][rows]),
-            _linear(weights["latent"]),
+            _linear(torch.cat([prior_w[:, :c], gen_w[:, :c]]), torch.cat([prior_b, gen_b])),
+            _linear(torch.cat([prior_w[:, c:], gen_w[:, c : c + a]])),
+            _linear(gen_w[:, c + a :].contiguous()),
         )
 
     def _time_codes(self, num_snippets: torch.Tensor, steps: int) -> torch.Tensor:
