@@ -9,12 +9,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from t2m.config import Config, from_dict
+from t2m.config import Config
 from t2m.data.dataset import MotionTextData, epoch_batches
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.train.checkpoint import build_models
 from t2m.train.runtime import Runtime, seed_init
-from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
+from t2m.train.stage import (
+    StageRun,
+    mean_records,
+    start_on_autoencoder,
+    to_device,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -77,23 +82,10 @@ def train_evaluator(
 ) -> Path:
     """Train stage 4 into ``run_dir/eval`` (needs ``run_dir/ae``); returns that folder."""
     # 1. the frozen autoencoder and its statistics, then the data
-    ae = require_stage(Path(run_dir), "ae", runtime.device)
-    # The encoder is the trained one, whatever this preset says; copy: the caller's config stays.
-    config = from_dict(config.to_dict())
-    config.ae.model = ae.config.ae.model
-    stage = config.eval
-    data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
+    start = start_on_autoencoder(config, dataset_dir, Path(run_dir), runtime.device)
+    ae, config, data, dims = start.ae, start.config, start.data, start.dims
     vectorizer = data.vectorizer
-    dims = {
-        "feature_dim": data.train.feature_dim,
-        "word_dim": vectorizer.dim,
-        "vocab_size": vectorizer.size if vectorizer.trainable else 0,
-        "code_size": ae.config.ae.model.code_size,
-    }
-    if ae.dims["feature_dim"] != dims["feature_dim"]:
-        raise ValueError(
-            f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, the dataset has {dims['feature_dim']}"
-        )
+    stage = config.eval
     # 2. model (frozen encoder copied in), optimizer, resume
     seed_init(config.seed)
     models = build_models("eval", config, dims)

@@ -103,6 +103,42 @@ def require_stage(run_dir: Path, stage: str, device: torch.device) -> Any:
     return load_stage(run_dir, stage, device=device, which="best")
 
 
+@dataclass
+class OnAutoencoder:
+    """What the stages trained on top of the autoencoder (t2m, eval) start from."""
+
+    ae: Any
+    config: Config
+    data: StageData
+    dims: dict[str, int]
+
+
+def start_on_autoencoder(config: Config, dataset_dir: str | Path, run_dir: Path,
+                         device: torch.device) -> OnAutoencoder:  # fmt: skip
+    """Load the trained ``ae`` stage, adopt its model config (on a copy: the caller's config stays),
+    read the data with its statistics, and derive the model sizes; refuse a dataset whose feature
+    dimension differs from the autoencoder's."""
+    from t2m.config import from_dict
+
+    ae = require_stage(run_dir, "ae", device)
+    config = from_dict(config.to_dict())
+    config.ae.model = ae.config.ae.model
+    data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
+    vectorizer = data.vectorizer
+    dims = {
+        "feature_dim": data.train.feature_dim,
+        "word_dim": vectorizer.dim,
+        "vocab_size": vectorizer.size if vectorizer.trainable else 0,
+        "code_size": config.ae.model.code_size,
+    }
+    if ae.dims["feature_dim"] != dims["feature_dim"]:
+        raise ValueError(
+            f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, "
+            f"the dataset has {dims['feature_dim']}"
+        )
+    return OnAutoencoder(ae, config, data, dims)
+
+
 class StageRun:
     """Resume, checkpoints and records of one stage in ``run_dir/<stage>``.
 

@@ -18,13 +18,18 @@ import numpy as np
 import torch
 from torch import nn
 
-from t2m.config import Config, from_dict
+from t2m.config import Config
 from t2m.data.dataset import MotionTextData, epoch_batches
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
 from t2m.train.checkpoint import build_models
 from t2m.train.runtime import Runtime, seed_init
-from t2m.train.stage import StageRun, load_stage_data, mean_records, require_stage, to_device
+from t2m.train.stage import (
+    StageRun,
+    mean_records,
+    start_on_autoencoder,
+    to_device,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -119,24 +124,11 @@ def train_text_to_motion(
     """Train stage 3 into ``run_dir/t2m`` (needs ``run_dir/ae``); returns that folder."""
     unit = config.data.unit_length
     # 1. the trained autoencoder (frozen encoder, decoder to fine-tune) and the data
-    ae = require_stage(Path(run_dir), "ae", runtime.device)
-    # The decoder is the trained one, whatever this preset says; copy: the caller's config stays.
-    config = from_dict(config.to_dict())
-    config.ae.model = ae.config.ae.model
+    start = start_on_autoencoder(config, dataset_dir, Path(run_dir), runtime.device)
+    ae, config, data, dims = start.ae, start.config, start.data, start.dims
+    vectorizer = data.vectorizer
     stage = config.t2m
     autoencoder = ae.models["autoencoder"]
-    data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
-    vectorizer = data.vectorizer
-    dims = {
-        "feature_dim": data.train.feature_dim,
-        "word_dim": vectorizer.dim,
-        "vocab_size": vectorizer.size if vectorizer.trainable else 0,
-        "code_size": config.ae.model.code_size,
-    }
-    if ae.dims["feature_dim"] != dims["feature_dim"]:
-        raise ValueError(
-            f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, the dataset has {dims['feature_dim']}"
-        )
     # 2. models, optimizer (decoder at its own rate), resume
     seed_init(config.seed)
     models = build_models("t2m", config, dims)
