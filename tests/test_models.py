@@ -54,6 +54,14 @@ def test_autoencoder_shapes_and_loss():
         + 0.001 * (codes[:, 1:] - codes[:, :-1]).abs().mean()
     )
     assert torch.allclose(losses["loss"], expected)
+    smooth = autoencoder_loss(reconstruction, motion, codes, reconstruction_loss="smooth_l1")
+    # Huber with beta 1: half the squared error below 1, the error less a half above
+    error = (reconstruction - motion).abs()
+    huber = torch.where(error < 1, 0.5 * error**2, error - 0.5).mean()
+    assert torch.allclose(smooth["reconstruction"], huber)
+    assert torch.allclose(smooth["loss"] - smooth["reconstruction"], expected - losses["reconstruction"])
+    with pytest.raises(ValueError, match="unknown reconstruction loss"):
+        autoencoder_loss(reconstruction, motion, codes, reconstruction_loss="l2")
     with pytest.raises(ValueError, match="multiple of 4"):
         model.encode(torch.randn(1, 10, 263))
 

@@ -56,6 +56,8 @@ def test_presets_round_trip_and_paper_sizes():
         128,
     )
     assert config.eval.margin == 10.0 and config.t2m.kl_weight == 0.01
+    # the original's L1 autoencoder loss at the paper preset, smooth L1 for the small demo models
+    assert config.ae.reconstruction_loss == "l1" and demo().ae.reconstruction_loss == "smooth_l1"
     assert (
         demo().t2m.model.hidden_size < 1024
         and tiny().t2m.model.hidden_size < demo().t2m.model.hidden_size
@@ -75,6 +77,7 @@ def test_overrides_are_validated():
         ("bf16", "maybe", "true/false"),
         ("t2m.model", "1", "is a section"),
         ("t2m.end_snippets", "60", "end_snippets"),
+        ("ae.reconstruction_loss", "l2", "reconstruction_loss must be one of l1, smooth_l1"),
     ]:
         with pytest.raises(ValueError, match=message):
             apply_overrides(tiny(), {key: value})

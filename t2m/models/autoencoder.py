@@ -90,12 +90,19 @@ def autoencoder_loss(
     codes: torch.Tensor,
     sparsity_weight: float = 0.001,
     smoothness_weight: float = 0.001,
+    reconstruction_loss: str = "l1",
 ) -> dict[str, torch.Tensor]:
-    """L1 reconstruction + sparsity (mean |code|) + smoothness (L1 between consecutive codes).
+    """Reconstruction (``"l1"`` or ``"smooth_l1"``) + sparsity (mean |code|) + smoothness (L1
+    between consecutive codes).
 
     Returns a dict with ``loss`` (the weighted total) and its parts.
     """
-    reconstruction_loss = F.l1_loss(reconstruction, target)
+    if reconstruction_loss == "l1":
+        reconstruction_loss = F.l1_loss(reconstruction, target)
+    elif reconstruction_loss == "smooth_l1":
+        reconstruction_loss = F.smooth_l1_loss(reconstruction, target)
+    else:
+        raise ValueError(f"unknown reconstruction loss {reconstruction_loss!r}")
     sparsity = codes.abs().mean()
     smoothness = F.l1_loss(codes[:, 1:], codes[:, :-1])
     total = reconstruction_loss + sparsity_weight * sparsity + smoothness_weight * smoothness

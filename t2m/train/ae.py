@@ -23,18 +23,22 @@ class AutoencoderObjective(nn.Module):
     """The trainable module: a batch of windows -> the loss parts (what DDP wraps)."""
 
     def __init__(
-        self, autoencoder: MovementAutoencoder, sparsity_weight: float, smoothness_weight: float
+        self,
+        autoencoder: MovementAutoencoder,
+        sparsity_weight: float,
+        smoothness_weight: float,
+        reconstruction_loss: str = "l1",
     ):
         super().__init__()
         self.autoencoder = autoencoder
         self.sparsity_weight = sparsity_weight
         self.smoothness_weight = smoothness_weight
+        self.reconstruction_loss = reconstruction_loss
 
     def forward(self, motion: torch.Tensor) -> dict[str, torch.Tensor]:
         reconstruction, codes = self.autoencoder(motion)
-        return autoencoder_loss(
-            reconstruction, motion, codes, self.sparsity_weight, self.smoothness_weight
-        )
+        return autoencoder_loss(reconstruction, motion, codes, self.sparsity_weight,
+                                self.smoothness_weight, self.reconstruction_loss)  # fmt: skip
 
 
 @torch.no_grad()
@@ -73,7 +77,8 @@ def train_autoencoder(
     seed_init(config.seed)
     models = build_models("ae", config, dims)
     autoencoder = models["autoencoder"].to(runtime.device)
-    objective = AutoencoderObjective(autoencoder, stage.sparsity_weight, stage.smoothness_weight)
+    objective = AutoencoderObjective(autoencoder, stage.sparsity_weight, stage.smoothness_weight,
+                                     stage.reconstruction_loss)  # fmt: skip
     optimizer = torch.optim.Adam(autoencoder.parameters(), lr=stage.lr)
     run = StageRun(
         "ae", config, run_dir, runtime, dims, models, optimizer, data.normalizer, None, resume
