@@ -59,7 +59,9 @@ def test_autoencoder_shapes_and_loss():
     error = (reconstruction - motion).abs()
     huber = torch.where(error < 1, 0.5 * error**2, error - 0.5).mean()
     assert torch.allclose(smooth["reconstruction"], huber)
-    assert torch.allclose(smooth["loss"] - smooth["reconstruction"], expected - losses["reconstruction"])
+    assert torch.allclose(
+        smooth["loss"] - smooth["reconstruction"], expected - losses["reconstruction"]
+    )
     with pytest.raises(ValueError, match="unknown reconstruction loss"):
         autoencoder_loss(reconstruction, motion, codes, reconstruction_loss="l2")
     with pytest.raises(ValueError, match="multiple of 4"):
