@@ -251,3 +251,22 @@ def test_sigkill_then_resume_equals_uninterrupted(tiny_dataset, tmp_path):
     lines_a = [json.loads(line)["step"] for line in (whole / "ae" / "metrics.jsonl").open()]
     lines_b = [json.loads(line)["step"] for line in (killed / "ae" / "metrics.jsonl").open()]
     assert lines_a == lines_b
+
+
+def test_autoencoder_stage_uses_the_configured_loss(
+    tiny_dataset, tiny_config, tmp_path, monkeypatch
+):
+    import t2m.train.ae as ae_stage
+
+    seen = []
+    original = ae_stage.autoencoder_loss
+
+    def recording(*args, **kwargs):
+        seen.append(args[5] if len(args) > 5 else kwargs.get("reconstruction_loss", "l1"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(ae_stage, "autoencoder_loss", recording)
+    config = apply_overrides(tiny_config, {"ae.reconstruction_loss": "smooth_l1", "ae.epochs": "1"})
+    run_stage("ae", config, tiny_dataset, tmp_path)
+    assert seen and set(seen) == {"smooth_l1"}
+    assert load_stage(tmp_path, "ae").config.ae.reconstruction_loss == "smooth_l1"
