@@ -269,3 +269,10 @@ def test_temporal_vae_fast_loop_gradients_equal_plain(teacher_forcing):
         a = torch.zeros_like(parameter) if a is None else a
         b = torch.zeros_like(parameter) if b is None else b
         assert torch.allclose(a, b, atol=1e-10), name
+
+
+def test_config_accepts_exactly_the_autoencoder_losses():
+    from t2m.config import RECONSTRUCTION_LOSSES as CONFIG_NAMES
+    from t2m.models.autoencoder import RECONSTRUCTION_LOSSES
+
+    assert tuple(RECONSTRUCTION_LOSSES) == CONFIG_NAMES

@@ -14,6 +14,8 @@ from torch import nn
 from t2m.config import AutoencoderConfig
 
 CONTACT_DIMS = 4
+# The names are the ones ``AEStageConfig.reconstruction_loss`` accepts (t2m.config validates them).
+RECONSTRUCTION_LOSSES = {"l1": F.l1_loss, "smooth_l1": F.smooth_l1_loss}
 
 
 class MovementEncoder(nn.Module):
@@ -97,18 +99,16 @@ def autoencoder_loss(
 
     Returns a dict with ``loss`` (the weighted total) and its parts.
     """
-    if reconstruction_loss == "l1":
-        reconstruction_loss = F.l1_loss(reconstruction, target)
-    elif reconstruction_loss == "smooth_l1":
-        reconstruction_loss = F.smooth_l1_loss(reconstruction, target)
-    else:
+    loss_fn = RECONSTRUCTION_LOSSES.get(reconstruction_loss)
+    if loss_fn is None:
         raise ValueError(f"unknown reconstruction loss {reconstruction_loss!r}")
+    rebuilt = loss_fn(reconstruction, target)
     sparsity = codes.abs().mean()
     smoothness = F.l1_loss(codes[:, 1:], codes[:, :-1])
-    total = reconstruction_loss + sparsity_weight * sparsity + smoothness_weight * smoothness
+    total = rebuilt + sparsity_weight * sparsity + smoothness_weight * smoothness
     return {
         "loss": total,
-        "reconstruction": reconstruction_loss,
+        "reconstruction": rebuilt,
         "sparsity": sparsity,
         "smoothness": smoothness,
     }
