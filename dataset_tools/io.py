@@ -1,38 +1,73 @@
-"""Atomic file writes: a reader never sees a half-written file, a crash leaves the old one."""
+"""Atomic file writes: a reader never sees a half-written file, a crash leaves the old one.
+
+This is the one atomic writer of the project (datasets, checkpoints, renders, exports all use it).
+The temporary file is made beside the target (same file system, so the rename is atomic) and
+given the permissions an ordinary ``open(path, "w")`` would: ``0o666`` less the process umask
+(``tempfile.mkstemp`` alone makes 0600 files, unreadable by other users of a shared machine).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
 
-def _atomic_write(path: str | os.PathLike, write) -> Path:
+def _current_umask() -> int:
+    # os.umask can only be read by setting it; set it back at once.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix) for a writer that wants a file name
+    (a video encoder, ``torch.save``); when the block ends normally it is renamed onto ``path``.
+
+    The parent folder is created. On any error (or interrupt) the temporary file is removed and
+    ``path`` is left as it was. The new file gets mode ``0o666 & ~umask``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+    os.close(handle)
     try:
-        with os.fdopen(handle, "wb") as file:
-            write(file)
+        os.chmod(temp, 0o666 & ~_current_umask())
+        yield Path(temp)
         os.replace(temp, path)
     except BaseException:
         Path(temp).unlink(missing_ok=True)
         raise
-    return path
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> Path:
+    """Call ``write(file)`` on a temporary binary file beside ``path``, then rename it onto
+    ``path`` (see :func:`atomic_output`)."""
+    with atomic_output(path) as temp, open(temp, "wb") as file:
+        write(file)
+    return Path(path)
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically."""
+    return atomic_write(path, lambda file: file.write(data))
 
 
 def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> Path:
     """Write ``array`` to ``path`` (.npy) atomically."""
-    return _atomic_write(path, lambda file: np.save(file, np.asarray(array), allow_pickle=False))
+    return atomic_write(path, lambda file: np.save(file, np.asarray(array), allow_pickle=False))
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     """Write UTF-8 ``text`` to ``path`` atomically."""
-    return _atomic_write(path, lambda file: file.write(text.encode("utf-8")))
+    return write_bytes_atomic(path, text.encode("utf-8"))
 
 
 def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:

@@ -32,13 +32,12 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from dataset_tools.io import write_text_atomic
 from dataset_tools.rotations import qbetween, quat_to_matrix
 from dataset_tools.skeleton import SMPL
 
@@ -415,19 +414,7 @@ def write_bvh(
     error = float(np.linalg.norm(motion.joints() - np.asarray(joints), axis=-1).max())
     logger.debug("BVH %s reproduces the joints to %.1f mm", path, error * 1000)
     text = motion.to_text(units=units)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".bvh", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    write_text_atomic(path, text)
     return motion
 
 

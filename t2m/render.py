@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 import textwrap
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
+from dataset_tools.io import atomic_output
 from dataset_tools.skeleton import SkeletonSpec, skeleton_for
 
 logger = logging.getLogger(__name__)
@@ -212,16 +212,6 @@ def render_frames(
         yield np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
-def _atomic_target(path: Path) -> tuple[int, str]:
-    """A temp file beside ``path`` (same file system, so os.replace is atomic), mode 0666 & ~umask."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600 files; keep the user's usual permissions
-    return fd, tmp
-
-
 def render_animation(
     joints: np.ndarray,
     path: str | os.PathLike,
@@ -254,17 +244,11 @@ def render_animation(
     if config.size_px % 2:
         raise ValueError(f"size_px must be even for video encoding, got {config.size_px}")
     frames = render_frames(joints, caption, fps, skeleton, config)
-    fd, tmp = _atomic_target(path)
-    os.close(fd)
-    try:
+    with atomic_output(path) as tmp:
         if fmt == "mp4":
-            _write_mp4(frames, tmp, fps, config)
+            _write_mp4(frames, str(tmp), fps, config)
         else:
-            _write_gif(frames, tmp, fps)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+            _write_gif(frames, str(tmp), fps)
     logger.debug("wrote %s (%d frames)", path, len(joints))
     return path
 
@@ -353,14 +337,8 @@ def render_keyframes(
         fig.suptitle(wrapped, fontsize=10)
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.88 if caption else 1.0,
                         wspace=0.0)  # fmt: skip
-    fd, tmp = _atomic_target(path)
-    os.close(fd)
-    try:
-        canvas.print_png(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_output(path) as tmp:
+        canvas.print_png(str(tmp))
     return path
 
 

@@ -23,8 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +30,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from dataset_tools.io import atomic_write, write_text_atomic
 from t2m.config import STAGES, Config, from_dict
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors, vectorizer_from_info
@@ -54,34 +53,13 @@ STAGE_MODELS = {
 }
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def atomic_save(obj: Any, path: Path) -> None:
-    """``torch.save`` through a temporary file in the same folder, then ``os.replace``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """``torch.save`` atomically (see :func:`dataset_tools.io.atomic_write`)."""
+    atomic_write(path, lambda file: torch.save(obj, file))
 
 
 def write_config(stage_dir: Path, config: Config) -> None:
-    atomic_write_bytes(stage_dir / "config.json", (config.to_json() + "\n").encode())
+    write_text_atomic(stage_dir / "config.json", config.to_json() + "\n")
 
 
 def read_checkpoint(path: Path) -> dict[str, Any]:

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from t2m.train.checkpoint import atomic_write_bytes
+from dataset_tools.io import write_bytes_atomic
 
 logger = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ class Logbook:
         elif self.path.is_file():
             kept = [line for line in self.path.read_text().splitlines() if line.strip()
                     and json.loads(line).get("step", 0) <= resume_step]  # fmt: skip
-            atomic_write_bytes(self.path, "".join(line + "\n" for line in kept).encode())
+            write_bytes_atomic(self.path, "".join(line + "\n" for line in kept).encode())
 
     def write(self, split: str, step: int, epoch: int, values: dict[str, Any]) -> None:
         if not self.enabled:
@@ -101,4 +101,4 @@ class Logbook:
         buffer = io.BytesIO()
         figure.savefig(buffer, format="png", dpi=80)
         plt.close(figure)
-        atomic_write_bytes(self.curves_path, buffer.getvalue())
+        write_bytes_atomic(self.curves_path, buffer.getvalue())
