@@ -9,7 +9,10 @@ from __future__ import annotations
 import importlib
 import sys
 
-# command -> ("module", "function", one-line help). The function takes argv and returns an exit code.
+from dataset_tools.command import UsageError, command
+
+# command -> ("module", "function", one-line help). The function takes argv and returns an exit
+# code; it is a `dataset_tools.command.command`, so it reports bad input itself.
 COMMANDS: dict[str, tuple[str, str, str]] = {
     "features": ("dataset_tools.cli", "features_main", "joints (T, J, 3) -> features (T-1, D)"),
     "recover": ("dataset_tools.cli", "recover_main", "features (T, D) -> joints (T, J, 3)"),
@@ -29,6 +32,7 @@ def _usage() -> str:
     return "\n".join(lines)
 
 
+@command
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
@@ -36,8 +40,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if argv else 2
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
-        print(f"error: unknown command {name!r}\n{_usage()}", file=sys.stderr)
-        return 2
+        raise UsageError(f"unknown command {name!r} (choose from {', '.join(COMMANDS)})")
     module_name, function_name, _ = COMMANDS[name]
     function = getattr(importlib.import_module(module_name), function_name)
     return int(function(rest) or 0)

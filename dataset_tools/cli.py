@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-import argparse
-import sys
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    option,
+)
 from dataset_tools.io import save_npy_atomic
 from dataset_tools.representation import (
     FeatureLayout,
@@ -19,95 +27,100 @@ from dataset_tools.representation import (
 from dataset_tools.skeleton import skeleton_for
 
 
-class _CliError(Exception):
-    """A bad input, reported as one line with exit code 2."""
+@dataclass
+class FeaturesConfig:
+    """``python -m dataset_tools features``."""
+
+    input: Path = field(metadata=option(positional=True))
+    """joints .npy, shape (T, J, 3)"""
+    output: Path = field(metadata=option(positional=True))
+    """features .npy to write, shape (T-1, 263 or 251)"""
+    target_skeleton: Path | None = field(default=None, metadata=option(metavar="NPY"))
+    """one frame (>= J, 3) whose bone lengths define the target skeleton (default: the HumanML3D
+    target lengths)"""
+    fixed_across: bool = False
+    """use the corrected across vector in inverse kinematics instead of HumanML3D's"""
+    joints_out: Path | None = field(default=None, metadata=option(metavar="NPY"))
+    """also write the recovered joints"""
 
 
-def _load(path: str) -> np.ndarray:
-    file = Path(path)
+@dataclass
+class RecoverConfig:
+    """``python -m dataset_tools recover``."""
+
+    input: Path = field(metadata=option(positional=True))
+    """features .npy, shape (T, 263) or (T, 251)"""
+    output: Path = field(metadata=option(positional=True))
+    """joints .npy to write, shape (T, J, 3)"""
+    method: Literal["ric", "rot"] = "ric"
+    """ric: from joint positions (as HumanML3D); rot: forward kinematics of the 6-D rotations on
+    the target skeleton"""
+
+
+def _load(file: Path) -> np.ndarray:
+    """A finite array from a .npy file the user named; UsageError otherwise."""
     if not file.is_file():
-        raise _CliError(f"no such file: {file}")
+        raise UsageError(f"no such file: {file}")
     try:
         array = np.load(file, allow_pickle=False)
     except (OSError, ValueError) as error:
-        raise _CliError(f"cannot read {file} as a .npy array ({error})") from error
+        raise UsageError(f"cannot read {file} as a .npy array ({error})") from error
+    if not np.issubdtype(array.dtype, np.number):
+        raise UsageError(f"{file} holds {array.dtype} values, not numbers")
     if not np.all(np.isfinite(array)):
-        raise _CliError(f"{file} contains NaN or infinite values")
+        raise UsageError(f"{file} contains NaN or infinite values")
     return array
 
 
-def _run(function, argv: list[str]) -> int:
-    try:
-        function(argv)
-    except (_CliError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def _features(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(
+@command
+def features_main(argv: list[str] | None = None) -> int:
+    parser = CommandParser(
         prog="python -m dataset_tools features",
         description="Joints (T, J, 3), y-up metres at 20 fps (J = 22 SMPL or 21 KIT), to HumanML3D "
         "features (T-1, D): retarget to the target skeleton, canonicalise, extract.",
     )
-    parser.add_argument("input", help="joints .npy, shape (T, J, 3)")
-    parser.add_argument("output", help="features .npy to write, shape (T-1, 263 or 251)")
-    parser.add_argument(
-        "--target-skeleton",
-        metavar="NPY",
-        help="one frame (>= J, 3) whose bone lengths define the target skeleton "
-        "(default: the HumanML3D target lengths)",
-    )
-    parser.add_argument(
-        "--fixed-across",
-        action="store_true",
-        help="use the corrected across vector in inverse kinematics instead of HumanML3D's",
-    )
-    parser.add_argument("--joints-out", metavar="NPY", help="also write the recovered joints")
-    args = parser.parse_args(argv)
-    joints = _load(args.input)
+    add_config_options(parser, FeaturesConfig)
+    config = config_from_args(FeaturesConfig, parser.parse_args(argv))
+    joints = _load(config.input)
     if joints.ndim != 3 or joints.shape[-1] != 3 or joints.shape[1] not in (21, 22):
-        raise _CliError(f"{args.input}: expected joints (T, 22 or 21, 3), got {joints.shape}")
+        raise UsageError(f"{config.input}: expected joints (T, 22 or 21, 3), got {joints.shape}")
+    if len(joints) < 2:
+        raise UsageError(f"{config.input}: need at least 2 frames, got {len(joints)}")
     skeleton = skeleton_for(joints.shape[1])
     offsets = None
-    if args.target_skeleton:
-        offsets = target_offsets_from_example(_load(args.target_skeleton), skeleton)
-    features, recovered = process_motion(joints, skeleton, offsets, compat=not args.fixed_across)
-    save_npy_atomic(args.output, features.astype(np.float32))
-    if args.joints_out:
-        save_npy_atomic(args.joints_out, recovered.astype(np.float32))
+    if config.target_skeleton is not None:
+        example = _load(config.target_skeleton)
+        if example.ndim != 2 or example.shape[0] < skeleton.num_joints or example.shape[1] != 3:
+            raise UsageError(
+                f"{config.target_skeleton}: expected one frame (>= {skeleton.num_joints}, 3), "
+                f"got {example.shape}"
+            )
+        offsets = target_offsets_from_example(example, skeleton)
+    features, recovered = process_motion(joints, skeleton, offsets, compat=not config.fixed_across)
+    save_npy_atomic(config.output, features.astype(np.float32))
+    if config.joints_out is not None:
+        save_npy_atomic(config.joints_out, recovered.astype(np.float32))
+    return 0
 
 
-def _recover(argv: list[str]) -> None:
-    parser = argparse.ArgumentParser(
+@command
+def recover_main(argv: list[str] | None = None) -> int:
+    parser = CommandParser(
         prog="python -m dataset_tools recover",
         description="HumanML3D features (T, 263 or 251) back to joints (T, J, 3), y-up metres.",
     )
-    parser.add_argument("input", help="features .npy, shape (T, 263) or (T, 251)")
-    parser.add_argument("output", help="joints .npy to write, shape (T, J, 3)")
-    parser.add_argument(
-        "--method",
-        choices=("ric", "rot"),
-        default="ric",
-        help="ric: from joint positions (default, as HumanML3D); rot: forward kinematics of the "
-        "6-D rotations on the target skeleton",
-    )
-    args = parser.parse_args(argv)
-    features = _load(args.input)
-    if features.ndim != 2:
-        raise _CliError(f"{args.input}: expected features (T, D), got shape {features.shape}")
-    layout = FeatureLayout.for_dim(features.shape[1])
-    if args.method == "ric":
-        joints = recover_from_ric(features, layout.num_joints)
+    add_config_options(parser, RecoverConfig)
+    config = config_from_args(RecoverConfig, parser.parse_args(argv))
+    features = _load(config.input)
+    dims = {FeatureLayout(joints).dim: joints for joints in (22, 21)}
+    if features.ndim != 2 or features.shape[1] not in dims:
+        raise UsageError(
+            f"{config.input}: expected features (T, 263 or 251), got shape {features.shape}"
+        )
+    num_joints = dims[features.shape[1]]
+    if config.method == "ric":
+        joints = recover_from_ric(features, num_joints)
     else:
-        joints = recover_from_rot(features, skeleton_for(layout.num_joints))
-    save_npy_atomic(args.output, joints.astype(np.float32))
-
-
-def features_main(argv: list[str]) -> int:
-    return _run(_features, argv)
-
-
-def recover_main(argv: list[str]) -> int:
-    return _run(_recover, argv)
+        joints = recover_from_rot(features, skeleton_for(num_joints))
+    save_npy_atomic(config.output, joints.astype(np.float32))
+    return 0

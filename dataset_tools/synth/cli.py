@@ -2,70 +2,88 @@
 
 from __future__ import annotations
 
-import argparse
 import json
-import logging
-import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-
-def _parser_synth() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m dataset_tools synth",
-        description="Write the procedural demo corpus (joints z-up 60 fps, captions, labels) that "
-        "`python -m dataset_tools build --source joints` reads.",
-    )
-    parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--clips", type=int, default=2000, help="number of clips (default 2000)")
-    parser.add_argument("--seed", type=int, default=0, help="corpus seed (default 0)")
-    parser.add_argument(
-        "--heldout-phrasings",
-        action="store_true",
-        help="caption with the held-out templates only (to test generalisation to new wording)",
-    )
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
-    parser.add_argument("--force", action="store_true", help="replace an existing corpus in --out")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    return parser
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+)
 
 
+@dataclass
+class SynthConfig:
+    """``python -m dataset_tools synth``: what :func:`dataset_tools.synth.corpus.write_corpus` writes."""
+
+    out: Path
+    """output folder"""
+    clips: int = 2000
+    """number of clips"""
+    seed: int = 0
+    """corpus seed"""
+    heldout_phrasings: bool = False
+    """caption with the held-out templates only (to test generalisation to new wording)"""
+    workers: int = 1
+    """worker processes"""
+    force: bool = False
+    """replace an existing corpus in --out"""
+    quiet: bool = False
+    """no progress bar"""
+
+
+@dataclass
+class ContactSheetConfig:
+    """``python -m dataset_tools contact-sheet``."""
+
+    input: Path
+    """synth corpus folder or HumanML3D folder"""
+    out: Path
+    """PNG to write"""
+    clips: int = 8
+    """clips to show"""
+    seed: int = 0
+    """which clips"""
+    frames: int = 6
+    """key frames per clip"""
+    azimuth: float = 30.0
+    """camera azimuth in degrees"""
+
+    def __post_init__(self) -> None:
+        if self.clips < 1 or self.frames < 1:
+            raise UsageError("--clips and --frames must be at least 1")
+
+
+@command
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``synth``; returns the exit code (2 on bad input)."""
     from dataset_tools.synth.corpus import write_corpus
 
-    args = _parser_synth().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    try:
-        write_corpus(
-            args.out,
-            args.clips,
-            seed=args.seed,
-            heldout_phrasings=args.heldout_phrasings,
-            workers=args.workers,
-            force=args.force,
-            progress=not args.quiet,
-        )
-    except (ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    return 0
-
-
-def _parser_sheet() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m dataset_tools contact-sheet",
-        description="Render a grid of stick-figure key frames of N random clips of a synth corpus "
-        "(or of any folder of y-up 20 fps HumanML3D new_joints/ with texts/) to PNG.",
+    parser = CommandParser(
+        prog="python -m dataset_tools synth",
+        description="Write the procedural demo corpus (joints z-up 60 fps, captions, labels) that "
+        "`python -m dataset_tools build --source joints` reads.",
     )
-    parser.add_argument("--input", required=True, help="synth corpus folder or HumanML3D folder")
-    parser.add_argument("--out", required=True, help="PNG to write")
-    parser.add_argument("--clips", type=int, default=8, help="clips to show (default 8)")
-    parser.add_argument("--seed", type=int, default=0, help="which clips (default 0)")
-    parser.add_argument("--frames", type=int, default=6, help="key frames per clip (default 6)")
-    parser.add_argument("--azimuth", type=float, default=30.0, help="camera azimuth in degrees")
-    return parser
+    add_config_options(parser, SynthConfig)
+    config = config_from_args(SynthConfig, parser.parse_args(argv))
+    configure_logging()
+    # write_corpus checks its arguments (UsageError) before writing anything.
+    write_corpus(
+        config.out,
+        config.clips,
+        seed=config.seed,
+        heldout_phrasings=config.heldout_phrasings,
+        workers=config.workers,
+        force=config.force,
+        progress=not config.quiet,
+    )
+    return 0
 
 
 def _load_for_sheet(
@@ -78,15 +96,15 @@ def _load_for_sheet(
 
         source = json.loads((folder / "source.json").read_text(encoding="utf-8"))
         if source.get("up", "y") not in ("y", "z"):
-            raise ValueError(f"{folder}/source.json: up must be 'y' or 'z'")
+            raise UsageError(f"{folder}/source.json: up must be 'y' or 'z'")
         files, fps = sorted((folder / "joints").glob("*.npy")), float(source.get("fps", 60))
         convert = z_up_to_y_up if source.get("up") == "z" else np.asarray
     elif (folder / "new_joints").is_dir():
         files, fps, convert = sorted((folder / "new_joints").glob("*.npy")), 20.0, np.asarray
     else:
-        raise ValueError(f"{folder} has neither joints/ with source.json nor new_joints/")
+        raise UsageError(f"{folder} has neither joints/ with source.json nor new_joints/")
     if not files:
-        raise ValueError(f"no clips in {folder}")
+        raise UsageError(f"no clips in {folder}")
     picks = rng.choice(len(files), size=min(count, len(files)), replace=False)
     clips = []
     for i in sorted(picks):
@@ -102,19 +120,20 @@ def _load_for_sheet(
     return clips, fps
 
 
+@command
 def contact_sheet_main(argv: list[str] | None = None) -> int:
     """Entry point of ``contact-sheet``; returns the exit code (2 on bad input)."""
     from dataset_tools.synth.contact_sheet import render_contact_sheet
 
-    args = _parser_sheet().parse_args(argv)
-    try:
-        if args.clips < 1 or args.frames < 1:
-            raise ValueError("--clips and --frames must be at least 1")
-        clips, fps = _load_for_sheet(Path(args.input), args.clips, args.seed)
-        render_contact_sheet(
-            clips, args.out, frames_per_clip=args.frames, azimuth_deg=args.azimuth, fps=fps
-        )
-    except (ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    parser = CommandParser(
+        prog="python -m dataset_tools contact-sheet",
+        description="Render a grid of stick-figure key frames of N random clips of a synth corpus "
+        "(or of any folder of y-up 20 fps HumanML3D new_joints/ with texts/) to PNG.",
+    )
+    add_config_options(parser, ContactSheetConfig)
+    config = config_from_args(ContactSheetConfig, parser.parse_args(argv))
+    clips, fps = _load_for_sheet(config.input, config.clips, config.seed)
+    render_contact_sheet(
+        clips, config.out, frames_per_clip=config.frames, azimuth_deg=config.azimuth, fps=fps
+    )
     return 0

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from dataset_tools.command import UsageError
 from dataset_tools.io import save_npy_atomic, write_json_atomic, write_text_atomic
 from dataset_tools.synth.captions import captions_for
 from dataset_tools.synth.clip import FPS, synthesize_clip
@@ -88,13 +89,14 @@ def write_corpus(
 ) -> dict:
     """Generate ``clips`` clips into ``out`` (layout in the module docstring); returns source.json.
 
-    Raises ValueError for a non-positive clip count or worker count, or when ``out`` already holds
-    a different corpus and ``force`` is not set (a forced write removes the old clips first).
+    Raises UsageError (a ValueError) for a non-positive clip count or worker count, or when
+    ``out`` already holds a corpus and ``force`` is not set (a forced write removes the old clips
+    first); nothing is written then.
     """
     if clips < 1:
-        raise ValueError(f"--clips must be at least 1, got {clips}")
+        raise UsageError(f"--clips must be at least 1, got {clips}")
     if workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {workers}")
+        raise UsageError(f"--workers must be at least 1, got {workers}")
     out = Path(out)
     source = {
         "fps": int(FPS),
@@ -109,7 +111,7 @@ def write_corpus(
     existing = out / "source.json"
     if (out / "joints").exists() or existing.exists():
         if not force:
-            raise ValueError(f"{out} already holds a corpus; pass --force to replace it")
+            raise UsageError(f"{out} already holds a corpus; pass --force to replace it")
         for sub in ("joints", "texts"):
             shutil.rmtree(out / sub, ignore_errors=True)
     (out / "joints").mkdir(parents=True, exist_ok=True)
