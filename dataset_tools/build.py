@@ -10,22 +10,30 @@ splits and ``build_report.json``. A clip that fails is reported with its reason 
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import multiprocessing
 import os
 import platform
-import sys
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from tqdm import tqdm
 
 from dataset_tools import segment, texts
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
+)
 from dataset_tools.io import save_npy_atomic, write_text_atomic
 from dataset_tools.mirror import mirror_caption, mirror_joints
 from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
@@ -45,48 +53,84 @@ CAPTION_CHUNK = 512
 
 @dataclass
 class BuildConfig:
-    """Everything a build needs; ``python -m dataset_tools build --help`` documents each field.
+    """Everything a build needs; each field is an option of ``python -m dataset_tools build``."""
 
-    Attributes:
-        source: "amass", "joints" or "bvh".
-        input_dir: folder of source files (searched recursively for .npz / .bvh; for joints, the
-            folder itself or its ``joints/`` subfolder, or the index's paths relative to it).
-        out_dir: dataset folder to write.
-        texts_dir: caption files ``<clip>.txt``; default ``input_dir/texts`` when it exists.
-        index: ``index.csv`` segmenting the sources (reference-pipeline rules apply).
-        body_model_dir: SMPL-H body models (``male|female|neutral/model.npz``), for AMASS.
-        mapping: BVH joint mapping: a built-in name ("bandai", "cmu_cc") or a JSON file;
-            default: detected from the joint names.
-        fps: frame rate of joint arrays (default: ``source.json``, else 20 with an index).
-        up: up axis of joint arrays, "y" or "z" (default: ``source.json``, else "y").
-        bvh_scale: metres per BVH unit (default: detected, centimetres for human-sized rigs).
-        drop_first_frame: drop a leading T-pose frame of BVH files (default: per mapping).
-        target_skeleton: (>=22, 3) joints of one frame defining target bone lengths (default:
-            the HumanML3D target skeleton built into ``dataset_tools.skeleton``).
-        splits_dir: folder with ``train.txt``, ``val.txt``, ``test.txt`` to reuse.
-        max_seconds: clips longer than this are cropped (seeded) unless an index segments them.
-        workers: processes for the motion work.
-        force: rebuild clips already finished.
-        seed: seeds crops and splits.
-    """
-
-    source: str
-    input_dir: Path
-    out_dir: Path
-    texts_dir: Path | None = None
-    index: Path | None = None
-    body_model_dir: Path | None = None
-    mapping: str | None = None
+    source: str = field(metadata=option(choices=SOURCES))
+    """kind of input files"""
+    input_dir: Path = field(metadata=option("--input", metavar="DIR"))
+    """folder of source files (searched recursively for .npz / .bvh; for joints, the folder itself
+    or its joints/ subfolder, or the index's paths relative to it)"""
+    out_dir: Path = field(metadata=option("--out", metavar="DIR"))
+    """dataset folder to write"""
+    texts_dir: Path | None = field(default=None, metadata=option("--texts", metavar="DIR"))
+    """caption files <clip name>.txt, one caption a line, optionally caption#start#end in seconds
+    (default: INPUT/texts when it exists)"""
+    index: Path | None = field(default=None, metadata=option(metavar="CSV"))
+    """HumanML3D's index.csv segmenting the sources (the reference pipeline's rules apply)"""
+    body_model_dir: Path | None = field(
+        default=None, metadata=option("--body-model", metavar="DIR")
+    )
+    """SMPL-H body models (male|female|neutral/model.npz), for AMASS"""
+    mapping: str | None = field(default=None, metadata=option(metavar="NAME|FILE"))
+    """BVH joint mapping: a built-in name (bandai, cmu_cc, smpl) or a JSON file (default: detected
+    from the joint names)"""
     fps: float | None = None
-    up: str | None = None
-    bvh_scale: float | None = None
-    drop_first_frame: bool | None = None
-    target_skeleton: Path | None = None
-    splits_dir: Path | None = None
+    """frame rate of joint arrays (default: source.json, else 20 with --index)"""
+    up: Literal["y", "z"] | None = None
+    """up axis of joint arrays and BVH files (default: source.json, else y)"""
+    bvh_scale: float | None = field(default=None, metadata=option(metavar="S"))
+    """metres per BVH unit (default: detected from the body size)"""
+    drop_first_frame: bool | None = field(
+        default=None, metadata=option(negative="--keep-first-frame")
+    )
+    """drop a leading BVH T-pose frame (default: per mapping)"""
+    target_skeleton: Path | None = field(default=None, metadata=option(metavar="NPY"))
+    """a (>=22, 3) frame whose bone lengths define the target skeleton (default: HumanML3D's)"""
+    splits_dir: Path | None = field(default=None, metadata=option("--splits", metavar="DIR"))
+    """reuse train/val/test.txt from this folder (default: seeded 80/5/15 by source file)"""
     max_seconds: float = 10.0
+    """crop longer clips (seeded) unless an index segments them"""
     workers: int = 1
+    """parallel processes (the output does not depend on it; the command's default: the CPU
+    cores, at most 8)"""
     force: bool = False
+    """rebuild clips already finished"""
     seed: int = 0
+    """seed for crops and splits"""
+
+    def validate(self) -> None:
+        """Raise UsageError, naming the option, for a configuration that cannot work (cheap:
+        values and the named files; what depends on the source, such as a missing --fps or
+        --body-model, is checked when the build reads its source options)."""
+        if self.source not in SOURCES:
+            raise UsageError(f"unknown --source {self.source!r} (choose from {', '.join(SOURCES)})")
+        if self.workers < 1:
+            raise UsageError(f"--workers must be at least 1, got {self.workers}")
+        for name, value in (
+            ("--max-seconds", self.max_seconds),
+            ("--fps", self.fps),
+            ("--bvh-scale", self.bvh_scale),
+        ):
+            if value is not None and not (np.isfinite(value) and value > 0):
+                raise UsageError(f"{name} must be a positive number, got {value}")
+        if not self.input_dir.is_dir():
+            raise UsageError(f"input folder {self.input_dir} does not exist")
+        for name, folder in (("--texts", self.texts_dir), ("--splits", self.splits_dir)):
+            if folder is not None and not folder.is_dir():
+                raise UsageError(f"{name} folder {folder} does not exist")
+        for name, file in (("--index", self.index), ("--target-skeleton", self.target_skeleton)):
+            if file is not None and not file.is_file():
+                raise UsageError(f"{name} file {file} not found")
+        if self.target_skeleton is not None:
+            try:
+                frame = np.load(self.target_skeleton, allow_pickle=False)
+            except (OSError, ValueError) as error:
+                raise UsageError(f"--target-skeleton {self.target_skeleton}: {error}") from None
+            if frame.ndim != 2 or frame.shape[0] < SMPL.num_joints or frame.shape[1] != 3:
+                raise UsageError(
+                    f"--target-skeleton {self.target_skeleton}: expected one frame "
+                    f"(>= {SMPL.num_joints}, 3), got {frame.shape}"
+                )
 
 
 @dataclass
@@ -433,14 +477,14 @@ def _source_options(config: BuildConfig) -> dict:
         source_config = read_source_config(config.input_dir)
         fps = config.fps or source_config.get("fps") or (DATASET_FPS if config.index else None)
         if fps is None:
-            raise ValueError("--fps is required for joint arrays without a source.json or --index")
+            raise UsageError("--fps is required for joint arrays without a source.json or --index")
         options["fps"] = float(fps)
         options["up"] = config.up or source_config.get("up", "y")
         if options["up"] not in ("y", "z"):
-            raise ValueError(f"up axis must be 'y' or 'z', got {options['up']!r}")
+            raise UsageError(f"up axis must be 'y' or 'z', got {options['up']!r}")
     if config.source == "amass":
         if config.body_model_dir is None or not config.body_model_dir.is_dir():
-            raise ValueError(
+            raise UsageError(
                 "--body-model DIR (with male|female|neutral/model.npz) is required for AMASS"
             )
     if config.source == "bvh":
@@ -636,89 +680,25 @@ def _write_report(out_dir: Path, report: dict) -> None:
 # ----------------------------------------------------------------------------- command line
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+@command
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m dataset_tools build ...``: 0 on success, 1 when no clip was built, 2 on bad input."""
+    parser = CommandParser(
         prog="python -m dataset_tools build",
         description="Build a HumanML3D-layout dataset (new_joint_vecs/, new_joints/, texts/, "
         "Mean.npy, Std.npy, split files, build_report.json) from motion sources.",
     )
-    parser.add_argument("--source", required=True, choices=SOURCES, help="kind of input files")
-    parser.add_argument("--input", required=True, type=Path, help="folder of source files")
-    parser.add_argument("--out", required=True, type=Path, help="dataset folder to write")
-    parser.add_argument("--texts", type=Path, help="caption files <clip>.txt (default INPUT/texts)")
-    parser.add_argument("--index", type=Path, help="index.csv segmenting the sources")
-    parser.add_argument("--body-model", type=Path, help="SMPL-H models folder (AMASS)")
-    parser.add_argument("--mapping", help="BVH joint mapping: bandai, cmu_cc or a JSON file")
-    parser.add_argument("--fps", type=float, help="frame rate of joint arrays")
-    parser.add_argument("--up", choices=("y", "z"), help="up axis of joint arrays / BVH files")
-    parser.add_argument("--bvh-scale", type=float, help="metres per BVH unit (default: detect)")
-    tpose = parser.add_mutually_exclusive_group()
-    tpose.add_argument(
-        "--drop-first-frame",
-        dest="drop_first_frame",
-        action="store_true",
-        default=None,
-        help="drop a leading BVH T-pose frame",
-    )
-    tpose.add_argument(
-        "--keep-first-frame",
-        dest="drop_first_frame",
-        action="store_false",
-        help="keep the first BVH frame",
-    )
-    parser.add_argument(
-        "--target-skeleton", type=Path, help="(>=22, 3) .npy frame giving target bone lengths"
-    )
-    parser.add_argument("--splits", type=Path, help="folder with train/val/test.txt to reuse")
-    parser.add_argument(
-        "--max-seconds", type=float, default=10.0, help="crop longer clips (seeded)"
-    )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=min(os.cpu_count() or 1, 8),
-        help="parallel processes (default: CPU cores, at most 8; the output does not depend on it)",
-    )
-    parser.add_argument("--force", action="store_true", help="rebuild finished clips")
-    parser.add_argument("--seed", type=int, default=0, help="seed for crops and splits")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
-    return parser
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m dataset_tools build ...``: 0 on success, 1 when no clip was built, 2 on bad input."""
-    arguments = _parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.INFO if arguments.verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
-    if arguments.workers < 1 or arguments.max_seconds <= 0:
-        print("error: --workers must be >= 1 and --max-seconds > 0", file=sys.stderr)
-        return 2
-    config = BuildConfig(
-        source=arguments.source,
-        input_dir=arguments.input,
-        out_dir=arguments.out,
-        texts_dir=arguments.texts,
-        index=arguments.index,
-        body_model_dir=arguments.body_model,
-        mapping=arguments.mapping,
-        fps=arguments.fps,
-        up=arguments.up,
-        bvh_scale=arguments.bvh_scale,
-        drop_first_frame=arguments.drop_first_frame,
-        target_skeleton=arguments.target_skeleton,
-        splits_dir=arguments.splits,
-        max_seconds=arguments.max_seconds,
-        workers=arguments.workers,
-        force=arguments.force,
-        seed=arguments.seed,
-    )
+    add_config_options(parser, BuildConfig, defaults={"workers": min(os.cpu_count() or 1, 8)})
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug details")
+    arguments = parser.parse_args(argv)
+    configure_logging(arguments.verbose)
+    config = config_from_args(BuildConfig, arguments)
+    config.validate()
     try:
-        report = build_dataset(config)
-    except (ValueError, RuntimeError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        texts.load_nlp()  # the English spaCy model is an install step: say which, before any work
+    except RuntimeError as error:
+        raise UsageError(str(error)) from None
+    report = build_dataset(config)
     for entry in report["skipped"]:
         logger.warning("skipped %s: %s", entry["name"], entry["reason"])
     print(

@@ -40,7 +40,7 @@ import sys
 import textwrap
 import types
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
@@ -118,10 +118,15 @@ class _Option:
     negative: str | None = None
     positional: bool = False
     metavar: str | None = None
+    choices: tuple | None = None
 
 
 def option(
-    *flags: str, negative: str | None = None, positional: bool = False, metavar: str | None = None
+    *flags: str,
+    negative: str | None = None,
+    positional: bool = False,
+    metavar: str | None = None,
+    choices: Sequence | None = None,
 ) -> dict:
     """Field metadata for an option that is not plain ``--field-name``.
 
@@ -131,10 +136,13 @@ def option(
         negative: for a bool field, the name of the "false" flag instead of ``--no-<name>``.
         positional: a positional argument instead of an option.
         metavar: the placeholder shown in ``--help`` (e.g. ``"DIR"``).
+        choices: the allowed values, when they live in a constant rather than a ``Literal``.
 
     Use as ``input_dir: Path = field(metadata=option("--input", metavar="DIR"))``.
     """
-    return {_METADATA_KEY: _Option(flags, negative, positional, metavar)}
+    return {
+        _METADATA_KEY: _Option(flags, negative, positional, metavar, choices and tuple(choices))
+    }
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -246,6 +254,8 @@ def add_config_options(
             _bool_option(parser, field.name, spec, help_text, None if required else default)
             continue
         keywords = _value_keywords(hint, required)
+        if spec.choices is not None:
+            keywords["choices"] = spec.choices
         if "choices" in keywords:  # shown as a|b|c rather than {a,b,c}
             keywords["metavar"] = "|".join(map(str, keywords["choices"]))
         if spec.metavar is not None:
