@@ -18,7 +18,6 @@ end, so an error leaves nothing half-written. Exit status 2 with a one-line mess
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import os
@@ -27,16 +26,27 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal, get_args
 
 import numpy as np
 
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
+)
 from t2m.pipeline import GeneratedMotion
 
 logger = logging.getLogger("t2m.sample")
 
-RENDER_CHOICES = ("mp4", "gif", "none")
+Render = Literal["mp4", "gif", "none"]
+RENDER_CHOICES = get_args(Render)
 
 
 @dataclass(frozen=True)
@@ -53,9 +63,9 @@ def read_prompt_file(path: str | Path) -> list[Prompt]:
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError as error:
-        raise ValueError(f"cannot read --text-file {path}: {error.strerror or error}") from None
+        raise UsageError(f"cannot read --text-file {path}: {error.strerror or error}") from None
     except UnicodeDecodeError:
-        raise ValueError(f"--text-file {path} is not UTF-8 text") from None
+        raise UsageError(f"--text-file {path} is not UTF-8 text") from None
     prompts = []
     for number, line in enumerate(lines, start=1):
         if not line.strip():
@@ -67,13 +77,14 @@ def read_prompt_file(path: str | Path) -> list[Prompt]:
         try:
             frames = int(suffix.strip())
         except ValueError:
-            raise ValueError(f"{path.name}:{number}: after '#' give a length in frames, "
-                             f"got {suffix.strip()!r}") from None  # fmt: skip
+            raise UsageError(
+                f"{path.name}:{number}: after '#' give a length in frames, got {suffix.strip()!r}"
+            ) from None
         if not text.strip():
-            raise ValueError(f"{path.name}:{number}: empty prompt before '#{suffix.strip()}'")
+            raise UsageError(f"{path.name}:{number}: empty prompt before '#{suffix.strip()}'")
         prompts.append(Prompt(text.strip(), frames))
     if not prompts:
-        raise ValueError(f"--text-file {path} holds no prompt")
+        raise UsageError(f"--text-file {path} holds no prompt")
     return prompts
 
 
@@ -91,10 +102,12 @@ def mdm_results(motions: Sequence[Sequence[GeneratedMotion]], num_repetitions: i
     """The ``results.npy`` dict of the MDM layout from ``motions[prompt][rep]``."""
     flat = [motions[p][r] for r in range(num_repetitions) for p in range(len(motions))]
     max_frames = max(m.num_frames for m in flat)
-    stacked = np.stack([
-        np.pad(m.joints, ((0, max_frames - m.num_frames), (0, 0), (0, 0)), mode="edge")
-        for m in flat
-    ])  # (N, T, J, 3)  # fmt: skip
+    stacked = np.stack(
+        [
+            np.pad(m.joints, ((0, max_frames - m.num_frames), (0, 0), (0, 0)), mode="edge")
+            for m in flat
+        ]
+    )  # (N, T, J, 3)
     return {
         "motion": np.ascontiguousarray(stacked.transpose(0, 2, 3, 1)),  # (N, J, 3, T)
         "text": [m.text for m in flat],
@@ -107,20 +120,23 @@ def mdm_results(motions: Sequence[Sequence[GeneratedMotion]], num_repetitions: i
 def _prepare_out(out: Path, overwrite: bool) -> Path:
     """Check ``out`` can be written and create the hidden temp folder beside it."""
     if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
+        raise UsageError(f"--out {out} exists and is not a folder")
     if out.is_dir() and any(out.iterdir()):
         if not overwrite:
-            raise ValueError(f"--out {out} exists and is not empty (choose another or add "
-                             "--overwrite)")  # fmt: skip
+            raise UsageError(
+                f"--out {out} exists and is not empty (choose another or add --overwrite)"
+            )
         # --overwrite deletes the folder: only ever one that an earlier run wrote.
         if not (out / "results.json").is_file():
-            raise ValueError(f"--overwrite refuses to replace {out}: it holds no results.json, so "
-                             "it is not an earlier sampling output")  # fmt: skip
+            raise UsageError(
+                f"--overwrite refuses to replace {out}: it holds no results.json, so "
+                "it is not an earlier sampling output"
+            )
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     except OSError as error:
-        raise ValueError(f"cannot write to --out {out}: {error.strerror or error}") from None
+        raise UsageError(f"cannot write to --out {out}: {error.strerror or error}") from None
 
 
 def _publish(tmp: Path, out: Path) -> None:
@@ -151,23 +167,32 @@ def sample_to_folder(
 ) -> Path:
     """Generate motions for ``prompts`` with a :class:`t2m.pipeline.TextToMotion` and write every
     file of the output contract into ``out``; returns ``out``. Nothing is left in ``out`` on error.
+
+    Raises UsageError (a ValueError) before any generation for an unusable ``out``, ``render``
+    or ``bvh`` request.
     """
     from t2m.export import write_bvh
     from t2m.pipeline import FPS
     from t2m.render import render_animation
 
     if render not in RENDER_CHOICES:
-        raise ValueError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
+        raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
+    if bvh and pipe.layout.num_joints != 22:
+        raise UsageError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
     out = Path(out).resolve()  # "." has no name to put a temp folder beside
     # 1. where to write (fails early, before any model work)
     tmp = _prepare_out(out, overwrite)
     try:
         # 2. generate
         texts = [p.text for p in prompts]
-        motions = pipe.generate(texts, num_samples=num_samples, lengths=[p.frames for p in prompts],
-                                seed=seed, batch_size=batch_size, progress=True)  # fmt: skip
-        if bvh and motions[0][0].joints.shape[1] != 22:
-            raise ValueError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
+        motions = pipe.generate(
+            texts,
+            num_samples=num_samples,
+            lengths=[p.frames for p in prompts],
+            seed=seed,
+            batch_size=batch_size,
+            progress=True,
+        )
         # 3. per-motion files
         files: list[str] = []
         flat = [m for row in motions for m in row]
@@ -204,102 +229,122 @@ def sample_to_folder(
     return out
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+@dataclass
+class SampleConfig:
+    """``python -m t2m.sample``: what to generate, from which checkpoints, into which folder."""
+
+    text: str | None = None
+    """one prompt, e.g. "a person walks forward and waves" (or --text-file)"""
+    text_file: Path | None = field(default=None, metadata=option(metavar="FILE"))
+    """prompts one a line; 'prompt#FRAMES' fixes that prompt's length"""
+    num_samples: int = field(default=1, metadata=option(metavar="N"))
+    """different motions per prompt"""
+    length: int | None = field(default=None, metadata=option(metavar="FRAMES"))
+    """frames at 20 fps (rounded to 4, clamped to 40..196); default: drawn from the text2length
+    model"""
+    seconds: float | None = field(default=None, metadata=option(metavar="S"))
+    """length in seconds instead of frames"""
+    seed: int = 0
+    """random seed: same seed, same bytes"""
+    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
+    """run folder with the length/ and t2m/ stages"""
+    out: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """output folder (default outputs/<timestamp>/)"""
+    overwrite: bool = False
+    """replace a non-empty --out written by an earlier run"""
+    render: Render = "mp4"
+    """stick-figure animation format, or none"""
+    bvh: bool = False
+    """also write a BVH file per motion"""
+    device: str = "auto"
+    """auto, cpu, cuda or cuda:N (auto: CUDA when present)"""
+    batch_size: int = field(default=32, metadata=option(metavar="N"))
+    """motions generated together"""
+    threads: int = field(default=0, metadata=option(metavar="N"))
+    """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
+    precision: Literal["fp32", "bf16", "int8"] = "fp32"
+    """inference precision (int8 is CPU only)"""
+
+    def __post_init__(self) -> None:
+        if (self.text is None) == (self.text_file is None):
+            raise UsageError("give one of --text and --text-file")
+        if self.text is not None and not self.text.strip():
+            raise UsageError("empty --text: give a sentence describing the motion")
+        if self.length is not None and self.seconds is not None:
+            raise UsageError("give one of --length and --seconds")
+        if self.num_samples < 1 or self.batch_size < 1:
+            raise UsageError("--num-samples and --batch-size must be at least 1")
+        if self.threads < 0:
+            raise UsageError(f"--threads must be >= 0, got {self.threads}")
+
+    def prompts(self) -> list[Prompt]:
+        """The prompts with their lengths in frames (None: drawn by the text2length model)."""
+        from t2m.pipeline import frames_for, frames_for_seconds
+
+        prompts = [Prompt(self.text.strip())] if self.text else read_prompt_file(self.text_file)
+        try:
+            if self.length is not None:
+                default_frames = frames_for(self.length)
+            elif self.seconds is not None:
+                default_frames = frames_for_seconds(self.seconds)
+            else:
+                default_frames = None
+        except ValueError as error:  # frames_for refuses a non-positive length: the user's
+            raise UsageError(str(error)) from None
+        return [Prompt(p.text, default_frames if p.frames is None else p.frames) for p in prompts]
+
+
+@command(interrupted="interrupted; nothing was written")
+def main(argv: list[str] | None = None) -> int:
+    from t2m.pipeline import TextToMotion
+
+    parser = CommandParser(
         prog="python -m t2m.sample",
         description="Generate 3D human motions from text with trained T2M checkpoints.",
     )
-    source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--text", help='one prompt, e.g. "a person walks forward and waves"')
-    source.add_argument(
-        "--text-file", metavar="FILE", help="prompts one a line; 'prompt#FRAMES' fixes a length"
-    )
-    parser.add_argument(
-        "--num-samples", type=int, metavar="N", default=1, help="motions per prompt (default 1)"
-    )
-    length = parser.add_mutually_exclusive_group()
-    length.add_argument("--length", type=int, metavar="FRAMES", help="frames at 20 fps (rounded to 4, 40..196); "
-                        "default: drawn from the text2length model")  # fmt: skip
-    length.add_argument(
-        "--seconds", type=float, metavar="S", help="length in seconds instead of frames"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--checkpoints", default="checkpoints/demo", metavar="DIR",
-                        help="run folder with the length/ and t2m/ stages (default checkpoints/demo)")  # fmt: skip
-    parser.add_argument("--out", metavar="DIR", help="output folder (default outputs/<timestamp>/)")
-    parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
-    parser.add_argument("--render", choices=RENDER_CHOICES, default="mp4",
-                        help="animation format, or none (default mp4)")  # fmt: skip
-    parser.add_argument("--bvh", action="store_true", help="also write a BVH file per motion")
-    parser.add_argument("--device", default="auto",
-                        help="auto, cpu, cuda or cuda:N (default auto: CUDA when present)")  # fmt: skip
-    parser.add_argument(
-        "--batch-size", type=int, default=32, metavar="N", help="motions per batch (default 32)"
-    )
-    parser.add_argument("--precision", choices=("fp32", "bf16", "int8"), default="fp32",
-                        help="inference precision (default fp32; int8 is CPU only)")  # fmt: skip
-    parser.add_argument("--threads", type=int, default=0, metavar="N",
-                        help="torch CPU threads (default 0: torch's choice; 1 is fastest on a "
-                        "busy machine)")  # fmt: skip
+    add_config_options(parser, SampleConfig)
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    return parser
+    arguments = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    configure_logging(arguments.verbose)
+    config = config_from_args(SampleConfig, arguments)
+    # 1. everything the user gave, checked before any model is loaded
+    prompts = config.prompts()
+    out = config.out or Path("outputs") / time.strftime("%Y-%m-%d_%H-%M-%S")
+    _prepare_out(out.resolve(), config.overwrite).rmdir()
+    if config.threads:
+        import torch
 
-
-def main(argv: list[str] | None = None) -> int:
-    from t2m.pipeline import TextToMotion, frames_for, frames_for_seconds
-
-    parser = build_parser()
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(levelname)s %(name)s: %(message)s")  # fmt: skip
+        torch.set_num_threads(config.threads)
+    # 2. the models (the library says what is missing or mismatched, naming the make target)
+    # int8 kernels exist on the CPU only: "auto" means the CPU there.
+    device = "cpu" if config.precision == "int8" and config.device == "auto" else config.device
     try:
-        if args.num_samples < 1 or args.batch_size < 1:
-            raise ValueError("--num-samples and --batch-size must be at least 1")
-        if args.threads < 0:
-            raise ValueError(f"--threads must be >= 0, got {args.threads}")
-        if args.threads:
-            import torch
-
-            torch.set_num_threads(args.threads)
-        if args.text is not None:
-            if not args.text.strip():
-                raise ValueError("empty --text: give a sentence describing the motion")
-            prompts = [Prompt(args.text.strip())]
-        else:
-            prompts = read_prompt_file(args.text_file)
-        if args.length is not None:
-            default_frames = frames_for(args.length)
-        elif args.seconds is not None:
-            default_frames = frames_for_seconds(args.seconds)
-        else:
-            default_frames = None
-        prompts = [Prompt(p.text, p.frames if p.frames is not None else default_frames)
-                   for p in prompts]  # fmt: skip
-        out = Path(args.out or Path("outputs") / time.strftime("%Y-%m-%d_%H-%M-%S"))
-        # Check the output folder before spending time on loading models.
-        _prepare_out(out.resolve(), args.overwrite).rmdir()
-        need_length = any(p.frames is None for p in prompts)
-        # int8 kernels exist on the CPU only: "auto" means the CPU there.
-        device = "cpu" if args.precision == "int8" and args.device == "auto" else args.device
-        pipe = TextToMotion.from_checkpoints(args.checkpoints, device=device,
-                                             precision=args.precision,
-                                             need_length_model=need_length)  # fmt: skip
-        sample_to_folder(
-            pipe, prompts, out, num_samples=args.num_samples, seed=args.seed,
-            batch_size=args.batch_size, render=args.render, bvh=args.bvh,
-            overwrite=args.overwrite,
-            extra_info={"checkpoints": str(args.checkpoints), "precision": args.precision,
-                        "batch_size": args.batch_size},
-        )  # fmt: skip
+        pipe = TextToMotion.from_checkpoints(
+            config.checkpoints,
+            device=device,
+            precision=config.precision,
+            need_length_model=any(p.frames is None for p in prompts),
+        )
+        pipe.prepare([p.text for p in prompts])  # refuses a prompt with no known word
     except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:  # e.g. a full disk while writing: nothing was published
-        print(f"error: {error}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("interrupted; nothing was written", file=sys.stderr)
-        return 130
+        raise UsageError(str(error)) from None
+    # 3. generate and write
+    sample_to_folder(
+        pipe,
+        prompts,
+        out,
+        num_samples=config.num_samples,
+        seed=config.seed,
+        batch_size=config.batch_size,
+        render=config.render,
+        bvh=config.bvh,
+        overwrite=config.overwrite,
+        extra_info={
+            "checkpoints": str(config.checkpoints),
+            "precision": config.precision,
+            "batch_size": config.batch_size,
+        },
+    )
     logger.info("wrote %s", out)
     return 0
 
