@@ -8,7 +8,6 @@ others still run.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import logging
 import os
@@ -17,11 +16,21 @@ import platform
 import sys
 import time
 import traceback
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
+)
 from dataset_tools.io import write_json_atomic, write_text_atomic
 
 logger = logging.getLogger(__name__)
@@ -107,27 +116,34 @@ def to_markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass
+class BenchConfig:
+    """``python -m t2m.bench``."""
+
+    only: tuple[str, ...] = field(default=(), metadata=option(metavar="PART"))
+    """parts to run (default: all of them, see t2m/benchmarks/)"""
+    quick: bool = False
+    """fewer repetitions (a smoke run)"""
+    out: Path = field(default=Path("bench"), metadata=option(metavar="DIR"))
+    """output folder"""
+
+
+@command
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m t2m.bench", description=__doc__.split("\n\n")[0]
-    )
-    parser.add_argument("--only", nargs="*", help=f"parts to run (default: all of {available()})")
-    parser.add_argument("--quick", action="store_true", help="fewer repetitions (a smoke run)")
-    parser.add_argument("--out", default="bench", help="output folder (default: bench)")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    parser = CommandParser(prog="python -m t2m.bench", description=__doc__.split("\n\n")[0])
+    add_config_options(parser, BenchConfig)
+    config = config_from_args(BenchConfig, parser.parse_args(argv))
+    configure_logging()
     names = available()
-    if args.only:
-        unknown = sorted(set(args.only) - set(names))
-        if unknown:
-            print(f"error: unknown benchmark(s) {unknown}; known: {names}", file=sys.stderr)
-            return 2
-        names = [n for n in names if n in args.only]
-    results = run_all(names, args.quick)
-    out = Path(args.out)
-    write_json_atomic(out / "results.json", results)
+    unknown = sorted(set(config.only) - set(names))
+    if unknown:
+        raise UsageError(f"unknown benchmark(s) {', '.join(unknown)}; known: {', '.join(names)}")
+    if config.only:
+        names = [n for n in names if n in config.only]
+    results = run_all(names, config.quick)
+    write_json_atomic(config.out / "results.json", results)
     markdown = to_markdown(results)
-    write_text_atomic(out / "results.md", markdown)
+    write_text_atomic(config.out / "results.md", markdown)
     print(markdown)
     return 0 if all(p["status"] == "ok" for p in results["parts"].values()) else 1
 
