@@ -1,0 +1,217 @@
+"""dataset_tools.command: options generated from config dataclasses, the one error wrapper, the
+one logging setup."""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import pytest
+
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    field_docs,
+    option,
+)
+
+
+@dataclass
+class ToyConfig:
+    """A config with every supported kind of field."""
+
+    name: str
+    """who to greet,
+    over two lines"""
+    times: int = 2
+    """how often"""
+    scale: float | None = None
+    """optional scale"""
+    loud: bool = False
+    """shout"""
+    tidy: bool | None = field(default=None, metadata=option(negative="--messy"))
+    """tidy output"""
+    mode: Literal["a", "b"] = "a"
+    """which mode"""
+    tags: tuple[str, ...] = ()
+    """zero or more tags"""
+    size: tuple[int, int] = (3, 4)
+    """width and height"""
+    folder: Path = field(default=Path("out"), metadata=option("--dir", metavar="DIR"))
+    """where to write"""
+
+    def __post_init__(self) -> None:
+        if self.times < 1:
+            raise UsageError(f"--times must be at least 1, got {self.times}")
+
+
+def _parse(*argv: str) -> ToyConfig:
+    parser = CommandParser(prog="toy")
+    add_config_options(parser, ToyConfig)
+    return config_from_args(ToyConfig, parser.parse_args(list(argv)))
+
+
+@command
+def _toy_main(argv: list[str]) -> int:
+    _parse(*argv)
+    return 0
+
+
+def test_defaults_types_and_values():
+    config = _parse("--name", "x")
+    assert config == ToyConfig(name="x")
+    config = _parse(
+        "--name",
+        "x",
+        "--times",
+        "5",
+        "--scale",
+        "0.5",
+        "--loud",
+        "--messy",
+        "--mode",
+        "b",
+        "--tags",
+        "p",
+        "q",
+        "--size",
+        "7",
+        "8",
+        "--dir",
+        "d",
+    )
+    assert (config.times, config.scale, config.loud, config.tidy) == (5, 0.5, True, False)
+    assert (config.mode, config.tags, config.size, config.folder) == (
+        "b",
+        ("p", "q"),
+        (7, 8),
+        Path("d"),
+    )
+    assert _parse("--name", "x", "--tidy").tidy is True
+    assert _parse("--name", "x", "--loud", "--no-loud").loud is False
+
+
+def test_help_comes_from_the_field_docstrings(capsys):
+    assert field_docs(ToyConfig)["name"] == "who to greet, over two lines"
+    with pytest.raises(SystemExit) as exit_info:
+        _parse("--help")
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--name NAME who to greet, over two lines" in text
+    assert "--times TIMES how often (default: 2)" in text
+    assert "--dir DIR where to write (default: out)" in text
+    assert "--mode a|b which mode" in text and "--messy" in text
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--times", "3"], "required: --name"),
+        (["--name", "x", "--times", "many"], "invalid int value: 'many'"),
+        (["--name", "x", "--mode", "c"], "invalid choice: 'c'"),
+        (["--name", "x", "--size", "1"], "expected 2 arguments"),
+        (["--name", "x", "--tidy", "--messy"], "not allowed with"),
+        (["--name", "x", "--times", "0"], "--times must be at least 1"),
+        (["--name", "x", "--colour", "red"], "unrecognized arguments: --colour red"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
+    assert _toy_main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1
+
+
+def test_programming_errors_keep_their_traceback(capsys):
+    @command
+    def broken(argv: list[str]) -> int:
+        raise ValueError("operands could not be broadcast together")
+
+    with pytest.raises(ValueError, match="broadcast"):
+        broken([])
+    assert capsys.readouterr().err == ""
+
+
+def test_interrupt_and_os_errors(capsys):
+    @command(interrupted="interrupted; continue with --resume")
+    def interrupted(argv: list[str]) -> int:
+        raise KeyboardInterrupt
+
+    @command
+    def disk_full(argv: list[str]) -> None:
+        raise OSError(28, "No space left on device")
+
+    assert interrupted([]) == 130
+    assert capsys.readouterr().err == "interrupted; continue with --resume\n"
+    assert disk_full([]) == 1
+    assert capsys.readouterr().err == "error: [Errno 28] No space left on device\n"
+
+
+def test_usage_error_is_a_value_error_and_defaults_can_be_overridden():
+    assert issubclass(UsageError, ValueError)
+    parser = CommandParser(prog="toy")
+    add_config_options(parser, ToyConfig, defaults={"times": 9})
+    assert config_from_args(ToyConfig, parser.parse_args(["--name", "x"])).times == 9
+
+
+def test_unsupported_field_types_are_refused():
+    @dataclass
+    class Bad:
+        pair: tuple[int, str] = (1, "a")
+
+    with pytest.raises(TypeError, match="one type"):
+        add_config_options(CommandParser(prog="bad"), Bad)
+
+
+def test_only_rank_zero_talks(monkeypatch):
+    root = logging.getLogger()
+    monkeypatch.setattr(root, "handlers", [])
+    monkeypatch.setattr(root, "level", logging.WARNING)
+    monkeypatch.setenv("RANK", "1")
+    configure_logging(verbose=True)
+    assert root.level == logging.WARNING
+    root.handlers = []
+    monkeypatch.setenv("RANK", "0")
+    configure_logging(verbose=True)
+    assert root.level == logging.DEBUG
+    root.handlers = []
+    monkeypatch.delenv("RANK")
+    configure_logging()
+    assert root.level == logging.INFO and len(root.handlers) == 1
+
+
+@pytest.mark.parametrize(
+    ("module", "options"),
+    [
+        (
+            "dataset_tools.build",
+            "--source --input --out --texts --index --body-model --mapping "
+            "--fps --up --bvh-scale --drop-first-frame --keep-first-frame --target-skeleton --splits "
+            "--max-seconds --workers --force --seed",
+        ),
+        (
+            "t2m.sample",
+            "--text --text-file --num-samples --length --seconds --seed --checkpoints "
+            "--out --overwrite --render --bvh --device --batch-size --threads --precision",
+        ),
+        ("dataset_tools.synth.cli", "--out --clips --seed --heldout-phrasings --workers --force"),
+        ("t2m.bench", "--only --quick --out"),
+    ],
+)
+def test_documented_options_are_generated(capsys, module, options):
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = capsys.readouterr().out
+    for name in options.split():
+        assert f"{name} " in text or f"{name}," in text or f"{name}\n" in text, name
+    if module == "t2m.sample":
+        assert "auto, cpu, cuda or cuda:N (auto: CUDA when present) (default: auto)" in " ".join(
+            text.split()
+        )
