@@ -2,13 +2,18 @@
 
 import json
 import math
+import subprocess
+import sys
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from dataset_tools.synth.scoring import SemanticScorer, find_corpus_labels
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip
+from t2m.evaluate.__main__ import main
 
 EMBED = 16
 NOISE = 0.5
@@ -153,12 +158,11 @@ def test_standard_settings_have_no_deviation():
 
 
 def test_cli_rejects_bad_input(tmp_path, capsys):
-    assert evaluate.main(["--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]) == 2
+    assert evaluate.main is main  # the package still offers the command
+    assert main(["--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "\n" not in err
-    code = evaluate.main(
-        ["--dataset", str(tmp_path), "--checkpoints", str(tmp_path), "--replications", "0"]
-    )
+    code = main(["--dataset", str(tmp_path), "--checkpoints", str(tmp_path), "--replications", "0"])
     assert code == 2
 
 
@@ -191,7 +195,7 @@ def test_tiny_end_to_end_evaluation(tiny_run, tiny_dataset, tmp_path, capsys):
     # The tiny test split has 6 clips; "all" holds one full pool of 32 items.
     args = ["--dataset", str(tiny_dataset), "--checkpoints", str(tiny_run), "--split", "all"]
     args += ["--replications", "2", "--mm-texts", "4", "--mm-samples", "10", "--out", str(out)]
-    assert evaluate.main(args) == 0
+    assert main(args) == 0
     summary = json.loads((out / "results.json").read_text())
     assert summary["num_items"] == 32 and not summary["standard_protocol"]
     assert "split = all (standard: test)" in summary["deviations"]
@@ -231,7 +235,7 @@ def _corpus_items(count: int):
 
 def test_semantic_scorer_recovers_corpus_labels_and_rejects_wrong_ones():
     labels, names, features, mirrored = _corpus_items(8)
-    scorer = evaluate.SemanticScorer(labels)
+    scorer = SemanticScorer(labels)
     right = scorer(names, features)
     assert right["all"] >= 0.75 and right["segments"] >= 0.8
     assert set(right) >= {"all", "segments"} and any(k.startswith("action_") for k in right)
@@ -249,14 +253,28 @@ def test_corpus_labels_are_found_through_the_build_report(tmp_path):
     source, dataset = tmp_path / "source", tmp_path / "dataset"
     source.mkdir()
     dataset.mkdir()
-    assert evaluate.find_corpus_labels(dataset) is None
-    (source / "labels.json").write_text(json.dumps({"fps": 60, "clips": {}}))
+    assert find_corpus_labels(dataset) is None
+    assert evaluate.find_scorer(dataset) is None
+    labels = {"fps": 60, "clips": {"clip": {"frames": 60, "segments": []}}}
+    (source / "labels.json").write_text(json.dumps(labels))
     (source / "source.json").write_text(json.dumps({"generator": "dataset_tools.synth"}))
     report = {"config": {"input_dir": str(source)}}
     (dataset / "build_report.json").write_text(json.dumps(report))
-    assert evaluate.find_corpus_labels(dataset) == source / "labels.json"
+    assert find_corpus_labels(dataset) == source / "labels.json"
+    # The evaluation finds the corpus' scorer through the plug-in, loaded with those labels.
+    scorer = evaluate.find_scorer(dataset)
+    assert isinstance(scorer, SemanticScorer) and scorer.clips == labels["clips"]
     (source / "source.json").write_text(json.dumps({"generator": "someone else"}))
-    assert evaluate.find_corpus_labels(dataset) is None
+    assert find_corpus_labels(dataset) is None
+    assert evaluate.find_scorer(dataset) is None
+
+
+def test_corpus_scoring_needs_neither_torch_nor_t2m():
+    code = (
+        "import sys, dataset_tools.synth.scoring; "
+        "assert not {'torch', 't2m'} & set(sys.modules), sorted(sys.modules)"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).parents[1])
 
 
 def test_semantic_accuracy_reaches_the_table():

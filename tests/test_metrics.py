@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 import torch
 
-from t2m import metrics
+from t2m.evaluate import metrics
 
 
 def _random_covariance(rng: np.random.Generator, dim: int) -> np.ndarray:

@@ -203,7 +203,7 @@ def run(quick: bool = False) -> dict:
     )
     replications = 2 if quick else 20
     config = evaluate.EvalConfig(replications=replications)
-    semantic = evaluate.SemanticScorer.for_dataset(DEMO_DATASET) if real_demo else None
+    semantic = evaluate.find_scorer(DEMO_DATASET) if real_demo else None
     start = time.perf_counter()
     result = evaluate.run_protocol(clips, backend, config, semantic=semantic)
     elapsed = time.perf_counter() - start

@@ -1,0 +1,116 @@
+"""Scoring motions against the demo corpus' labels: the corpus' plug-in for the evaluation.
+
+A dataset built from a corpus written by ``dataset_tools.synth`` still knows, through the corpus'
+``labels.json``, which actions (with side, direction, ...) each clip performs, and the corpus'
+detectors (:mod:`dataset_tools.synth.detectors`) recognise those labels from joints alone. So a
+motion generated for an item's caption can be checked for the item's labels: the *semantic
+accuracy* that ``python -m t2m.evaluate`` adds to its table when :func:`scorer_for` returns a
+scorer. Numpy only; the evaluation finds this module by name (``t2m.evaluate.protocol``'s
+``SCORER_PLUGINS``) and calls :func:`scorer_for`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dataset_tools.representation import FeatureLayout, recover_from_ric
+from dataset_tools.synth.corpus import GENERATOR
+from dataset_tools.synth.detectors import clip_matches, mirror_label
+
+logger = logging.getLogger(__name__)
+
+
+def find_corpus_labels(dataset_dir: str | Path) -> Path | None:
+    """The demo corpus' ``labels.json`` behind a built dataset, or None.
+
+    Looked for in the dataset folder itself, then in the source folder its ``build_report.json``
+    names, which must be a corpus written by ``dataset_tools.synth`` (its ``source.json`` says so).
+    """
+    dataset_dir = Path(dataset_dir)
+    if (dataset_dir / "labels.json").is_file():
+        return dataset_dir / "labels.json"
+    report_path = dataset_dir / "build_report.json"
+    if not report_path.is_file():
+        return None
+    try:
+        report = json.loads(report_path.read_text(encoding="utf-8"))
+        source_dir = Path(report["config"]["input_dir"])
+        source = json.loads((source_dir / "source.json").read_text(encoding="utf-8"))
+    except (OSError, KeyError, TypeError, json.JSONDecodeError):
+        return None
+    labels = source_dir / "labels.json"
+    if source.get("generator") != GENERATOR or not labels.is_file():
+        return None
+    return labels
+
+
+class SemanticScorer:
+    """Semantic accuracy on the demo corpus: do the corpus' own detectors find an item's labels?
+
+    An item counts as right when every labelled segment of its source clip is recovered from the
+    joints (the motion is cut in proportion to the segments' frames, see
+    :func:`~dataset_tools.synth.detectors.clip_matches`); mirrored clips (``M`` prefix) are
+    checked against the mirrored labels. Sub-clips with their own time range are not scored.
+
+    Args:
+        labels: the content of ``labels.json`` (``{"fps", "clips": {name: {"frames",
+            "segments"}}}``).
+        fps: frame rate of the dataset's motions.
+    """
+
+    def __init__(self, labels: dict[str, Any], fps: float = 20.0):
+        self.clips = labels["clips"]
+        self.fps = fps
+
+    def segments_for(self, name: str) -> list[dict] | None:
+        """The ground-truth segments of a dataset clip name, or None when it has none."""
+        if "#" in name:  # a captioned sub-clip: its labels are not known
+            return None
+        if name in self.clips:
+            return self.clips[name]["segments"]
+        if name.startswith("M") and name[1:] in self.clips:
+            return [mirror_label(segment) for segment in self.clips[name[1:]]["segments"]]
+        return None
+
+    def __call__(self, names: Sequence[str], motions: Sequence[np.ndarray]) -> dict[str, float]:
+        """Raw features (T_i, D) of the named items -> ``all`` (items fully right),
+        ``segments`` (segments right) and ``action_<name>`` (segments of that action right)."""
+        items_right, items, per_action = 0, 0, {}
+        for name, motion in zip(names, motions, strict=True):
+            segments = self.segments_for(name)
+            if segments is None:
+                continue
+            base = name[1:] if name not in self.clips else name
+            joints = recover_from_ric(motion, FeatureLayout.for_dim(motion.shape[-1]).num_joints)
+            matched = clip_matches(joints, self.fps, segments, self.clips[base]["frames"])
+            items += 1
+            items_right += all(matched)
+            for segment, ok in zip(segments, matched, strict=True):
+                tally = per_action.setdefault(segment["action"], [0, 0])
+                tally[0] += ok
+                tally[1] += 1
+        if items == 0:
+            return {}
+        scores = {"all": items_right / items}
+        scores["segments"] = sum(t[0] for t in per_action.values()) / sum(
+            t[1] for t in per_action.values()
+        )
+        for action, (right, total) in sorted(per_action.items()):
+            scores[f"action_{action}"] = right / total
+        return scores
+
+
+def scorer_for(dataset_dir: str | Path) -> SemanticScorer | None:
+    """The evaluation's plug-in hook: a scorer when the dataset was built from the demo corpus,
+    else None."""
+    path = find_corpus_labels(dataset_dir)
+    if path is None:
+        return None
+    logger.info("semantic accuracy from the corpus labels in %s", path)
+    return SemanticScorer(json.loads(path.read_text(encoding="utf-8")))

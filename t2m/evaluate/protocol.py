@@ -1,0 +1,437 @@
+"""The evaluation protocol of Guo et al. (CVPR 2022), Table 2, on any :class:`Backend`.
+
+This module owns the settings (:class:`EvalConfig`, the standard protocol and the quick mode),
+drawing the test items, the replications and the metric rows (:func:`run_protocol`), and the
+plug-in interface through which a dataset's own scorer (:class:`Scorer`, :func:`find_scorer`)
+adds semantic accuracy to the rows. Formulas are in :mod:`t2m.evaluate.metrics`, the summary and
+the table in :mod:`t2m.evaluate.report`, the trained models in :mod:`t2m.evaluate.backend`.
+
+The protocol, per replication (each with its own seed):
+
+1. Every test item (a clip, or a captioned sub-clip) gets one of its captions at random and a crop
+   to whole 4-frame units (one unit fewer with probability 1/3) from a random start, in a random
+   order; rows that do not fill a last pool of 32 are left out. Such a draw is made four times:
+   the reference real motions (their embedding statistics are the FID reference), the "Real
+   motions" row, and the captions of the two generated rows.
+2. "Ours (ground-truth length)" generates one motion per item at the item's cropped length;
+   "Ours (sampled length)" lets the text2length model draw each length.
+3. Per row, on the evaluator's embeddings: R-precision top 1/2/3 (pools of 32; each caption
+   ranks the pool's motions, as the original code does), FID against the reference, MM-Dist,
+   Diversity (300 pairs). MultiModality (generated rows only): the first ``mm_texts`` items of
+   the row's draw get ``mm_samples`` generations each (the row's own generation is the first),
+   10 pairs per caption.
+4. Each metric is reported as mean and 95% interval ``1.96 sigma / sqrt(replications)``.
+
+Unlike the original, generation is batched. When the dataset comes with a scorer (the procedural
+demo corpus does: ``dataset_tools.synth.scoring``), a row also reports semantic accuracy: how
+often the corpus' own label detectors recover an item's labels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from tqdm import tqdm
+
+from t2m.data.dataset import Caption, Clip
+from t2m.evaluate import metrics
+from t2m.evaluate.backend import Backend
+
+REAL = "Real motions"
+GT_LENGTH = "Ours (ground-truth length)"
+SAMPLED_LENGTH = "Ours (sampled length)"
+ROWS = (REAL, GT_LENGTH, SAMPLED_LENGTH)
+
+METRICS = (
+    "r_precision_top1",
+    "r_precision_top2",
+    "r_precision_top3",
+    "fid",
+    "mm_dist",
+    "diversity",
+    "multimodality",
+)
+# Kept in results.json only: R-precision with each motion ranking the pool's captions.
+EXTRA_METRICS = (
+    "r_precision_motion_query_top1",
+    "r_precision_motion_query_top2",
+    "r_precision_motion_query_top3",
+)
+
+
+@dataclass
+class EvalConfig:
+    """Settings of one evaluation; the defaults are the standard protocol.
+
+    Each field's docstring is its command-line help.
+    """
+
+    split: str = "test"
+    """Split file of the dataset to evaluate on (``<split>.txt``)."""
+    replications: int = 20
+    """Independent repetitions, each regenerating everything with its own seed (3 with quick)."""
+    mm_texts: int = 100
+    """Captions used for MultiModality (16 with quick)."""
+    mm_samples: int = 30
+    """Generations per MultiModality caption (10 with quick)."""
+    pool_size: int = metrics.R_PRECISION_BATCH_SIZE
+    """R-precision pool: each caption ranks its motion among pool_size motions."""
+    diversity_pairs: int = metrics.DIVERSITY_PAIRS
+    """Random pairs of motions whose mean distance is the Diversity."""
+    mm_pairs: int = metrics.MULTIMODALITY_PAIRS
+    """Random pairs of generations per caption whose mean distance is the MultiModality."""
+    max_items: int | None = None
+    """Evaluate at most this many items of the split (None: all of it; 128 with quick)."""
+    batch_size: int = 128
+    """Items per generation / embedding forward pass (speed only; raise it on a GPU)."""
+    num_threads: int = 0
+    """Torch CPU threads (0: torch's choice). On a small shared CPU, 1 is often fastest."""
+    seed: int = 0
+    """Seed of replication 0; each replication derives its own from it."""
+    device: str = "cpu"
+    """Torch device of the models (cpu, cuda, auto, ...)."""
+    which: str = "best"
+    """Checkpoint of each stage: best or latest."""
+    precision: str = "fp32"
+    """Generator precision (fp32, bf16, int8; others than fp32 are marked as deviations); the
+    evaluator always runs in float32."""
+    quick: bool = False
+    """Development run: few replications on a subset, marked as such in every output."""
+
+
+STANDARD = EvalConfig()
+
+# What --quick changes; explicit command-line values win.
+QUICK_SETTINGS = {"replications": 3, "max_items": 128, "mm_texts": 16, "mm_samples": 10}
+
+
+def quick_config(config: EvalConfig) -> EvalConfig:
+    """The config with the quick-mode reductions applied (never raising a value)."""
+    changes: dict[str, Any] = {"quick": True}
+    for key, value in QUICK_SETTINGS.items():
+        current = getattr(config, key)
+        changes[key] = value if current is None else min(current, value)
+    return dataclasses.replace(config, **changes)
+
+
+def deviations(config: EvalConfig, num_items: int) -> list[str]:
+    """Human-readable differences between the effective settings and the standard protocol."""
+    notes = []
+    if config.quick:
+        notes.append(
+            "QUICK MODE: development run on a subset, not comparable with published numbers"
+        )
+    for key in (
+        "split",
+        "replications",
+        "mm_texts",
+        "mm_samples",
+        "pool_size",
+        "mm_pairs",
+        "precision",
+    ):
+        value, standard = getattr(config, key), getattr(STANDARD, key)
+        if value != standard:
+            notes.append(f"{key} = {value} (standard: {standard})")
+    if config.max_items is not None:
+        notes.append(
+            f"only {num_items} items of the split evaluated (max_items = {config.max_items})"
+        )
+    pairs = min(config.diversity_pairs, num_items)
+    if pairs != STANDARD.diversity_pairs:
+        notes.append(f"diversity over {pairs} pairs (standard: {STANDARD.diversity_pairs})")
+    return notes
+
+
+# ----------------------------------------------------------------------------------------------
+# drawing the test items
+
+
+@dataclass(frozen=True)
+class Draw:
+    """One pass over the test items: which item, caption and crop each row uses.
+
+    Attributes (all (N,) int64): ``items`` indices into the clips, ``captions`` index of the
+    caption within the clip, ``starts`` first frame, ``lengths`` frames (multiples of the unit).
+    """
+
+    items: np.ndarray
+    captions: np.ndarray
+    starts: np.ndarray
+    lengths: np.ndarray
+
+    def caption_list(self, clips: Sequence[Clip]) -> list[Caption]:
+        return [clips[i].captions[c] for i, c in zip(self.items, self.captions, strict=True)]
+
+    def motion_list(self, clips: Sequence[Clip]) -> list[np.ndarray]:
+        """The cropped raw features, (lengths[k], D) each."""
+        return [
+            clips[i].motion[s : s + n]
+            for i, s, n in zip(self.items, self.starts, self.lengths, strict=True)
+        ]
+
+
+def draw_items(
+    clips: Sequence[Clip],
+    num_rows: int,
+    rng: np.random.Generator,
+    unit_length: int = 4,
+    max_frames: int = 196,
+    candidates: np.ndarray | None = None,
+) -> Draw:
+    """Draw ``num_rows`` distinct items in random order, a caption and a unit crop for each.
+
+    Items come from ``candidates`` (indices into ``clips``; default: all clips). The crop keeps
+    ``min(T, max_frames) // unit`` units, one fewer with probability 1/3 (the original
+    evaluation loader's rule), from a uniformly random start.
+    """
+    candidates = np.arange(len(clips)) if candidates is None else np.asarray(candidates)
+    if num_rows > len(candidates):
+        raise ValueError(f"cannot draw {num_rows} items from {len(candidates)} clips")
+    items = candidates[rng.permutation(len(candidates))[:num_rows]]
+    captions = np.empty(num_rows, dtype=np.int64)
+    starts = np.empty(num_rows, dtype=np.int64)
+    lengths = np.empty(num_rows, dtype=np.int64)
+    for row, index in enumerate(items):
+        clip = clips[index]
+        captions[row] = rng.integers(len(clip.captions))
+        units = min(len(clip.motion), max_frames) // unit_length
+        if units > 1 and rng.random() < 1 / 3:
+            units -= 1
+        if units < 1:
+            raise ValueError(f"clip {clip.name} is shorter than one {unit_length}-frame unit")
+        lengths[row] = units * unit_length
+        starts[row] = rng.integers(0, len(clip.motion) - lengths[row] + 1)
+    return Draw(items.astype(np.int64), captions, starts, lengths)
+
+
+# ----------------------------------------------------------------------------------------------
+# scorers: what a dataset itself can tell about the motions of a row
+
+
+class Scorer(Protocol):
+    """Scores motions against what the dataset knows of its items (e.g. the demo corpus' labels)."""
+
+    def __call__(self, names: Sequence[str], motions: Sequence[np.ndarray]) -> dict[str, float]:
+        """Item names and their motions as raw features (T_i, D) -> accuracies by name: ``all``
+        is tabled as semantic accuracy, ``action_<name>`` listed per action, others kept in
+        results.json. Empty when none of the items can be scored."""
+        ...
+
+
+SCORER_PLUGINS = ("dataset_tools.synth.scoring",)
+"""Modules that define ``scorer_for(dataset_dir: Path) -> Scorer | None``, asked in this order."""
+
+
+def find_scorer(dataset_dir: str | Path) -> Scorer | None:
+    """The scorer of the first plug-in that knows the dataset in ``dataset_dir``, else None."""
+    for module in SCORER_PLUGINS:
+        scorer = importlib.import_module(module).scorer_for(Path(dataset_dir))
+        if scorer is not None:
+            return scorer
+    return None
+
+
+# ----------------------------------------------------------------------------------------------
+# the protocol
+
+# Random streams of replication ``rep``: numpy generators seeded with [seed, rep, stream] draw the
+# items and the metrics' pairs; generation seeds derive from [seed, rep, row, stream].
+DRAW_STREAM, METRIC_STREAM = 1, 2
+GENERATION_STREAM, MULTIMODALITY_STREAM = 0, 1
+
+
+@dataclass
+class ProtocolResult:
+    """Per row, per metric, the value of each replication; plus timings and settings."""
+
+    values: dict[str, dict[str, list[float]]]
+    semantic: dict[str, dict[str, list[float]]]
+    num_items: int
+    num_available: int
+    config: EvalConfig
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+
+class _Timer:
+    """Accumulates wall time per kind of work: ``timer("embed_s", fn, *args)`` calls ``fn``."""
+
+    def __init__(self, *keys: str):
+        self.seconds = dict.fromkeys(keys, 0.0)
+
+    def __call__(self, key: str, fn: Callable[..., Any], *args: Any) -> Any:
+        start = time.perf_counter()
+        out = fn(*args)
+        self.seconds[key] += time.perf_counter() - start
+        return out
+
+
+def _seed(*keys: int) -> int:
+    """A 63-bit seed derived from integer keys (stable across platforms)."""
+    return int(np.random.default_rng(list(keys)).integers(2**63 - 1))
+
+
+def _row_metrics(
+    text: np.ndarray,
+    motion: np.ndarray,
+    reference: metrics.GaussianStats,
+    config: EvalConfig,
+    rng: np.random.Generator,
+) -> dict[str, float]:
+    top = metrics.r_precision(text, motion, 3, config.pool_size, query="text")
+    by_motion = metrics.r_precision(text, motion, 3, config.pool_size, query="motion")
+    motion_stats = metrics.gaussian_statistics(motion)
+    return {
+        "r_precision_top1": float(top[0]),
+        "r_precision_top2": float(top[1]),
+        "r_precision_top3": float(top[2]),
+        "r_precision_motion_query_top1": float(by_motion[0]),
+        "r_precision_motion_query_top2": float(by_motion[1]),
+        "r_precision_motion_query_top3": float(by_motion[2]),
+        "fid": metrics.frechet_distance(
+            motion_stats.mean, motion_stats.covariance, reference.mean, reference.covariance
+        ),
+        "mm_dist": metrics.multimodal_distance(text, motion),
+        "diversity": metrics.diversity(
+            motion, num_pairs=min(config.diversity_pairs, len(motion)), rng=rng
+        ),
+    }
+
+
+def _multimodality(
+    backend: Backend,
+    captions: list[Caption],
+    lengths: np.ndarray | None,
+    first_generation: np.ndarray,
+    config: EvalConfig,
+    seed: int,
+    rng: np.random.Generator,
+    timer: _Timer,
+) -> float:
+    """MultiModality of the first ``mm_texts`` rows: their own generation plus
+    ``mm_samples - 1`` more each, generated in one batched call."""
+    num_texts = min(config.mm_texts, len(captions))
+    extra = config.mm_samples - 1
+    repeated = [captions[k] for k in range(num_texts) for _ in range(extra)]
+    repeated_lengths = None if lengths is None else np.repeat(lengths[:num_texts], extra)
+    generated = timer("generate_s", backend.generate, repeated, repeated_lengths, seed)
+    more = timer("embed_s", backend.embed_motions, generated)
+    more = more.reshape(num_texts, extra, -1)  # (C, S - 1, E)
+    samples = np.concatenate([first_generation[:num_texts, None], more], axis=1)  # (C, S, E)
+    return metrics.multimodality(
+        samples, num_pairs=min(config.mm_pairs, config.mm_samples), rng=rng
+    )
+
+
+def run_protocol(
+    clips: Sequence[Clip],
+    backend: Backend,
+    config: EvalConfig,
+    unit_length: int = 4,
+    max_frames: int = 196,
+    semantic: Scorer | None = None,
+) -> ProtocolResult:
+    """Run ``config.replications`` replications of the protocol on ``clips`` (raw features).
+
+    ``semantic`` (see :func:`find_scorer`) adds its scores of every row's motions. Returns the
+    per-replication values; :func:`~t2m.evaluate.report.summarize` turns them into means and
+    intervals.
+    """
+    if config.replications < 1:
+        raise ValueError(f"replications must be >= 1, got {config.replications}")
+    if config.mm_samples < 2 or config.mm_texts < 1:
+        raise ValueError("MultiModality needs mm_texts >= 1 and mm_samples >= 2")
+    available = len(clips) if config.max_items is None else min(len(clips), config.max_items)
+    num_items = (available // config.pool_size) * config.pool_size
+    if num_items == 0:
+        raise ValueError(
+            f"the {config.split} split has {len(clips)} usable items; R-precision needs at least "
+            f"one pool of {config.pool_size}"
+        )
+    values = {
+        row: {
+            name: [] for name in METRICS + EXTRA_METRICS if row != REAL or name != "multimodality"
+        }
+        for row in ROWS
+    }
+    semantic_values: dict[str, dict[str, list[float]]] = {row: {} for row in ROWS}
+    timed = _Timer("generate_s", "embed_s", "metrics_s", "semantic_s")
+
+    def add_semantic(row: str, draw: Draw, motions: Sequence[np.ndarray]) -> None:
+        if semantic is None:
+            return
+        names = [clips[i].name for i in draw.items]
+        scores = timed("semantic_s", semantic, names, motions)
+        for key, value in scores.items():
+            semantic_values[row].setdefault(key, []).append(float(value))
+
+    total_start = time.perf_counter()
+    for rep in tqdm(range(config.replications), desc="replications", unit="rep"):
+        rng = np.random.default_rng([config.seed, rep, DRAW_STREAM])
+        metric_rng = np.random.default_rng([config.seed, rep, METRIC_STREAM])
+
+        # A subset (max_items) is drawn once per replication, so that the reference, the real
+        # row and the generated rows all describe the same clips.
+        candidates = None if available == len(clips) else rng.permutation(len(clips))[:available]
+        new_draw = functools.partial(
+            draw_items, clips, num_items, rng, unit_length, max_frames, candidates
+        )
+
+        reference_draw = new_draw()
+        reference = metrics.gaussian_statistics(
+            timed("embed_s", backend.embed_motions, reference_draw.motion_list(clips))
+        )
+
+        real_draw = new_draw()
+        real_motions = real_draw.motion_list(clips)
+        text = timed("embed_s", backend.embed_texts, real_draw.caption_list(clips))
+        motion = timed("embed_s", backend.embed_motions, real_motions)
+        row = timed("metrics_s", _row_metrics, text, motion, reference, config, metric_rng)
+        for name, value in row.items():
+            values[REAL][name].append(value)
+        add_semantic(REAL, real_draw, real_motions)
+
+        for variant, row_name in enumerate((GT_LENGTH, SAMPLED_LENGTH)):
+            draw = new_draw()
+            captions = draw.caption_list(clips)
+            lengths = draw.lengths if row_name == GT_LENGTH else None
+            generated = timed(
+                "generate_s",
+                backend.generate,
+                captions,
+                lengths,
+                _seed(config.seed, rep, variant, GENERATION_STREAM),
+            )
+            text = timed("embed_s", backend.embed_texts, captions)
+            motion = timed("embed_s", backend.embed_motions, generated)
+            row = timed("metrics_s", _row_metrics, text, motion, reference, config, metric_rng)
+            row["multimodality"] = _multimodality(
+                backend,
+                captions,
+                lengths,
+                motion,
+                config,
+                _seed(config.seed, rep, variant, MULTIMODALITY_STREAM),
+                metric_rng,
+                timed,
+            )
+            for name, value in row.items():
+                values[row_name][name].append(value)
+            add_semantic(row_name, draw, generated)
+    timings = dict(timed.seconds, total_s=time.perf_counter() - total_start)
+    return ProtocolResult(
+        values=values,
+        semantic=semantic_values,
+        num_items=num_items,
+        num_available=len(clips),
+        config=config,
+        timings_s=timings,
+    )

@@ -1,0 +1,146 @@
+"""Reporting an evaluation: the summary (results.json), the table (results.md) and writing both.
+
+:func:`summarize` turns the per-replication values of a
+:class:`~t2m.evaluate.protocol.ProtocolResult` into mean and 95% interval per row and metric, with
+the settings and every deviation from the standard protocol; :func:`format_markdown` renders it
+like Table 2 of Guo et al.; :func:`write_results` writes both files atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from dataset_tools.io import write_json_atomic, write_text_atomic
+from t2m.evaluate import metrics
+from t2m.evaluate.protocol import METRICS, ROWS, ProtocolResult, deviations
+
+# Column headings of results.md.
+COLUMN_TITLES = {
+    "r_precision_top1": "R-precision top 1 ↑",
+    "r_precision_top2": "R-precision top 2 ↑",
+    "r_precision_top3": "R-precision top 3 ↑",
+    "fid": "FID ↓",
+    "mm_dist": "MM-Dist ↓",
+    "diversity": "Diversity →",
+    "multimodality": "MultiModality ↑",
+    "semantic_accuracy": "Semantic accuracy ↑",
+}
+
+
+def summarize(result: ProtocolResult) -> dict[str, Any]:
+    """The results.json content: settings, deviations, and per row/metric mean, interval, values."""
+    rows: dict[str, dict[str, Any]] = {}
+    for row in ROWS:
+        rows[row] = {}
+        for name, series in result.values[row].items():
+            mean, interval = metrics.confidence_interval(series)
+            rows[row][name] = {"mean": mean, "interval": interval, "values": series}
+        for name, series in result.semantic[row].items():
+            mean, interval = metrics.confidence_interval(series)
+            key = "semantic_accuracy" if name == "all" else f"semantic_accuracy_{name}"
+            rows[row][key] = {"mean": mean, "interval": interval, "values": series}
+    return {
+        "quick": result.config.quick,
+        "standard_protocol": not deviations(result.config, result.num_items),
+        "deviations": deviations(result.config, result.num_items),
+        "settings": dataclasses.asdict(result.config),
+        "num_items": result.num_items,
+        "num_items_available": result.num_available,
+        "rows": rows,
+        "timings_s": result.timings_s,
+    }
+
+
+def _cell(entry: dict[str, float] | None, digits: int = 3) -> str:
+    if entry is None:
+        return "-"
+    return f"{entry['mean']:.{digits}f} ±{entry['interval']:.{digits}f}"
+
+
+def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
+    """Per-action semantic accuracy (segments of that action recovered), one column per row."""
+    prefix = "semantic_accuracy_action_"
+    actions = sorted(
+        {
+            key[len(prefix) :]
+            for row in ROWS
+            for key in summary["rows"][row]
+            if key.startswith(prefix)
+        }
+    )
+    if not actions:
+        return []
+    lines = [
+        "Segments recovered, per action:",
+        "",
+        "| Action | " + " | ".join(ROWS) + " |",
+        "|---|" + "---|" * len(ROWS),
+    ]
+    for action in actions:
+        cells = [_cell(summary["rows"][row].get(prefix + action)) for row in ROWS]
+        lines.append(f"| {action} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evaluation") -> str:
+    """The results table (like Table 2 of Guo et al.) with a header that cannot be misread."""
+    lines = [f"# {title}", ""]
+    if summary["quick"]:
+        lines += [
+            "> **QUICK MODE — development numbers on a subset with few replications; do not "
+            "compare them with published results.**",
+            "",
+        ]
+    settings = summary["settings"]
+    lines.append(
+        f"Split `{settings['split']}`: {summary['num_items']} items evaluated "
+        f"(of {summary['num_items_available']} usable), {settings['replications']} replications, "
+        f"seed {settings['seed']}. Each cell is mean ±95% interval (1.96 σ / √replications)."
+    )
+    lines.append("")
+    if summary["deviations"]:
+        lines.append("Deviations from the standard protocol:")
+        lines += [f"- {note}" for note in summary["deviations"]]
+    else:
+        lines.append("Standard protocol (Guo et al. 2022).")
+    lines.append("")
+    columns = list(METRICS)
+    if any("semantic_accuracy" in summary["rows"][row] for row in ROWS):
+        columns.append("semantic_accuracy")
+    lines.append("| Method | " + " | ".join(COLUMN_TITLES[c] for c in columns) + " |")
+    lines.append("|---|" + "---|" * len(columns))
+    for row in ROWS:
+        cells = [_cell(summary["rows"][row].get(c)) for c in columns]
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"R-precision: each caption ranks the {settings['pool_size']} motions of its pool by "
+        "embedding distance (the original evaluation code's orientation; each motion ranking the "
+        "captions is in results.json as r_precision_motion_query_*). FID: against real motions "
+        "re-drawn every replication. MM-Dist: distance between a motion and its caption. "
+        "Diversity: mean distance of random pairs of motions (closer to the real row is better). "
+        f"MultiModality: {settings['mm_texts']} captions x {settings['mm_samples']} generations, "
+        f"{settings['mm_pairs']} pairs each.",
+    ]
+    if "semantic_accuracy" in columns:
+        lines.append(
+            "Semantic accuracy: fraction of motions whose ground-truth labels (action, side, "
+            "direction) the demo corpus' detectors recover from the joints."
+        )
+        lines += ["", *_semantic_breakdown(summary)]
+    timings = summary.get("timings_s", {})
+    if "total_s" in timings:
+        lines += ["", f"Wall time: {timings['total_s']:.1f} s."]
+    return "\n".join(lines) + "\n"
+
+
+def write_results(summary: dict[str, Any], out_dir: str | Path) -> tuple[Path, Path]:
+    """Write ``results.json`` and ``results.md`` into ``out_dir`` (atomically)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path, md_path = out_dir / "results.json", out_dir / "results.md"
+    write_json_atomic(json_path, summary)
+    write_text_atomic(md_path, format_markdown(summary))
+    return json_path, md_path
