@@ -126,12 +126,16 @@ def test_tagging_matches_full_pipeline():
 def test_format_and_parse_lines(tmp_path):
     tokens = ("a/DET", "person/NOUN", "jump/VERB")
     caption = Caption("a person jumps", start=1.0, end=2.5)
-    line = humanml3d.format_caption_line(caption, [("a", "DET"), ("person", "NOUN"), ("jump", "VERB")])
+    line = humanml3d.format_caption_line(
+        caption, [("a", "DET"), ("person", "NOUN"), ("jump", "VERB")]
+    )
     assert line == "a person jumps#a/DET person/NOUN jump/VERB#1.0#2.5"
     parsed = humanml3d.parse_caption_line(line, tagged=True)
     assert parsed == Caption("a person jumps", tokens, 1.0, 2.5)
     assert humanml3d.format_caption_line(parsed) == line  # tokens carried by the caption
-    assert humanml3d.format_caption_line(Caption("x", start=1.25, end=3.0), []).endswith("#1.25#3.0")
+    assert humanml3d.format_caption_line(Caption("x", start=1.25, end=3.0), []).endswith(
+        "#1.25#3.0"
+    )
     assert humanml3d.parse_caption_line("walks#0#0") == Caption("walks")
     assert humanml3d.parse_caption_line("walks#w/VERB#nan#nan").whole_clip  # as in the release
     with pytest.raises(ValueError, match="empty caption"):
@@ -161,7 +165,9 @@ def test_layout_names_splits_and_statistics(tmp_path):
     assert humanml3d.features_path(tmp_path, "a") == tmp_path / "new_joint_vecs" / "a.npy"
     assert humanml3d.joints_path(tmp_path, "a") == tmp_path / "new_joints" / "a.npy"
     assert humanml3d.texts_path(tmp_path, "a") == tmp_path / "texts" / "a.txt"
-    humanml3d.write_splits(tmp_path, {"train": ["b", "a"], "val": ["c"], "test": []}, ["c", "a", "b"])
+    humanml3d.write_splits(
+        tmp_path, {"train": ["b", "a"], "val": ["c"], "test": []}, ["c", "a", "b"]
+    )
     assert humanml3d.read_split(tmp_path, "train") == ["b", "a"]
     assert humanml3d.read_split(tmp_path, "train_val") == ["a", "b", "c"]
     assert humanml3d.read_split(tmp_path, "all") == ["a", "b", "c"]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dataset_tools.skeleton import SMPL
 from dataset_tools.bvh import motion_from_joints, read_bvh, rest_directions, write_bvh
+from dataset_tools.skeleton import SMPL
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 REFERENCE_JOINTS = SHARED / "reference" / "humanml3d" / "new_joints" / "012314.npy"

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dataset_tools.bvh import euler_to_matrix, forward_kinematics, local_transforms, parse_bvh, read_bvh
+from dataset_tools.bvh import (
+    euler_to_matrix,
+    forward_kinematics,
+    local_transforms,
+    parse_bvh,
+    read_bvh,
+)
 from dataset_tools.rotations import to_y_up, z_up_to_y_up
 from dataset_tools.skeleton import SMPL
 from dataset_tools.sources import ClipError

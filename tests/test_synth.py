@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dataset_tools.rotations import y_up_to_z_up, z_up_to_y_up
 from dataset_tools.synth import captions as caption_module
 from dataset_tools.synth.body import DOF, NUM_DOFS, make_body, mirror_dofs, sample_body
 from dataset_tools.synth.captions import captions_for
 from dataset_tools.synth.cli import contact_sheet_main, main
 from dataset_tools.synth.clip import MAX_SECONDS, MIN_SECONDS, synthesize_action, synthesize_clip
-from dataset_tools.rotations import y_up_to_z_up, z_up_to_y_up
 from dataset_tools.synth.corpus import load_clip, make_clip, write_corpus
 from dataset_tools.synth.motions import ACTIONS
 
