@@ -131,8 +131,11 @@ def _count_above(signal: np.ndarray, high: float, low: float) -> int:
 
 
 def _leg_length(joints: np.ndarray) -> float:
-    lengths = SMPL.bone_lengths_of(joints)
-    return float(np.median(0.5 * (lengths[:, 4] + lengths[:, 5] + lengths[:, 7] + lengths[:, 8])))
+    """Median over frames of the mean hip-to-ankle length (thigh + shin) of the two legs."""
+    lengths = SMPL.bone_lengths_of(joints)  # (T, J): the bone ending at each joint
+    left, right = _SIDES["left"], _SIDES["right"]
+    thighs = lengths[:, left["knee"]] + lengths[:, right["knee"]]
+    return float(np.median(0.5 * (thighs + lengths[:, left["ankle"]] + lengths[:, right["ankle"]])))
 
 
 def _swing_extent(signal: np.ndarray, fps: float) -> tuple[float, int]:
