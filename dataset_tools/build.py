@@ -5,26 +5,27 @@
 seeded) -> mirror -> retarget, canonicalise, features (:func:`process_motion`) -> write
 ``new_joint_vecs/`` and ``new_joints/``; captions are tagged with spaCy in batches and written
 last, so a clip whose ``texts/`` files exist is finished and a re-run skips it. Then Mean/Std,
-splits and ``build_report.json``. A clip that fails is reported with its reason and skipped.
+splits and ``build_report.json`` (file names: :mod:`dataset_tools.humanml3d`). A clip whose data
+is unusable (:class:`~dataset_tools.sources.ClipError`, or an unreadable file) is reported with its
+reason and skipped; any other error stops the build.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import multiprocessing
 import os
 import platform
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from tqdm import tqdm
 
-from dataset_tools import segment, texts
+from dataset_tools import humanml3d, segment, texts
 from dataset_tools.command import (
     CommandParser,
     UsageError,
@@ -34,11 +35,12 @@ from dataset_tools.command import (
     configure_logging,
     option,
 )
-from dataset_tools.io import save_npy_atomic, write_text_atomic
+from dataset_tools.humanml3d import Caption, mirror_name
+from dataset_tools.io import save_npy_atomic, write_json_atomic, write_text_atomic
 from dataset_tools.mirror import mirror_caption, mirror_joints
 from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
 from dataset_tools.skeleton import SMPL
-from dataset_tools.sources import ClipTask, Motion
+from dataset_tools.sources import ClipError, ClipTask, Motion
 from dataset_tools.stats import FeatureStats, mean_and_pooled_std
 
 logger = logging.getLogger(__name__)
@@ -143,7 +145,7 @@ class ClipResult:
     frames: int = 0
     source_frames: int = 0
     source_fps: float = 0.0
-    captions: list[texts.Caption] = field(default_factory=list)
+    captions: list[Caption] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -164,13 +166,7 @@ class _WorkerContext:
 def output_paths(out_dir: Path, name: str) -> list[Path]:
     """Every file a finished clip has (texts last: they are written after the motions)."""
     return [
-        out_dir / folder / f"{clip}{suffix}"
-        for clip in (name, "M" + name)
-        for folder, suffix in (
-            ("new_joint_vecs", ".npy"),
-            ("new_joints", ".npy"),
-            ("texts", ".txt"),
-        )
+        path for clip in (name, mirror_name(name)) for path in humanml3d.clip_files(out_dir, clip)
     ]
 
 
@@ -260,7 +256,7 @@ def load_motion(path: str, options: dict) -> Motion:
     if path in _LOADED:
         return _LOADED[path]
     if not Path(path).is_file():
-        raise ValueError("source file not found")
+        raise ClipError("source file not found")
     suffix = Path(path).suffix.lower()
     if suffix == ".npz":
         from dataset_tools.sources.amass import load_amass
@@ -300,21 +296,31 @@ def _cut(task: ClipTask, joints: np.ndarray, context: _WorkerContext) -> tuple[n
     return cropped, start / DATASET_FPS
 
 
-def read_captions(task: ClipTask) -> list[texts.Caption]:
-    """The task's caption file, else captions from the source's own labels (Bandai-Namco BVH)."""
+def read_captions(task: ClipTask) -> list[Caption]:
+    """The task's caption file, else captions from the source's own labels (Bandai-Namco BVH).
+
+    Raises ClipError when there is neither or the caption file is unusable.
+    """
     if task.caption_path is not None and Path(task.caption_path).is_file():
-        return texts.read_caption_file(task.caption_path)
+        try:
+            return texts.read_caption_file(task.caption_path)
+        except ValueError as error:  # not UTF-8, empty, or a malformed line
+            raise ClipError(str(error)) from error
     if Path(task.path).suffix.lower() == ".bvh":
         from dataset_tools.sources.bvh import label_captions
 
         labelled = label_captions(task.path)
         if labelled:
-            return [texts.Caption(text) for text in labelled]
-    raise ValueError("no caption file")
+            return [Caption(text) for text in labelled]
+    raise ClipError("no caption file")
 
 
 def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
-    """Turn one task into its two clips (plain and mirrored) on disk; captions are returned."""
+    """Turn one task into its two clips (plain and mirrored) on disk; captions are returned.
+
+    A clip whose data is unusable (ClipError) or whose file cannot be read (OSError) comes back
+    with ``error`` set; anything else is a bug and propagates.
+    """
     result = ClipResult(name=task.name, path=task.path)
     clock = time.perf_counter()
     try:
@@ -323,41 +329,40 @@ def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
         result.source_frames, result.source_fps = len(motion.joints), motion.fps
         if not np.isfinite(motion.joints).all():
             bad = int((~np.isfinite(motion.joints)).any(axis=(1, 2)).sum())
-            raise ValueError(f"{bad} frame(s) contain NaN or inf")
+            raise ClipError(f"{bad} frame(s) contain NaN or inf")
         if not (np.isfinite(motion.fps) and motion.fps > 0):
-            raise ValueError(f"bad frame rate {motion.fps}")
+            raise ClipError(f"bad frame rate {motion.fps}")
         joints = segment.resample(motion.joints, motion.fps, DATASET_FPS)
         result.seconds["load"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
         joints, offset = _cut(task, joints, context)
         if len(joints) < 2:
-            raise ValueError(f"only {len(joints)} frame(s) at {DATASET_FPS:g} fps; need at least 2")
+            raise ClipError(f"only {len(joints)} frame(s) at {DATASET_FPS:g} fps; need at least 2")
         captions = texts.shift_captions(captions, offset, (len(joints) - 1) / DATASET_FPS)
         if not captions:
-            raise ValueError("no caption falls inside the clip")
+            raise ClipError("no caption falls inside the clip")
         mirrored = mirror_joints(joints)[:, :22]
         outputs = {}
-        for name, clip in ((task.name, joints[:, :22]), ("M" + task.name, mirrored)):
+        for name, clip in ((task.name, joints[:, :22]), (mirror_name(task.name), mirrored)):
             features, recovered = process_motion(clip, SMPL, context.target_offsets)
             if not (np.isfinite(features).all() and np.isfinite(recovered).all()):
-                raise ValueError("features came out non-finite")
+                raise ClipError("features came out non-finite")
             outputs[name] = (features, recovered)
         result.seconds["features"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
         for name, (features, recovered) in outputs.items():
             save_npy_atomic(
-                context.out_dir / "new_joint_vecs" / f"{name}.npy", features.astype(np.float32)
+                humanml3d.features_path(context.out_dir, name), features.astype(np.float32)
             )
             save_npy_atomic(
-                context.out_dir / "new_joints" / f"{name}.npy", recovered.astype(np.float32)
+                humanml3d.joints_path(context.out_dir, name), recovered.astype(np.float32)
             )
         result.seconds["write"] = time.perf_counter() - clock
         result.frames = len(outputs[task.name][0])
         result.captions = captions
-    # One clip's failure must not stop the build: whatever went wrong is recorded as its reason.
-    except Exception as error:  # noqa: BLE001
+    except (ClipError, OSError) as error:
         result.error = str(error) or type(error).__name__
     return result
 
@@ -371,26 +376,22 @@ def _process_star(arguments: tuple[ClipTask, _WorkerContext]) -> ClipResult:
 
 def write_captions(out_dir: Path, results: Sequence[ClipResult]) -> None:
     """Tag the captions of finished clips (and their mirrors) in one spaCy pass and write texts/."""
-    jobs: list[tuple[str, list[texts.Caption]]] = []
+    jobs: list[tuple[str, list[Caption]]] = []
     for result in results:
         jobs.append((result.name, result.captions))
-        mirrored = [texts.Caption(mirror_caption(c.text), c.start, c.end) for c in result.captions]
-        jobs.append(("M" + result.name, mirrored))
+        mirrored = [replace(c, text=mirror_caption(c.text)) for c in result.captions]
+        jobs.append((mirror_name(result.name), mirrored))
     tagged = texts.tag_captions([caption.text for _, captions in jobs for caption in captions])
     position = 0
     for name, captions in jobs:
         lines = []
         for caption in captions:
-            lines.append(texts.format_line(caption, tagged[position]))
+            lines.append(humanml3d.format_caption_line(caption, tagged[position]))
             position += 1
-        write_text_atomic(out_dir / "texts" / f"{name}.txt", "\n".join(lines) + "\n")
+        humanml3d.write_texts(out_dir, name, lines)
 
 
 # ----------------------------------------------------------------------------- splits
-
-
-def _read_split(path: Path) -> list[str]:
-    return [line.strip() for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
 
 
 def make_splits(
@@ -398,7 +399,7 @@ def make_splits(
 ) -> tuple[dict[str, list[str]], list[str]]:
     """Split clip names into train/val/test; returns (splits, clips missing from given splits).
 
-    ``groups`` maps a source file to its clip names (no "M"). Without ``splits_dir`` whole
+    ``groups`` maps a source file to its clip names (no mirrors). Without ``splits_dir`` whole
     groups are shuffled with ``seed`` and cut 80/5/15, so segments of one capture never straddle
     splits; every clip's mirror follows it.
     """
@@ -407,10 +408,7 @@ def make_splits(
     if splits_dir is not None:
         assigned: dict[str, str] = {}
         for split in splits:
-            path = splits_dir / f"{split}.txt"
-            if not path.is_file():
-                raise ValueError(f"split file {path} not found")
-            for name in _read_split(path):
+            for name in humanml3d.read_split(splits_dir, split):
                 assigned.setdefault(name, split)
         for names in groups.values():
             for name in names:
@@ -418,7 +416,7 @@ def make_splits(
                 if split is None:
                     unassigned.append(name)
                 else:
-                    splits[split] += [name, "M" + name]
+                    splits[split] += [name, mirror_name(name)]
     else:
         keys = sorted(groups)
         order = np.random.default_rng(seed).permutation(len(keys))
@@ -427,16 +425,8 @@ def make_splits(
         for position, key_index in enumerate(order):
             split = "train" if position < cut_train else "val" if position < cut_val else "test"
             for name in groups[keys[key_index]]:
-                splits[split] += [name, "M" + name]
+                splits[split] += [name, mirror_name(name)]
     return {split: sorted(names) for split, names in splits.items()}, sorted(unassigned)
-
-
-def write_splits(out_dir: Path, splits: dict[str, list[str]], all_names: Sequence[str]) -> None:
-    contents = dict(splits)
-    contents["train_val"] = sorted(splits["train"] + splits["val"])
-    contents["all"] = sorted(all_names)
-    for split, names in contents.items():
-        write_text_atomic(out_dir / f"{split}.txt", "".join(f"{name}\n" for name in names))
 
 
 # ----------------------------------------------------------------------------- the build
@@ -516,7 +506,7 @@ def compute_stats(out_dir: Path, names: Sequence[str]) -> tuple[np.ndarray, np.n
     stats = FeatureStats(layout.dim)
     skipped = []
     for name in tqdm(names, desc="stats", unit="clip", leave=False, disable=len(names) < 1000):
-        features = np.load(out_dir / "new_joint_vecs" / f"{name}.npy")
+        features = np.load(humanml3d.features_path(out_dir, name))
         try:
             stats.add(features)
         except ValueError as error:
@@ -530,30 +520,24 @@ def compute_stats(out_dir: Path, names: Sequence[str]) -> tuple[np.ndarray, np.n
 def build_dataset(config: BuildConfig) -> dict:
     """Build (or resume) the dataset described by ``config``; returns the build report.
 
-    Raises ValueError for unusable configuration (missing input, unknown source, ...); clip-level
+    Raises UsageError for unusable configuration (missing input, unknown source, ...); clip-level
     problems are reported in ``report["skipped"]`` instead.
     """
     started = time.perf_counter()
     timings: dict[str, float] = {}
     # 1. Check the configuration and list the clips.
-    if config.source not in SOURCES:
-        raise ValueError(f"unknown source {config.source!r} (choose from {', '.join(SOURCES)})")
-    if not config.input_dir.is_dir():
-        raise ValueError(f"input folder {config.input_dir} does not exist")
-    if config.index is not None and not config.index.is_file():
-        raise ValueError(f"index {config.index} not found")
+    config.validate()
     options = _source_options(config)
     texts.load_nlp()  # fail now, not after the motion work, when no English model is installed
     target_offsets = None
     if config.target_skeleton is not None:
         target_offsets = target_offsets_from_example(np.load(config.target_skeleton))
-    for folder in ("new_joint_vecs", "new_joints", "texts"):
-        (config.out_dir / folder).mkdir(parents=True, exist_ok=True)
+    humanml3d.make_folders(config.out_dir)
     clock = time.perf_counter()
     tasks = list_tasks(config)
     names = [task.name for task in tasks]
     if len(set(names)) != len(names):
-        raise ValueError("two source clips map to the same clip name")
+        raise UsageError("two source clips map to the same clip name")
     todo = [task for task in tasks if config.force or not is_finished(config.out_dir, task.name)]
     timings["list_s"] = time.perf_counter() - clock
     logger.info("%d clips listed, %d to build", len(tasks), len(todo))
@@ -606,30 +590,33 @@ def build_dataset(config: BuildConfig) -> dict:
         report = _report(config, tasks, built, skipped, [], timings, started, {})
         _write_report(config.out_dir, report)
         return report
-    all_names = sorted(name for task in finished for name in (task.name, "M" + task.name))
+    all_names = sorted(name for task in finished for name in (task.name, mirror_name(task.name)))
     mean, std, stats_info = compute_stats(config.out_dir, all_names)
-    save_npy_atomic(config.out_dir / "Mean.npy", mean)
-    save_npy_atomic(config.out_dir / "Std.npy", std)
+    humanml3d.write_mean_std(config.out_dir, mean, std)
     timings["stats_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     stats_skipped = {entry["name"] for entry in stats_info["skipped"]}
     groups: dict[str, list[str]] = {}
     for task in finished:
-        if task.name not in stats_skipped and "M" + task.name not in stats_skipped:
+        if task.name not in stats_skipped and mirror_name(task.name) not in stats_skipped:
             groups.setdefault(task.path, []).append(task.name)
     splits, unassigned = make_splits(groups, config.seed, config.splits_dir)
-    split_names = sorted(name for names in groups.values() for n in names for name in (n, "M" + n))
-    write_splits(config.out_dir, splits, split_names)
+    split_names = sorted(
+        name for names in groups.values() for n in names for name in (n, mirror_name(n))
+    )
+    humanml3d.write_splits(config.out_dir, splits, split_names)
     timings["splits_s"] = time.perf_counter() - clock
     for step, seconds in worker_seconds.items():
         timings[f"worker_{step}_s"] = seconds
 
     stats_info["unassigned_to_splits"] = unassigned
-    labels = config.input_dir / "labels.json"
+    labels = config.input_dir / humanml3d.LABELS_FILE
     if labels.is_file():
         # Ground-truth labels of a procedural corpus travel with the dataset, for evaluation.
-        write_text_atomic(config.out_dir / "labels.json", labels.read_text(encoding="utf-8"))
+        write_text_atomic(
+            config.out_dir / humanml3d.LABELS_FILE, labels.read_text(encoding="utf-8")
+        )
     report = _report(config, tasks, built, skipped, finished, timings, started, stats_info)
     report["splits"] = {split: len(names) for split, names in splits.items()}
     _write_report(config.out_dir, report)
@@ -649,7 +636,7 @@ def _report(
     """The content of ``build_report.json``."""
     frames = 0
     for task in finished:
-        features = np.load(config.out_dir / "new_joint_vecs" / f"{task.name}.npy", mmap_mode="r")
+        features = np.load(humanml3d.features_path(config.out_dir, task.name), mmap_mode="r")
         frames += 2 * len(features)
     seconds_in = sum(r.source_frames / r.source_fps for r in built if r.source_fps > 0)
     timings["total_s"] = time.perf_counter() - started
@@ -674,7 +661,7 @@ def _report(
 
 
 def _write_report(out_dir: Path, report: dict) -> None:
-    write_text_atomic(out_dir / "build_report.json", json.dumps(report, indent=2) + "\n")
+    write_json_atomic(out_dir / humanml3d.REPORT_FILE, report)
 
 
 # ----------------------------------------------------------------------------- command line

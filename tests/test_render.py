@@ -10,8 +10,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from dataset_tools.rotations import y_up_to_z_up
 from dataset_tools.skeleton import SMPL
-from t2m.render import RenderConfig, _to_plot, render_animation, render_frames, render_keyframes
+from dataset_tools.viz import (
+    RenderConfig,
+    render_animation,
+    render_contact_sheet,
+    render_frames,
+    render_keyframes,
+)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 REFERENCE_JOINTS = SHARED / "reference" / "humanml3d" / "new_joints" / "012314.npy"
@@ -54,9 +61,9 @@ def test_front_view_puts_left_on_the_right_and_head_up():
 
 def test_world_to_plot_axes_is_a_rotation_not_a_mirror():
     # A mirror would swap the sides and then a back view would look like a front view.
-    mapping = _to_plot(np.eye(3))
+    mapping = y_up_to_z_up(np.eye(3))
     assert np.linalg.det(mapping) == pytest.approx(1.0)
-    assert tuple(_to_plot(np.array([0.0, 1.0, 0.0]))) == (0.0, 0.0, 1.0)  # y-up is drawn up
+    assert tuple(y_up_to_z_up(np.array([0.0, 1.0, 0.0]))) == (0.0, 0.0, 1.0)  # y-up is drawn up
 
 
 def test_mp4_has_every_frame_at_20_fps(tmp_path):
@@ -148,3 +155,25 @@ def test_cli_renders_joints_and_features_files(tmp_path, capsys):
     assert main([str(tmp_path / "missing.npy"), str(tmp_path / "x.mp4")]) == 2
     assert main([str(tmp_path / "joints.npy"), str(tmp_path / "x.avi")]) == 2
     assert capsys.readouterr().err.count("error:") == 2
+
+
+def test_contact_sheet_has_a_row_per_clip_and_is_deterministic(tmp_path):
+    clips = [(_standing(8), "a person stands"), (_standing(5)[:, :, [0, 1, 2]], "and again")]
+    first = render_contact_sheet(clips, tmp_path / "a.png", frames_per_clip=3)
+    second = render_contact_sheet(clips, tmp_path / "b.png", frames_per_clip=3)
+    assert first.read_bytes() == second.read_bytes()
+    with Image.open(first) as image:
+        one_row = render_contact_sheet(clips[:1], tmp_path / "c.png", frames_per_clip=3)
+        with Image.open(one_row) as single:
+            assert image.size[0] == single.size[0] and image.size[1] == 2 * single.size[1]
+    with pytest.raises(ValueError, match="no clips"):
+        render_contact_sheet([], tmp_path / "d.png")
+    with pytest.raises(ValueError, match="PNG"):
+        render_contact_sheet(clips, tmp_path / "d.gif")
+
+
+def test_t2m_render_re_exports_the_renderer():
+    import dataset_tools.viz
+    import t2m.render
+
+    assert t2m.render.render_animation is dataset_tools.viz.render_animation

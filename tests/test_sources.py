@@ -8,18 +8,18 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from dataset_tools.skeleton import SMPL
-from dataset_tools.sources import to_y_up, z_up_to_y_up
-from dataset_tools.sources.amass import axis_angle_to_matrix, load_amass, smplh_joints
-from dataset_tools.sources.bvh import (
-    BvhOptions,
-    detect_mapping,
+from dataset_tools.bvh import (
     euler_to_matrix,
-    load_bvh_motion,
-    load_mapping,
+    forward_kinematics,
+    local_transforms,
     parse_bvh,
     read_bvh,
 )
+from dataset_tools.rotations import to_y_up, z_up_to_y_up
+from dataset_tools.skeleton import SMPL
+from dataset_tools.sources import ClipError
+from dataset_tools.sources.amass import axis_angle_to_matrix, load_amass, smplh_joints
+from dataset_tools.sources.bvh import BvhOptions, detect_mapping, load_bvh_motion, load_mapping
 from dataset_tools.sources.joints import JointsOptions, load_joints
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
@@ -151,9 +151,7 @@ def test_parse_tiny_bvh_and_forward_kinematics():
     assert bvh.parents == [-1, 0, 1]
     assert bvh.channels[2] == ["Zrotation", "Yrotation", "Xrotation"]
     assert bvh.motion.shape == (2, 12) and bvh.fps == pytest.approx(20.0)
-    from dataset_tools.sources.bvh import forward_kinematics
-
-    positions = forward_kinematics(bvh)
+    positions = forward_kinematics(bvh.parents, *local_transforms(bvh))
     np.testing.assert_allclose(positions[0], [[1, 2, 3], [1, 12, 3], [6, 12, 3]], atol=1e-12)
     # Frame 1: the root turns 90 degrees about z, so the chest (0, 10, 0) goes to (-10, 0, 0) and
     # the arm's +x offset to +y; the arm's own x rotation does not move its joint.
@@ -182,9 +180,13 @@ def test_euler_order_matches_scipy_intrinsic():
         (TINY_BVH.replace("1 2 3", "1 x 3"), "non-numeric"),
     ],
 )
-def test_parse_bvh_rejects_bad_files(text, message):
+def test_parse_bvh_rejects_bad_files(text, message, tmp_path):
     with pytest.raises(ValueError, match=message):
         parse_bvh(text, "bad.bvh")
+    # The BVH source reports the same problem as a clip error (the build skips the clip).
+    (tmp_path / "bad.bvh").write_text(text)
+    with pytest.raises(ClipError, match=message):
+        load_bvh_motion(tmp_path / "bad.bvh")
 
 
 def test_user_mapping_file_and_unknown_joint(tmp_path):

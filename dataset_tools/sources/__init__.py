@@ -12,6 +12,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
+class ClipError(ValueError):
+    """A problem with one clip's data (unreadable or corrupt file, NaN frames, too few frames,
+    a skeleton no mapping fits, unusable captions): the build reports the clip and skips it.
+
+    Anything else raised while building a clip is a bug and stops the build with its traceback.
+    """
+
+
 @dataclass
 class Motion:
     """Joint positions read from one source file.
@@ -32,7 +40,7 @@ class ClipTask:
     """One output clip: which file, which part of it, and the per-clip rules.
 
     Attributes:
-        name: output clip name (no extension); its mirror is ``"M" + name``.
+        name: output clip name (no extension); its mirror is ``humanml3d.mirror_name(name)``.
         path: source file.
         segmented: the clip is cut by an index (``start_frame``/``end_frame`` at 20 fps after
             ``trim_seconds``, end exclusive, ``None`` = to the end); otherwise it is the whole
@@ -50,21 +58,3 @@ class ClipTask:
     trim_seconds: float = 0.0
     negate_x: bool = False
     caption_path: str | None = None
-
-
-def z_up_to_y_up(joints: np.ndarray) -> np.ndarray:
-    """Rotate (..., 3) points from a z-up to a y-up right-handed frame: (x, y, z) -> (x, z, -y).
-
-    A proper rotation (-90 degrees about x), so left and right are kept.
-    """
-    joints = np.asarray(joints)
-    return np.stack([joints[..., 0], joints[..., 2], -joints[..., 1]], axis=-1)
-
-
-def to_y_up(joints: np.ndarray, up: str) -> np.ndarray:
-    """Convert (..., 3) points whose up axis is ``up`` ("y" or "z") to y-up."""
-    if up == "y":
-        return np.asarray(joints)
-    if up == "z":
-        return z_up_to_y_up(joints)
-    raise ValueError(f"up axis must be 'y' or 'z', got {up!r}")

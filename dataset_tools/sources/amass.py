@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dataset_tools.sources import Motion, z_up_to_y_up
+from dataset_tools.rotations import z_up_to_y_up
+from dataset_tools.sources import ClipError, Motion
 
 NUM_JOINTS = 52
 NUM_BETAS = 10
@@ -54,7 +55,7 @@ def _npz(path: Path) -> dict[str, np.ndarray]:
         with np.load(path, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise ValueError(f"{path.name}: cannot read ({type(error).__name__}: {error})") from None
+        raise ClipError(f"{path.name}: cannot read ({type(error).__name__}: {error})") from None
 
 
 @functools.cache
@@ -133,19 +134,19 @@ def load_amass(path: str | Path, body_model_dir: str | Path) -> Motion:
     """Read one AMASS ``.npz`` as 52 joints (T, 52, 3), y-up metres, at its mocap frame rate.
 
     ``body_model_dir`` holds ``male|female|neutral/model.npz``; the file's gender picks one,
-    falling back to neutral. Raises ValueError for missing keys (``mocap_framerate`` included),
+    falling back to neutral. Raises ClipError for missing keys (``mocap_framerate`` included),
     wrong shapes or a missing body model.
     """
     path = Path(path)
     data = _npz(path)
     if "mocap_framerate" not in data:
-        raise ValueError("no mocap_framerate (not a motion file)")
+        raise ClipError("no mocap_framerate (not a motion file)")
     missing = [key for key in ("poses", "trans", "betas") if key not in data]
     if missing:
-        raise ValueError(f"missing key(s) {missing}")
+        raise ClipError(f"missing key(s) {missing}")
     poses, trans = np.asarray(data["poses"], np.float64), np.asarray(data["trans"], np.float64)
     if poses.ndim != 2 or poses.shape[1] < 3 * NUM_JOINTS or trans.shape != (poses.shape[0], 3):
-        raise ValueError(
+        raise ClipError(
             f"poses (T, 156) and trans (T, 3) expected, got {poses.shape}, {trans.shape}"
         )
     gender = _gender(data)
@@ -153,7 +154,7 @@ def load_amass(path: str | Path, body_model_dir: str | Path) -> Motion:
     candidates = [folder / gender / "model.npz", folder / "neutral" / "model.npz"]
     model_path = next((candidate for candidate in candidates if candidate.is_file()), None)
     if model_path is None:
-        raise ValueError(f"no body model for gender {gender!r} under {folder}")
+        raise ClipError(f"no body model for gender {gender!r} under {folder}")
     model = load_body_model(str(model_path))
     if len(model.parents) != NUM_JOINTS:
         raise ValueError(f"body model has {len(model.parents)} joints, SMPL-H has {NUM_JOINTS}")

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dataset_tools.sources import Motion, to_y_up
+from dataset_tools.rotations import to_y_up
+from dataset_tools.sources import ClipError, Motion
 
 logger = logging.getLogger(__name__)
 
@@ -57,15 +58,15 @@ def load_joints(path: str | Path, options: JointsOptions) -> Motion:
     """Read one (T, J>=22, 3) array and return it y-up in metres.
 
     52 joints (SMPL-H) are kept so that mirroring can swap the hands; other widths are cut to
-    the 22 body joints. Raises ValueError for unreadable files or wrong shapes.
+    the 22 body joints. Raises ClipError for unreadable files or wrong shapes.
     """
     path = Path(path)
     try:
         joints = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise ValueError(f"cannot read joint array ({type(error).__name__}: {error})") from None
+        raise ClipError(f"cannot read joint array ({type(error).__name__}: {error})") from None
     if joints.ndim != 3 or joints.shape[1] < 22 or joints.shape[2] != 3:
-        raise ValueError(f"joint array must be (T, >=22, 3), got {joints.shape}")
+        raise ClipError(f"joint array must be (T, >=22, 3), got {joints.shape}")
     joints_in_file = joints.shape[1]
     if joints_in_file != 52:
         joints = joints[:, :22]

@@ -236,7 +236,7 @@ def contact_points(body: Body, pos: np.ndarray, glob: np.ndarray) -> np.ndarray:
     ``SEAT_DROP`` below the pelvis joint (it only touches the ground when sitting).
     """
     out = np.empty(pos.shape[:1] + (5, 3))
-    for k, (ankle, toe) in enumerate(((7, 10), (8, 11))):
+    for k, (ankle, toe) in enumerate((SMPL.feet_left, SMPL.feet_right)):
         foot = body.offsets[toe]
         heel_local = np.array([0.0, foot[1], -_HEEL_BACK * np.linalg.norm(foot)])
         out[:, 2 * k] = pos[:, ankle] + glob[:, ankle] @ heel_local

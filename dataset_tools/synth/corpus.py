@@ -26,7 +26,9 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools.command import UsageError
+from dataset_tools.humanml3d import LABELS_FILE
 from dataset_tools.io import save_npy_atomic, write_json_atomic, write_text_atomic
+from dataset_tools.rotations import y_up_to_z_up, z_up_to_y_up
 from dataset_tools.synth.captions import captions_for
 from dataset_tools.synth.clip import FPS, synthesize_clip
 
@@ -38,18 +40,6 @@ FORMAT_VERSION = 1
 
 def clip_name(index: int) -> str:
     return f"synth_{index:06d}"
-
-
-def y_up_to_z_up(joints: np.ndarray) -> np.ndarray:
-    """(..., 3) y-up points to z-up: (x, y, z) -> (x, -z, y), a proper rotation."""
-    joints = np.asarray(joints)
-    return np.stack([joints[..., 0], -joints[..., 2], joints[..., 1]], axis=-1)
-
-
-def z_up_to_y_up(joints: np.ndarray) -> np.ndarray:
-    """Inverse of ``y_up_to_z_up``: (x, y, z) -> (x, z, -y)."""
-    joints = np.asarray(joints)
-    return np.stack([joints[..., 0], joints[..., 2], -joints[..., 1]], axis=-1)
 
 
 def make_clip(seed: int, index: int, heldout: bool = False) -> tuple[np.ndarray, list[str], dict]:
@@ -131,7 +121,7 @@ def write_corpus(
                 labels[name] = label
                 bar.update()
     bar.close()
-    write_json_atomic(out / "labels.json", {"fps": int(FPS), "up": "z", "clips": labels})
+    write_json_atomic(out / LABELS_FILE, {"fps": int(FPS), "up": "z", "clips": labels})
     write_json_atomic(existing, source)
     log.info("wrote %d clips to %s", clips, out)
     return source
@@ -144,5 +134,5 @@ def load_clip(corpus: str | Path, name: str) -> tuple[np.ndarray, list[str], dic
     corpus = Path(corpus)
     joints = z_up_to_y_up(np.load(corpus / "joints" / f"{name}.npy"))
     texts = (corpus / "texts" / f"{name}.txt").read_text(encoding="utf-8").splitlines()
-    labels = json.loads((corpus / "labels.json").read_text(encoding="utf-8"))
+    labels = json.loads((corpus / LABELS_FILE).read_text(encoding="utf-8"))
     return joints, texts, labels["clips"][name]

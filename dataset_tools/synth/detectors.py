@@ -47,12 +47,27 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from dataset_tools.kinematics import across_vector
 from dataset_tools.skeleton import SMPL
 
 _UP = np.array([0.0, 1.0, 0.0])
-_FOOT_JOINTS = (7, 10, 8, 11)
-_SIDES = {"left": {"hip": 1, "knee": 4, "ankle": 7, "toe": 10, "shoulder": 16, "elbow": 18, "wrist": 20},
-          "right": {"hip": 2, "knee": 5, "ankle": 8, "toe": 11, "shoulder": 17, "elbow": 19, "wrist": 21}}  # fmt: skip
+_FOOT_JOINTS = (*SMPL.feet_left, *SMPL.feet_right)  # (ankle, toe) of each side
+# Per side, the joints the detectors read, by their role ("toe" is SMPL's foot joint).
+_SIDES = {
+    side: {
+        role: SMPL.joint(f"{side}_{name}")
+        for role, name in (
+            ("hip", "hip"),
+            ("knee", "knee"),
+            ("ankle", "ankle"),
+            ("toe", "foot"),
+            ("shoulder", "shoulder"),
+            ("elbow", "elbow"),
+            ("wrist", "wrist"),
+        )
+    }
+    for side in ("left", "right")
+}
 _OTHER = {"left": "right", "right": "left"}
 
 # Speed-class boundaries (m/s) per gait and direction, midway between the generator's ranges.
@@ -85,8 +100,7 @@ def _check(joints: np.ndarray, fps: float) -> np.ndarray:
 
 def _facing(joints: np.ndarray, fps: float) -> np.ndarray:
     """Unit horizontal facing directions (T, 3), lightly smoothed (0.05 s)."""
-    across = (joints[:, 2] - joints[:, 1]) + (joints[:, 17] - joints[:, 16])
-    forward = np.cross(_UP, across)
+    forward = np.cross(_UP, across_vector(joints, SMPL, compat=False))
     forward = gaussian_filter1d(forward, max(0.05 * fps, 0.5), axis=0, mode="nearest")
     forward[:, 1] = 0.0
     norm = np.linalg.norm(forward, axis=1, keepdims=True)
@@ -117,8 +131,11 @@ def _count_above(signal: np.ndarray, high: float, low: float) -> int:
 
 
 def _leg_length(joints: np.ndarray) -> float:
-    lengths = SMPL.bone_lengths_of(joints)
-    return float(np.median(0.5 * (lengths[:, 4] + lengths[:, 5] + lengths[:, 7] + lengths[:, 8])))
+    """Median over frames of the mean hip-to-ankle length (thigh + shin) of the two legs."""
+    lengths = SMPL.bone_lengths_of(joints)  # (T, J): the bone ending at each joint
+    left, right = _SIDES["left"], _SIDES["right"]
+    thighs = lengths[:, left["knee"]] + lengths[:, right["knee"]]
+    return float(np.median(0.5 * (thighs + lengths[:, left["ankle"]] + lengths[:, right["ankle"]])))
 
 
 def _swing_extent(signal: np.ndarray, fps: float) -> tuple[float, int]:
@@ -404,7 +421,7 @@ def plausibility(joints: np.ndarray, fps: float, floor: float = 0.0) -> dict:
     heights = joints[..., 1] - floor
     horizontal = np.linalg.norm(np.diff(joints[..., [0, 2]], axis=0), axis=-1) * fps  # (T-1, J)
     speeds = []
-    for ankle, toe in ((7, 10), (8, 11)):
+    for ankle, toe in (SMPL.feet_left, SMPL.feet_right):
         # Contact means within 5 mm of the joint's lowest height in the clip: a foot passing low
         # (a centimetre of clearance is normal in swing) does not count.
         toe_low = heights[:, toe] < heights[:, toe].min() + 0.005

@@ -1,8 +1,9 @@
 """Reading a HumanML3D-layout folder and cutting batches from it.
 
-:func:`load_split` reads the clips of one split: features from ``new_joint_vecs/``, captions from
-``texts/`` (``caption#word/POS ...#from#to``). A caption with a time range makes its own sub-clip
-(as the original does); clips outside ``min_frames <= T < length_limit`` are skipped.
+:func:`load_split` reads the clips of one split of a HumanML3D folder (its layout and caption
+lines are :mod:`dataset_tools.humanml3d`'s): features and tagged captions. A caption with a time
+range makes its own sub-clip (as the original does); clips outside
+``min_frames <= T < length_limit`` are skipped.
 
 :class:`MotionTextData` keeps the normalised motions and the captions as vocabulary ids, and cuts
 batches for each stage. Every batch is a pure function of the item indices and a
@@ -20,6 +21,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from dataset_tools import humanml3d
+from dataset_tools.humanml3d import SPLITS, Caption
 from dataset_tools.representation import FeatureLayout
 from dataset_tools.skeleton import skeleton_for
 from t2m.config import DataConfig
@@ -28,15 +31,15 @@ from t2m.data.words import WordVectors, pos_onehot
 
 logger = logging.getLogger(__name__)
 
-SPLITS = ("train", "val", "test", "train_val", "all")
-
-
-@dataclass
-class Caption:
-    """One caption line: the text and its ``word/POS`` tokens."""
-
-    text: str
-    tokens: list[str]
+__all__ = [
+    "SPLITS",
+    "Caption",
+    "Clip",
+    "MotionTextData",
+    "batch_rng",
+    "epoch_batches",
+    "load_split",
+]
 
 
 @dataclass
@@ -48,30 +51,6 @@ class Clip:
     captions: list[Caption]
 
 
-def parse_text_line(line: str) -> tuple[Caption, float, float]:
-    """``caption#word/POS ...#from#to`` -> (Caption, from, to); ValueError when malformed."""
-    fields = line.strip().split("#")
-    if len(fields) != 4:
-        raise ValueError(f"expected 'caption#tokens#from#to', got {line.strip()[:60]!r}")
-    text, tokens, start, end = fields
-    try:
-        start_s = float(start) if start.strip() else 0.0
-        end_s = float(end) if end.strip() else 0.0
-    except ValueError:
-        raise ValueError(f"bad time range in {line.strip()[:60]!r}") from None
-    if start_s != start_s or end_s != end_s:  # NaN
-        start_s, end_s = 0.0, 0.0
-    return Caption(text.strip(), tokens.split()), start_s, end_s
-
-
-def read_split_names(dataset_dir: Path, split: str) -> list[str]:
-    """Clip names listed in ``<split>.txt``."""
-    path = dataset_dir / f"{split}.txt"
-    if not path.is_file():
-        raise ValueError(f"{dataset_dir}: no split file {path.name}")
-    return [line.strip() for line in path.read_text().splitlines() if line.strip()]
-
-
 def load_split(
     dataset_dir: str | Path, split: str, config: DataConfig, limit: int | None = None
 ) -> list[Clip]:
@@ -79,19 +58,16 @@ def load_split(
 
     Raises ValueError when the folder or split is missing or no clip is usable.
     """
-    dataset_dir = Path(dataset_dir)
-    if not (dataset_dir / "new_joint_vecs").is_dir():
-        raise ValueError(f"{dataset_dir}: not a HumanML3D-layout folder (no new_joint_vecs/)")
-    names = sorted(set(read_split_names(dataset_dir, split)))
+    dataset_dir = humanml3d.require_dataset(dataset_dir)
+    names = sorted(set(humanml3d.read_split(dataset_dir, split)))
     if limit is not None:
         names = names[:limit]
     clips: list[Clip] = []
     missing = 0
     fps = None
     for name in tqdm(names, desc=f"loading {split}", unit="clip", leave=False, mininterval=2.0):
-        motion_path = dataset_dir / "new_joint_vecs" / f"{name}.npy"
-        text_path = dataset_dir / "texts" / f"{name}.txt"
-        if not motion_path.is_file() or not text_path.is_file():
+        motion_path = humanml3d.features_path(dataset_dir, name)
+        if not motion_path.is_file() or not humanml3d.texts_path(dataset_dir, name).is_file():
             missing += 1
             continue
         motion = np.load(motion_path).astype(np.float32, copy=False)
@@ -100,16 +76,11 @@ def load_split(
         if fps is None:
             fps = skeleton_for(FeatureLayout.for_dim(motion.shape[1]).num_joints).fps
         whole: list[Caption] = []
-        for number, line in enumerate(text_path.read_text(encoding="utf-8").splitlines(), 1):
-            if not line.strip():
-                continue
-            try:
-                caption, start, end = parse_text_line(line)
-            except ValueError as error:
-                raise ValueError(f"{text_path}:{number}: {error}") from None
-            if start == 0.0 and end == 0.0:
+        for caption in humanml3d.read_texts(dataset_dir, name):
+            if caption.whole_clip:
                 whole.append(caption)
                 continue
+            start, end = caption.start, caption.end
             part = motion[int(start * fps) : int(end * fps)]
             if config.min_frames <= len(part) < config.length_limit:
                 clips.append(Clip(f"{name}#{start:.1f}#{end:.1f}", part, [caption]))
