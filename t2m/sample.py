@@ -225,7 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--checkpoints", default="checkpoints/demo", metavar="DIR",
-                        help="run folder with the length/ and t2m/ stages (default checkpoints/demo)")  # fmt: skip
+                        help="run folder with the length/ and generator/ stages (default checkpoints/demo)")  # fmt: skip
     parser.add_argument("--out", metavar="DIR", help="output folder (default outputs/<timestamp>/)")
     parser.add_argument("--overwrite", action="store_true", help="replace a non-empty --out")
     parser.add_argument("--render", choices=RENDER_CHOICES, default="mp4",
