@@ -18,8 +18,7 @@ from t2m.config import apply_overrides, from_dict, tiny
 from t2m.data.dataset import load_split
 from t2m.data.words import TRAINABLE
 from t2m.models.autoencoder import MovementAutoencoder
-from t2m.train import STAGE_NAMES, ModelSizes, find_stage, load_stage
-from t2m.train import train_stage as run_stage
+from t2m.train import STAGE_NAMES, ModelSizes, find_stage, load_stage, train_stage
 from t2m.train.__main__ import main
 from t2m.train.checkpoint import atomic_save, read_checkpoint
 from t2m.train.generator import Curriculum
@@ -87,13 +86,13 @@ def test_resume_after_kill_equals_uninterrupted(
     for run_dir in (whole, killed):
         if stage == "generator":  # the same trained autoencoder under both
             shutil.copytree(tiny_run / "autoencoder", run_dir / "autoencoder")
-    run_stage(stage, config, tiny_dataset, whole)
+    train_stage(stage, config, tiny_dataset, whole)
     # "kill" after kill_at steps (mid-epoch, a checkpoint is written on stopping) and resume
-    run_stage(
+    train_stage(
         stage, apply_overrides(config, {f"{stage}.max_steps": str(kill_at)}), tiny_dataset, killed
     )
     assert read_checkpoint(killed / stage / "latest.pt")["progress"]["step"] == kill_at
-    run_stage(stage, config, tiny_dataset, killed, resume=True)
+    train_stage(stage, config, tiny_dataset, killed, resume=True)
     a, b = (
         read_checkpoint(whole / stage / "latest.pt"),
         read_checkpoint(killed / stage / "latest.pt"),
@@ -119,18 +118,18 @@ def test_mismatched_checkpoints_are_refused(tiny_dataset, tiny_config, tiny_run,
         (run_dir / stage / "latest.pt").write_bytes((tiny_run / stage / "latest.pt").read_bytes())
     bigger = apply_overrides(tiny_config, {"autoencoder.model.hidden_size": "48"})
     with pytest.raises(ValueError, match="model size differs"):
-        run_stage("autoencoder", bigger, tiny_dataset, run_dir, resume=True)
+        train_stage("autoencoder", bigger, tiny_dataset, run_dir, resume=True)
     latest = run_dir / "autoencoder" / "latest.pt"
     latest.write_bytes((tiny_run / "length" / "latest.pt").read_bytes())
     with pytest.raises(ValueError, match="'length' checkpoint, not 'autoencoder'"):
-        run_stage("autoencoder", tiny_config, tiny_dataset, run_dir, resume=True)
+        train_stage("autoencoder", tiny_config, tiny_dataset, run_dir, resume=True)
     other_words = apply_overrides(
         tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "50"}
     )
     with pytest.raises(ValueError, match="vocabulary differs"):
-        run_stage("length", other_words, tiny_dataset, run_dir, resume=True)
+        train_stage("length", other_words, tiny_dataset, run_dir, resume=True)
     with pytest.raises(ValueError, match="make train-ae"):
-        run_stage("generator", tiny_config, tiny_dataset, tmp_path / "empty")
+        train_stage("generator", tiny_config, tiny_dataset, tmp_path / "empty")
     with pytest.raises(ValueError, match="make train-len"):
         load_stage(tmp_path / "empty", "length")
     with pytest.raises(ValueError, match="unknown stage 'vae'; choose one of autoencoder, length"):
@@ -141,7 +140,7 @@ def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
     config = apply_overrides(
         tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "8"}
     )
-    run_stage("length", config, tiny_dataset, tmp_path)
+    train_stage("length", config, tiny_dataset, tmp_path)
     trained = load_stage(tmp_path, "length")
     assert trained.vectorizer.trainable and "walk" in trained.vectorizer.index
     encoded = trained.vectorizer.encode_tokens(["walk/VERB", "zzzz/NOUN"])
@@ -217,7 +216,7 @@ def _ddp_worker(
         finish(self)
 
     stage_module.StageRun.finish = finish_and_dump
-    run_stage("autoencoder", from_dict(config_dict), dataset, run_dir)
+    train_stage("autoencoder", from_dict(config_dict), dataset, run_dir)
 
 
 def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
@@ -243,7 +242,7 @@ def test_diverging_loss_stops_with_a_clear_error(tiny_dataset, tiny_config, tmp_
         tiny_config, {"autoencoder.lr": "1e30", "autoencoder.log_every": "1"}
     )
     with pytest.raises(ValueError, match="loss is (nan|inf)"):
-        run_stage("autoencoder", exploding, tiny_dataset, tmp_path)
+        train_stage("autoencoder", exploding, tiny_dataset, tmp_path)
 
 
 def test_sigkill_then_resume_equals_uninterrupted(tiny_dataset, tmp_path):
@@ -302,7 +301,7 @@ def test_autoencoder_stage_uses_the_configured_loss(
     config = apply_overrides(
         tiny_config, {"autoencoder.reconstruction_loss": "smooth_l1", "autoencoder.epochs": "1"}
     )
-    run_stage("autoencoder", config, tiny_dataset, tmp_path)
+    train_stage("autoencoder", config, tiny_dataset, tmp_path)
     assert seen and set(seen) == {"smooth_l1"}
     trained = load_stage(tmp_path, "autoencoder")
     assert trained.config.autoencoder.reconstruction_loss == "smooth_l1"
@@ -364,10 +363,20 @@ def test_runs_of_the_first_releases_still_load_and_resume(
     assert generator.config == load_stage(tiny_run, "generator").config
     # Resuming the old autoencoder continues in its folder; a new stage gets a new folder.
     more = apply_overrides(tiny_config, {"autoencoder.epochs": "3"})
-    assert run_stage("ae", more, tiny_dataset, old_run, resume=True) == old_run / "ae"
+    assert train_stage("ae", more, tiny_dataset, old_run, resume=True) == old_run / "ae"
     assert read_checkpoint(old_run / "ae" / "latest.pt")["stage"] == "autoencoder"
     assert load_stage(old_run, "ae").progress["epoch"] == 3
-    assert run_stage("evaluator", tiny_config, tiny_dataset, old_run) == old_run / "evaluator"
+    assert train_stage("evaluator", tiny_config, tiny_dataset, old_run) == old_run / "evaluator"
+
+
+def test_epoch_order_is_the_named_stream():
+    from t2m.data.dataset import epoch_batches
+    from t2m.streams import Stream, stream_rng
+
+    order = stream_rng(Stream.EPOCH_ORDER, 3, 5).permutation(40)
+    assert [b.tolist() for b in epoch_batches(40, 8, seed=3, epoch=5)] == [
+        order[i : i + 8].tolist() for i in range(0, 40, 8)
+    ]
 
 
 def test_curriculum_moves_on_after_patience_or_the_stage_limit(tiny_config):
