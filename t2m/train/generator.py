@@ -37,7 +37,7 @@ from t2m.train.stage import (
 logger = logging.getLogger(__name__)
 
 
-class TextToMotionObjective(nn.Module):
+class GeneratorObjective(nn.Module):
     """The trainable module: captions + motion crops -> the temporal-VAE loss parts.
 
     The movement encoder is frozen (it defines the target codes); the decoder is fine-tuned.
@@ -60,7 +60,7 @@ class TextToMotionObjective(nn.Module):
         self.weights = {"kl_weight": section.kl_weight, "code_weight": section.code_weight,
                         "feature_weight": section.feature_weight}  # fmt: skip
 
-    def train(self, mode: bool = True) -> TextToMotionObjective:
+    def train(self, mode: bool = True) -> GeneratorObjective:
         super().train(mode)
         self.encoder.eval()
         return self
@@ -144,7 +144,7 @@ def train_generator(job: StageJob) -> Path:
     decoder = models["decoder"].to(runtime.device)
     decoder.load_state_dict(autoencoder.decoder.state_dict())
     initial_code = mean_pose_code(autoencoder.encoder, sizes.feature_dim, runtime.device)
-    objective = TextToMotionObjective(vae, autoencoder.encoder, decoder, initial_code, config)
+    objective = GeneratorObjective(vae, autoencoder.encoder, decoder, initial_code, config)
     optimizer = torch.optim.Adam([
         {"params": vae.parameters(), "lr": section.lr},
         {"params": decoder.parameters(), "lr": section.decoder_lr},
