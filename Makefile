@@ -52,16 +52,16 @@ contact-sheet: install
 	$(PY) -m dataset_tools contact-sheet --input $(DEMO_SOURCE) --out $(DEMO_SOURCE)/contact_sheet.png --clips 12 --seed $(SEED)
 
 train-ae: install
-	$(PY) -m t2m.train ae --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(PY) -m t2m.train autoencoder --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
 
 train-len: install
 	$(PY) -m t2m.train length --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
 
 train-t2m: install
-	$(PY) -m t2m.train t2m --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(PY) -m t2m.train generator --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
 
 train-eval: install
-	$(PY) -m t2m.train eval --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(PY) -m t2m.train evaluator --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
 
 train: train-ae train-len train-t2m train-eval
 

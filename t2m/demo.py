@@ -5,7 +5,7 @@ Steps, each skipped when its result already exists (so a second run reuses the f
 2. train the four stages at the ``demo`` preset (``checkpoints/demo``), resuming an interrupted
    stage;
 3. sample three example prompts, several motions each, rendered (``outputs/demo``);
-4. run a quick evaluation (``outputs/demo/eval``);
+4. run a quick evaluation (``outputs/demo_eval``);
 and print where everything is with a short summary.
 """
 
@@ -18,9 +18,9 @@ import sys
 import time
 from pathlib import Path
 
-from dataset_tools.io import write_text_atomic
-from t2m.config import STAGES, preset
+from t2m.config import preset
 from t2m.train.stage import FINISHED
+from t2m.train.stages import STAGES, train_stage
 
 logger = logging.getLogger("t2m.demo")
 
@@ -37,36 +37,30 @@ def _dataset_ready(dataset: Path) -> bool:
 
 def build_dataset(dataset: Path, source: Path, clips: int, seed: int, workers: int) -> None:
     """Step 1: the procedural corpus, then the HumanML3D-layout build."""
-    from dataset_tools.build import main as build_main
-    from dataset_tools.synth.cli import main as synth_main
+    from dataset_tools.build import BuildConfig, build_dataset
+    from dataset_tools.synth.corpus import write_corpus
 
     if not (source / "source.json").is_file():
-        code = synth_main(["--out", str(source), "--clips", str(clips), "--seed", str(seed),
-                           "--workers", str(workers), "--force"])  # fmt: skip
-        if code:
-            raise RuntimeError(f"writing the demo corpus into {source} failed (exit {code})")
-    code = build_main(["--source", "joints", "--input", str(source), "--out", str(dataset),
-                       "--seed", str(seed), "--workers", str(workers)])  # fmt: skip
-    if code:
-        raise RuntimeError(f"building {dataset} failed (exit {code})")
+        write_corpus(source, clips, seed=seed, workers=workers, force=True)
+    report = build_dataset(BuildConfig("joints", source, dataset, workers=workers, seed=seed))
+    if not report["clips_out"]:
+        raise RuntimeError(f"building {dataset} from {source} gave no clip (see build_report.json)")
 
 
 def train_stages(dataset: Path, run_dir: Path, preset_name: str) -> dict[str, str]:
     """Step 2: every stage not yet finished; an interrupted one resumes from latest.pt."""
-    from t2m.train.__main__ import run_stage
-
     config = preset(preset_name)
     status = {}
     for stage in STAGES:
-        stage_dir = run_dir / stage
+        stage_dir = stage.folder(run_dir)
         if (stage_dir / FINISHED).is_file():
-            status[stage] = "reused"
+            status[stage.name] = "reused"
             continue
         resume = (stage_dir / "latest.pt").is_file()
-        logger.info("training %s (%s) ...", stage, "resuming" if resume else "from scratch")
+        logger.info("training %s (%s) ...", stage.name, "resuming" if resume else "from scratch")
         start = time.perf_counter()
-        run_stage(stage, config, dataset, run_dir, resume=resume)
-        status[stage] = f"trained in {time.perf_counter() - start:.0f} s"
+        train_stage(stage.name, config, dataset, run_dir, resume=resume)
+        status[stage.name] = f"trained in {time.perf_counter() - start:.0f} s"
     return status
 
 
@@ -74,7 +68,7 @@ def final_losses(run_dir: Path) -> dict[str, dict]:
     """The last validation record of each stage (from its metrics.jsonl)."""
     losses = {}
     for stage in STAGES:
-        path = run_dir / stage / "metrics.jsonl"
+        path = stage.folder(run_dir) / "metrics.jsonl"
         if not path.is_file():
             continue
         last = None
@@ -83,34 +77,26 @@ def final_losses(run_dir: Path) -> dict[str, dict]:
             if record.get("split") == "val":
                 last = record
         if last:
-            losses[stage] = {k: v for k, v in last.items() if isinstance(v, float)}
+            losses[stage.name] = {k: v for k, v in last.items() if isinstance(v, float)}
     return losses
 
 
 def sample_prompts(run_dir: Path, out: Path, num_samples: int, render: str, seed: int) -> None:
     """Step 3: the example prompts, several motions each, rendered, with BVH files."""
-    from t2m.sample import main as sample_main
+    from t2m.pipeline import TextToMotion
+    from t2m.sample import Prompt, sample_to_folder
 
-    prompts = out.parent / f"{out.name}_prompts.txt"
-    write_text_atomic(prompts, "\n".join(PROMPTS) + "\n")
-    code = sample_main([
-        "--text-file", str(prompts), "--checkpoints", str(run_dir), "--out", str(out),
-        "--num-samples", str(num_samples), "--render", render, "--bvh", "--seed", str(seed),
-        "--overwrite",
-    ])  # fmt: skip
-    if code:
-        raise RuntimeError(f"sampling into {out} failed (exit {code})")
+    pipe = TextToMotion.from_checkpoints(run_dir, device="auto")
+    sample_to_folder(pipe, [Prompt(text) for text in PROMPTS], out, num_samples=num_samples,
+                     seed=seed, render=render, bvh=True, overwrite=True,
+                     extra_info={"checkpoints": str(run_dir)})  # fmt: skip
 
 
 def quick_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict:
-    """Step 4: the evaluation protocol in its --quick form (marked as such in its output)."""
-    from t2m.evaluate import main as evaluate_main
+    """Step 4: the evaluation protocol in its quick form (marked as such in its output)."""
+    from t2m.evaluate import EvalConfig, evaluate, quick_config
 
-    code = evaluate_main(["--dataset", str(dataset), "--checkpoints", str(run_dir), "--quick",
-                          "--out", str(out)])  # fmt: skip
-    if code:
-        raise RuntimeError(f"the quick evaluation failed (exit {code})")
-    return json.loads((out / "results.json").read_text(encoding="utf-8"))
+    return evaluate(dataset, run_dir, out, quick_config(EvalConfig()))
 
 
 def run_demo(
@@ -153,7 +139,7 @@ def run_demo(
     ]
     for stage, values in final_losses(run_dir).items():
         shown = ", ".join(f"{k} {v:.4g}" for k, v in list(values.items())[:4])
-        lines.append(f"  {stage:<7} last validation: {shown}")
+        lines.append(f"  {stage:<11} last validation: {shown}")
     lines += [
         f"samples      {out}/ (sampleNN_repRR.mp4|npy|bvh, results.npy, results.json)",
         f"curves       {run_dir}/<stage>/curves.png",
@@ -183,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         summary = run_demo(args.dataset, args.source, args.checkpoints, args.out, args.clips,
                            args.seed, args.workers, args.samples, args.render, args.preset)  # fmt: skip
-    except (RuntimeError, ValueError) as error:
+    except (RuntimeError, ValueError, OSError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     print(summary)

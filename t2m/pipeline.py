@@ -202,13 +202,13 @@ class TextToMotion:
         need_length_model: bool = True,
         which: str = "best",
     ) -> TextToMotion:
-        """Load the ``t2m`` (and ``length``) stages of a run folder.
+        """Load the ``generator`` (and ``length``) stages of a run folder.
 
         Raises ValueError, one line naming the make target that trains a missing stage, when a
         stage is missing, unreadable or does not belong with the other.
         """
-        from t2m.train.checkpoint import MAKE_TARGETS, load_stage
         from t2m.train.runtime import resolve_device
+        from t2m.train.stages import find_stage, load_stage
 
         run_dir = Path(run_dir)
         if not run_dir.is_dir():
@@ -217,6 +217,9 @@ class TextToMotion:
                 "train-t2m`, or pass --checkpoints DIR)"
             )
         resolved = resolve_device(device)
+        retrain = {
+            name: f"`make {find_stage(name).make_target}`" for name in ("generator", "length")
+        }
 
         def load(stage: str):
             try:
@@ -224,24 +227,24 @@ class TextToMotion:
             except ValueError as error:
                 if "make " in str(error):
                     raise
-                raise ValueError(f"{error} (train it with `make {MAKE_TARGETS[stage]}`)") from None
+                raise ValueError(f"{error} (train it with {retrain[stage]})") from None
 
-        t2m = load("t2m")
+        t2m = load("generator")
         length = load("length") if need_length_model else None
         if t2m.vectorizer is None or t2m.initial_code is None:
-            raise ValueError(f"{t2m.path}: incomplete t2m checkpoint (retrain with "
-                             f"`make {MAKE_TARGETS['t2m']}`)")  # fmt: skip
+            raise ValueError(f"{t2m.path}: incomplete generator checkpoint (retrain with "
+                             f"{retrain['generator']})")  # fmt: skip
         if length is not None:
             if length.vectorizer is None or (
                 length.vectorizer.fingerprint() != t2m.vectorizer.fingerprint()
             ):
                 raise ValueError(
                     f"{length.path} was trained with other word vectors than {t2m.path} "
-                    f"(retrain with `make {MAKE_TARGETS['length']}` on the same dataset)"
+                    f"(retrain with {retrain['length']} on the same dataset)"
                 )
             if length.config.data.unit_length != t2m.config.data.unit_length:
                 raise ValueError(f"{length.path} and {t2m.path} use different unit lengths "
-                                 f"(retrain with `make {MAKE_TARGETS['length']}`)")  # fmt: skip
+                                 f"(retrain with {retrain['length']})")  # fmt: skip
         return cls(
             vae=t2m.models["vae"],
             decoder=t2m.models["decoder"],

@@ -247,7 +247,7 @@ class SampleConfig:
     seed: int = 0
     """random seed: same seed, same bytes"""
     checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
-    """run folder with the length/ and t2m/ stages"""
+    """run folder with the length/ and generator/ stages"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default outputs/<timestamp>/)"""
     overwrite: bool = False

@@ -4,7 +4,7 @@
 raising an arm, jumping) with numpy forward kinematics, runs them through
 ``dataset_tools.representation.process_motion`` and writes captions as tagged HumanML3D lines
 (``caption#word/POS ...#from#to``), so it needs neither spaCy nor the demo corpus.
-``tiny_run`` trains ae, length, t2m and eval at the ``tiny`` preset into a temporary run folder;
+``tiny_run`` trains the four stages at the ``tiny`` preset into a temporary run folder;
 sampling and evaluation tests reuse it.
 """
 
@@ -144,11 +144,12 @@ def tiny_config():
 
 @pytest.fixture(scope="session")
 def tiny_run(tiny_dataset: Path, tiny_config, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A run folder with all four stages trained at ``tiny`` (ae, length, t2m, eval)."""
-    from t2m.train.__main__ import run_stage
+    """A run folder with all four stages trained at ``tiny`` (autoencoder, length, generator,
+    evaluator)."""
+    from t2m.train import STAGE_NAMES, train_stage
 
     logging.getLogger("t2m").setLevel(logging.WARNING)
     run_dir = tmp_path_factory.mktemp("tiny_run")
-    for stage in ("ae", "length", "t2m", "eval"):
-        run_stage(stage, tiny_config, tiny_dataset, run_dir)
+    for stage in STAGE_NAMES:
+        train_stage(stage, tiny_config, tiny_dataset, run_dir)
     return run_dir

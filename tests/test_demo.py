@@ -10,7 +10,7 @@ def test_demo_runs_end_to_end_then_reuses_everything(tmp_path):
     }
     summary = run_demo(**paths, clips=120, num_samples=2, render="none", preset_name="tiny")
     assert "make demo finished" in summary and "Real motions" in summary
-    for stage in ("ae", "length", "t2m", "eval"):
+    for stage in ("autoencoder", "length", "generator", "evaluator"):
         assert (paths["run_dir"] / stage / "finished.json").is_file()
         assert f"{stage} trained in" in summary
     motions = sorted(p.name for p in paths["out"].glob("sample*_rep*.npy") if "feats" not in p.name)
@@ -19,4 +19,4 @@ def test_demo_runs_end_to_end_then_reuses_everything(tmp_path):
     assert (tmp_path / "out_eval" / "results.md").is_file()
     # A second run trains nothing and rebuilds nothing.
     again = run_demo(**paths, clips=120, num_samples=2, render="none", preset_name="tiny")
-    assert "ae reused, length reused, t2m reused, eval reused" in again
+    assert "autoencoder reused, length reused, generator reused, evaluator reused" in again

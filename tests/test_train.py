@@ -1,9 +1,12 @@
-"""Training: the tiny run of all four stages, checkpoints, resume, refusals, the CLI and DDP."""
+"""Training: the tiny run of all four stages, the stage registry, checkpoints, resume, refusals,
+runs of the first releases (old names), the CLI and DDP."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
+import shutil
 import socket
 from pathlib import Path
 
@@ -11,16 +14,21 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from t2m.config import apply_overrides
+from t2m.config import apply_overrides, from_dict, tiny
 from t2m.data.dataset import load_split
 from t2m.data.words import TRAINABLE
 from t2m.models.autoencoder import MovementAutoencoder
-from t2m.train.__main__ import main, run_stage
-from t2m.train.checkpoint import load_stage, read_checkpoint
+from t2m.train import STAGE_NAMES, ModelSizes, find_stage, load_stage, train_stage
+from t2m.train.__main__ import main
+from t2m.train.checkpoint import atomic_save, read_checkpoint
+from t2m.train.generator import Curriculum
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
-    for stage in ("ae", "length", "t2m", "eval"):
+    assert STAGE_NAMES == ("autoencoder", "length", "generator", "evaluator")
+    for stage in STAGE_NAMES:
         folder = tiny_run / stage
         for name in ("latest.pt", "best.pt", "config.json", "metrics.jsonl", "curves.png"):
             assert (folder / name).is_file(), f"{stage}/{name}"
@@ -29,11 +37,14 @@ def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
         assert all(r["loss"] is not None and r["loss"] == r["loss"] for r in records)
         assert json.loads((folder / "config.json").read_text())["preset"] == "tiny"
         trained = load_stage(tiny_run, stage)
+        assert trained.stage == stage and tuple(trained.models) == find_stage(stage).models
         assert all(not module.training for module in trained.models.values())
-        assert trained.normalizer.dim == 263
-    t2m = load_stage(tiny_run, "t2m")
-    assert t2m.initial_code.shape == (t2m.config.ae.model.code_size,)
-    assert t2m.progress["snippets"] == t2m.config.t2m.end_snippets and t2m.progress["done"]
+        assert trained.normalizer.dim == 263 and trained.dims.feature_dim == 263
+        assert read_checkpoint(folder / "best.pt")["stage"] == stage
+    t2m = load_stage(tiny_run, "generator")
+    assert t2m.dims == ModelSizes(263, 50, 0, t2m.config.autoencoder.model.code_size)
+    assert t2m.initial_code.shape == (t2m.config.autoencoder.model.code_size,)
+    assert t2m.progress["snippets"] == t2m.config.generator.end_snippets and t2m.progress["done"]
     # end to end: free text -> codes -> features, through the stored vocabulary
     encoded = t2m.vectorizer.encode_tokens("a/DET person/NOUN walk/VERB forward/ADV".split())
     words = torch.from_numpy(encoded.words)[None]
@@ -50,10 +61,10 @@ def test_tiny_run_writes_every_stage_and_loads_back(tiny_run: Path):
     )
     motion = decoder(codes)
     assert motion.shape == (1, 48, 263) and torch.isfinite(motion).all()
-    # the ae and the evaluator share statistics and the frozen encoder
-    ae, evaluator = load_stage(tiny_run, "ae"), load_stage(tiny_run, "eval")
+    # the autoencoder and the evaluator share statistics and the frozen encoder
+    ae, evaluator = load_stage(tiny_run, "autoencoder"), load_stage(tiny_run, "evaluator")
     assert (ae.normalizer.std == evaluator.normalizer.std).all()
-    ae_best = read_checkpoint(tiny_run / "ae" / "best.pt")["models"]["autoencoder"]
+    ae_best = read_checkpoint(tiny_run / "autoencoder" / "best.pt")["models"]["autoencoder"]
     stored = evaluator.models["evaluator"].movement_encoder.state_dict()
     assert all(torch.equal(stored[k], ae_best[f"encoder.{k}"]) for k in stored)
 
@@ -64,24 +75,24 @@ def weights(path: Path) -> dict[str, torch.Tensor]:
     }
 
 
-@pytest.mark.parametrize("stage,kill_at", [("ae", 3), ("t2m", 5)])
+@pytest.mark.parametrize("stage,kill_at", [("autoencoder", 3), ("generator", 5)])
 def test_resume_after_kill_equals_uninterrupted(
     stage, kill_at, tiny_dataset, tiny_config, tiny_run, tmp_path
 ):
-    config = apply_overrides(tiny_config, {f"{stage}.checkpoint_every": "1000", "ae.epochs": "2"})
+    config = apply_overrides(
+        tiny_config, {f"{stage}.checkpoint_every": "1000", "autoencoder.epochs": "2"}
+    )
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     for run_dir in (whole, killed):
-        if stage == "t2m":  # the same trained autoencoder under both
-            (run_dir / "ae").mkdir(parents=True)
-            for name in ("best.pt", "latest.pt"):
-                (run_dir / "ae" / name).write_bytes((tiny_run / "ae" / name).read_bytes())
-    run_stage(stage, config, tiny_dataset, whole)
+        if stage == "generator":  # the same trained autoencoder under both
+            shutil.copytree(tiny_run / "autoencoder", run_dir / "autoencoder")
+    train_stage(stage, config, tiny_dataset, whole)
     # "kill" after kill_at steps (mid-epoch, a checkpoint is written on stopping) and resume
-    run_stage(
+    train_stage(
         stage, apply_overrides(config, {f"{stage}.max_steps": str(kill_at)}), tiny_dataset, killed
     )
     assert read_checkpoint(killed / stage / "latest.pt")["progress"]["step"] == kill_at
-    run_stage(stage, config, tiny_dataset, killed, resume=True)
+    train_stage(stage, config, tiny_dataset, killed, resume=True)
     a, b = (
         read_checkpoint(whole / stage / "latest.pt"),
         read_checkpoint(killed / stage / "latest.pt"),
@@ -102,31 +113,34 @@ def test_resume_after_kill_equals_uninterrupted(
 
 def test_mismatched_checkpoints_are_refused(tiny_dataset, tiny_config, tiny_run, tmp_path):
     run_dir = tmp_path / "run"
-    for stage in ("ae", "length"):
+    for stage in ("autoencoder", "length"):
         (run_dir / stage).mkdir(parents=True)
         (run_dir / stage / "latest.pt").write_bytes((tiny_run / stage / "latest.pt").read_bytes())
-    bigger = apply_overrides(tiny_config, {"ae.model.hidden_size": "48"})
+    bigger = apply_overrides(tiny_config, {"autoencoder.model.hidden_size": "48"})
     with pytest.raises(ValueError, match="model size differs"):
-        run_stage("ae", bigger, tiny_dataset, run_dir, resume=True)
-    (run_dir / "ae" / "latest.pt").write_bytes((tiny_run / "length" / "latest.pt").read_bytes())
-    with pytest.raises(ValueError, match="'length' checkpoint, not 'ae'"):
-        run_stage("ae", tiny_config, tiny_dataset, run_dir, resume=True)
+        train_stage("autoencoder", bigger, tiny_dataset, run_dir, resume=True)
+    latest = run_dir / "autoencoder" / "latest.pt"
+    latest.write_bytes((tiny_run / "length" / "latest.pt").read_bytes())
+    with pytest.raises(ValueError, match="'length' checkpoint, not 'autoencoder'"):
+        train_stage("autoencoder", tiny_config, tiny_dataset, run_dir, resume=True)
     other_words = apply_overrides(
         tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "50"}
     )
     with pytest.raises(ValueError, match="vocabulary differs"):
-        run_stage("length", other_words, tiny_dataset, run_dir, resume=True)
+        train_stage("length", other_words, tiny_dataset, run_dir, resume=True)
     with pytest.raises(ValueError, match="make train-ae"):
-        run_stage("t2m", tiny_config, tiny_dataset, tmp_path / "empty")
+        train_stage("generator", tiny_config, tiny_dataset, tmp_path / "empty")
     with pytest.raises(ValueError, match="make train-len"):
         load_stage(tmp_path / "empty", "length")
+    with pytest.raises(ValueError, match="unknown stage 'vae'; choose one of autoencoder, length"):
+        load_stage(tiny_run, "vae")
 
 
 def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
     config = apply_overrides(
         tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "8"}
     )
-    run_stage("length", config, tiny_dataset, tmp_path)
+    train_stage("length", config, tiny_dataset, tmp_path)
     trained = load_stage(tmp_path, "length")
     assert trained.vectorizer.trainable and "walk" in trained.vectorizer.index
     encoded = trained.vectorizer.encode_tokens(["walk/VERB", "zzzz/NOUN"])
@@ -138,7 +152,7 @@ def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
 
 def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
     base = [
-        "ae",
+        "autoencoder",
         "--preset",
         "tiny",
         "--dataset",
@@ -148,11 +162,14 @@ def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
         "--device",
         "cpu",
     ]
-    assert main(base + ["--ae.nonexistent=1"]) == 2
+    assert main(base + ["--autoencoder.nonexistent=1"]) == 2
     assert "unknown config key" in capsys.readouterr().err
     assert main(base + ["--ae.batch_size=abc"]) == 2
     assert "expected an integer" in capsys.readouterr().err
     assert main(["ae", "--preset", "huge"]) == 2
+    with pytest.raises(SystemExit) as exit_info:  # argparse: usage and exit status 2
+        main(["vae", "--preset", "tiny"])
+    assert exit_info.value.code == 2
     assert (
         main(
             [
@@ -167,8 +184,15 @@ def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
         )
         == 2
     )
-    assert main(base + ["--ae.max_steps=2", "--ae.epochs=1"]) == 0
-    assert (tmp_path / "ae" / "best.pt").is_file()
+    assert main(base + ["--autoencoder.max_steps=2", "--autoencoder.epochs=1"]) == 0
+    assert (tmp_path / "autoencoder" / "best.pt").is_file()
+    # the old stage name trains the same stage, into the same folder
+    assert main(["ae", *base[1:], "--ae.max_steps=2", "--ae.epochs=1", "--resume"]) == 0
+    assert not (tmp_path / "ae").exists()
+    assert main(base + ["--print-config", "--t2m.batch_size=5"]) == 0
+    printed = capsys.readouterr()
+    assert json.loads(printed.out)["generator"]["batch_size"] == 5
+    assert "preset tiny:" in printed.err
 
 
 def _free_port() -> int:
@@ -192,14 +216,16 @@ def _ddp_worker(
         finish(self)
 
     stage_module.StageRun.finish = finish_and_dump
-    run_stage("ae", from_dict(config_dict), dataset, run_dir)
+    train_stage("autoencoder", from_dict(config_dict), dataset, run_dir)
 
 
 def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
-    config = apply_overrides(tiny_config, {"ae.batch_size": "8", "ae.epochs": "1"})
+    config = apply_overrides(
+        tiny_config, {"autoencoder.batch_size": "8", "autoencoder.epochs": "1"}
+    )
     mp.start_processes(_ddp_worker, args=(2, _free_port(), str(tiny_dataset), str(tmp_path), config.to_dict()),
                        nprocs=2, join=True, start_method="spawn")  # fmt: skip
-    checkpoint = read_checkpoint(tmp_path / "ae" / "latest.pt")
+    checkpoint = read_checkpoint(tmp_path / "autoencoder" / "latest.pt")
     clips = len(load_split(tiny_dataset, "train", config.data))
     assert checkpoint["progress"]["step"] == (clips // 2) // 8  # each process takes half an epoch
     rank0, rank1 = (torch.load(tmp_path / f"rank{r}.pt") for r in (0, 1))
@@ -207,14 +233,16 @@ def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
     assert all(torch.equal(rank0[k], rank1[k]) for k in rank0)
     assert all(torch.equal(rank0[k], v) for k, v in checkpoint["models"]["autoencoder"].items())
     torch.manual_seed(config.seed)
-    initial = MovementAutoencoder(263, config.ae.model).state_dict()
+    initial = MovementAutoencoder(263, config.autoencoder.model).state_dict()
     assert not torch.equal(initial["encoder.out.weight"], rank0["encoder.out.weight"])
 
 
 def test_diverging_loss_stops_with_a_clear_error(tiny_dataset, tiny_config, tmp_path):
-    exploding = apply_overrides(tiny_config, {"ae.lr": "1e30", "ae.log_every": "1"})
+    exploding = apply_overrides(
+        tiny_config, {"autoencoder.lr": "1e30", "autoencoder.log_every": "1"}
+    )
     with pytest.raises(ValueError, match="loss is (nan|inf)"):
-        run_stage("ae", exploding, tiny_dataset, tmp_path)
+        train_stage("autoencoder", exploding, tiny_dataset, tmp_path)
 
 
 def test_sigkill_then_resume_equals_uninterrupted(tiny_dataset, tmp_path):
@@ -224,12 +252,12 @@ def test_sigkill_then_resume_equals_uninterrupted(tiny_dataset, tmp_path):
     import time
 
     args = ["--preset", "tiny", "--dataset", str(tiny_dataset), "--device", "cpu"]
-    args += ["--ae.epochs=40", "--ae.checkpoint_every=1"]
-    command = [sys.executable, "-m", "t2m.train", "ae", *args]
+    args += ["--autoencoder.epochs=40", "--autoencoder.checkpoint_every=1"]
+    command = [sys.executable, "-m", "t2m.train", "autoencoder", *args]
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     subprocess.run([*command, "--checkpoints", str(whole)], check=True, capture_output=True)
     process = subprocess.Popen([*command, "--checkpoints", str(killed)], stderr=subprocess.DEVNULL)
-    latest = killed / "ae" / "latest.pt"
+    latest = killed / "autoencoder" / "latest.pt"
     deadline = time.time() + 60
     while time.time() < deadline and process.poll() is None:
         if latest.is_file() and read_checkpoint(latest)["progress"]["step"] >= 10:
@@ -244,19 +272,23 @@ def test_sigkill_then_resume_equals_uninterrupted(tiny_dataset, tmp_path):
     subprocess.run(
         [*command, "--checkpoints", str(killed), "--resume"], check=True, capture_output=True
     )
-    a, b = read_checkpoint(whole / "ae" / "latest.pt"), read_checkpoint(latest)
+    a, b = read_checkpoint(whole / "autoencoder" / "latest.pt"), read_checkpoint(latest)
     assert a["progress"] == b["progress"] and a["progress"]["step"] == 80
-    wa, wb = weights(whole / "ae" / "latest.pt"), weights(latest)
+    wa, wb = weights(whole / "autoencoder" / "latest.pt"), weights(latest)
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
-    lines_a = [json.loads(line)["step"] for line in (whole / "ae" / "metrics.jsonl").open()]
-    lines_b = [json.loads(line)["step"] for line in (killed / "ae" / "metrics.jsonl").open()]
+    lines_a = [
+        json.loads(line)["step"] for line in (whole / "autoencoder" / "metrics.jsonl").open()
+    ]
+    lines_b = [
+        json.loads(line)["step"] for line in (killed / "autoencoder" / "metrics.jsonl").open()
+    ]
     assert lines_a == lines_b
 
 
 def test_autoencoder_stage_uses_the_configured_loss(
     tiny_dataset, tiny_config, tmp_path, monkeypatch
 ):
-    import t2m.train.ae as ae_stage
+    import t2m.train.autoencoder as ae_stage
 
     seen = []
     original = ae_stage.autoencoder_loss
@@ -266,7 +298,100 @@ def test_autoencoder_stage_uses_the_configured_loss(
         return original(*args, **kwargs)
 
     monkeypatch.setattr(ae_stage, "autoencoder_loss", recording)
-    config = apply_overrides(tiny_config, {"ae.reconstruction_loss": "smooth_l1", "ae.epochs": "1"})
-    run_stage("ae", config, tiny_dataset, tmp_path)
+    config = apply_overrides(
+        tiny_config, {"autoencoder.reconstruction_loss": "smooth_l1", "autoencoder.epochs": "1"}
+    )
+    train_stage("autoencoder", config, tiny_dataset, tmp_path)
     assert seen and set(seen) == {"smooth_l1"}
-    assert load_stage(tmp_path, "ae").config.ae.reconstruction_loss == "smooth_l1"
+    trained = load_stage(tmp_path, "autoencoder")
+    assert trained.config.autoencoder.reconstruction_loss == "smooth_l1"
+
+
+def test_registry_names_sections_make_targets_and_old_names():
+    makefile = (ROOT / "Makefile").read_text()
+    for stage in STAGE_NAMES:
+        record = find_stage(stage)
+        assert stage in tiny().stage_sections()  # the stage's config section
+        target = re.search(rf"^{record.make_target}:.*\n\t.*-m t2m.train (\w+) ", makefile, re.M)
+        assert target and target.group(1) == stage
+        assert all(find_stage(old) is record for old in record.old_names)
+        assert set(record.needs) <= set(STAGE_NAMES[: STAGE_NAMES.index(stage)])
+    assert [find_stage(n).name for n in ("ae", "len", "text2length", "t2m", "eval")] == [
+        "autoencoder", "length", "length", "generator", "evaluator"
+    ]  # fmt: skip
+
+
+def test_old_section_names_in_overrides_and_files(tiny_config):
+    config = apply_overrides(tiny_config, {"t2m.batch_size": "16", "ae.epochs": "3"})
+    assert (config.generator.batch_size, config.autoencoder.epochs) == (16, 3)
+    with pytest.raises(ValueError, match="expected an integer"):
+        apply_overrides(tiny_config, {"eval.batch_size": "x"})
+    with pytest.raises(ValueError, match="unknown config key 't2m.nope'"):
+        apply_overrides(tiny_config, {"t2m.nope": "1"})
+    stored = config.to_dict()
+    stored["ae"], stored["t2m"] = stored.pop("autoencoder"), stored.pop("generator")
+    assert from_dict(stored) == config
+    with pytest.raises(ValueError, match="old and its new name"):
+        from_dict({**stored, "autoencoder": stored["ae"]})
+
+
+def _as_first_release(checkpoint_path: Path, old_stage: str, target: Path) -> None:
+    """Write ``checkpoint_path`` as the first releases did: old stage and section names, and
+    only the sizes the stage used."""
+    checkpoint = read_checkpoint(checkpoint_path)
+    checkpoint["stage"] = old_stage
+    config = checkpoint["config"]
+    for old, new in (("ae", "autoencoder"), ("t2m", "generator"), ("eval", "evaluator")):
+        config[old] = config.pop(new)
+    checkpoint["dims"] = {k: v for k, v in checkpoint["dims"].items() if v}
+    atomic_save(checkpoint, target)
+
+
+def test_runs_of_the_first_releases_still_load_and_resume(
+    tiny_dataset, tiny_config, tiny_run, tmp_path
+):
+    old_run = tmp_path / "old"
+    for old, new in (("ae", "autoencoder"), ("t2m", "generator")):
+        (old_run / old).mkdir(parents=True)
+        for name in ("best.pt", "latest.pt"):
+            _as_first_release(tiny_run / new / name, old, old_run / old / name)
+    for name in ("ae", "autoencoder"):
+        loaded = load_stage(old_run, name)
+        assert loaded.stage == "autoencoder" and loaded.path.parent.name == "ae"
+        assert loaded.dims == ModelSizes(263)
+    generator = load_stage(old_run, "t2m")
+    assert generator.config == load_stage(tiny_run, "generator").config
+    # Resuming the old autoencoder continues in its folder; a new stage gets a new folder.
+    more = apply_overrides(tiny_config, {"autoencoder.epochs": "3"})
+    assert train_stage("ae", more, tiny_dataset, old_run, resume=True) == old_run / "ae"
+    assert read_checkpoint(old_run / "ae" / "latest.pt")["stage"] == "autoencoder"
+    assert load_stage(old_run, "ae").progress["epoch"] == 3
+    assert train_stage("evaluator", tiny_config, tiny_dataset, old_run) == old_run / "evaluator"
+
+
+def test_epoch_order_is_the_named_stream():
+    from t2m.data.dataset import epoch_batches
+    from t2m.streams import Stream, stream_rng
+
+    order = stream_rng(Stream.EPOCH_ORDER, 3, 5).permutation(40)
+    assert [b.tolist() for b in epoch_batches(40, 8, seed=3, epoch=5)] == [
+        order[i : i + 8].tolist() for i in range(0, 40, 8)
+    ]
+
+
+def test_curriculum_moves_on_after_patience_or_the_stage_limit(tiny_config):
+    section = apply_overrides(
+        tiny_config,
+        {"generator.end_snippets": "16", "generator.curriculum_step": "3",
+         "generator.patience": "2", "generator.max_stage_epochs": "3"},
+    ).generator  # fmt: skip
+    curriculum = Curriculum(snippets=10)
+    assert curriculum.record(1.0, section) and curriculum.record(0.5, section)
+    assert not curriculum.record(0.7, section) and curriculum.snippets == 13  # the stage limit
+    assert curriculum.stage_best == float("inf") and curriculum.stage_epochs == 0
+    assert curriculum.record(2.0, section)  # best at the new length, though worse than before
+    assert not curriculum.record(2.1, section) and not curriculum.record(2.2, section)
+    assert curriculum.snippets == 16 and not curriculum.done  # patience: two bad epochs
+    for value in (3.0, 3.1, 3.2):
+        curriculum.record(value, section)
+    assert curriculum.done and curriculum.snippets == 16

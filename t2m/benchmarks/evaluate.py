@@ -42,21 +42,16 @@ def _untrained_stages(preset_name: str) -> dict:
     from t2m.config import preset
     from t2m.data.normalization import Normalizer
     from t2m.data.words import load_vectorizer
-    from t2m.train.checkpoint import TrainedStage, build_models
+    from t2m.train import ModelSizes, TrainedStage, find_stage
 
     config = preset(preset_name)
     vectorizer = load_vectorizer(config.data.word_vectors, config.data.max_text_tokens)
-    dims = {
-        "feature_dim": 263,
-        "word_dim": vectorizer.dim,
-        "vocab_size": 0,
-        "code_size": config.ae.model.code_size,
-    }
+    dims = ModelSizes(263, vectorizer.dim, 0, config.autoencoder.model.code_size)
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
     torch.manual_seed(0)
     stages = {}
     for stage in ("eval", "length", "t2m"):
-        models = build_models(stage, config, dims)
+        models = find_stage(stage).build(config, dims)
         for module in models.values():
             module.eval()
         stages[stage] = TrainedStage(
@@ -169,7 +164,7 @@ def _paper_evaluator_forward(repeats: int) -> float:
     """Seconds for the paper-size evaluator to embed 32 captions and 32 motions of 196 frames."""
     eval_stage = _untrained_stages("paper")["eval"]
     evaluator = eval_stage.models["evaluator"]
-    words = torch.randn(32, 22, eval_stage.dims["word_dim"])
+    words = torch.randn(32, 22, eval_stage.dims.word_dim)
     pos = torch.zeros(32, 22, 15)
     text_lengths = torch.full((32,), 12, dtype=torch.long)
     motion = torch.randn(32, 196, 263)

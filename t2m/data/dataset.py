@@ -111,11 +111,6 @@ def epoch_batches(
     return [mine[i * batch_size : (i + 1) * batch_size] for i in range(count)]
 
 
-def batch_rng(seed: int, epoch: int, step: int, rank: int = 0) -> np.random.Generator:
-    """The generator of one batch's random choices (captions, crops)."""
-    return np.random.default_rng([seed, epoch, step, rank, 11])
-
-
 class MotionTextData:
     """Normalised motions with their captions as vocabulary ids, and the batch makers.
 

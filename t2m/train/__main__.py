@@ -1,11 +1,12 @@
-"""Command line: ``python -m t2m.train {ae,length,t2m,eval} [options] [--key.sub=value ...]``.
+"""Command line: ``python -m t2m.train <stage> [options] [--key.sub=value ...]``.
 
-Examples::
+Stages: autoencoder, length, generator (needs the autoencoder), evaluator (needs the
+autoencoder); the old names ae, len, text2length, t2m, eval are accepted too. Examples::
 
-    python -m t2m.train ae --preset demo --dataset data/demo
-    python -m t2m.train t2m --preset paper --dataset data/HumanML3D --checkpoints checkpoints/hml
-    python -m t2m.train ae --preset tiny --ae.epochs=3 --data.word_vectors=trainable --resume
-    torchrun --nproc_per_node=2 -m t2m.train ae --preset demo      # DistributedDataParallel
+    python -m t2m.train autoencoder --preset demo --dataset data/demo
+    python -m t2m.train generator --preset paper --dataset data/HumanML3D --checkpoints checkpoints/hml
+    python -m t2m.train autoencoder --preset tiny --autoencoder.epochs=3 --resume
+    torchrun --nproc_per_node=2 -m t2m.train autoencoder --preset demo   # DistributedDataParallel
 
 Config overrides name any field of :class:`t2m.config.Config` with dots; an unknown key or a value
 of the wrong type is an error. Exit status 2 with a one-line message on bad input.
@@ -20,42 +21,10 @@ import sys
 import time
 from pathlib import Path
 
-from t2m.config import STAGES, Config, apply_overrides, preset
-from t2m.train import runtime as runtime_module
+from t2m.config import PRESETS, apply_overrides, preset
+from t2m.train.stages import STAGES, find_stage, train_stage
 
 logger = logging.getLogger("t2m.train")
-
-TRAINERS = {
-    "ae": ("t2m.train.ae", "train_autoencoder"),
-    "length": ("t2m.train.length", "train_length"),
-    "t2m": ("t2m.train.t2m", "train_text_to_motion"),
-    "eval": ("t2m.train.evaluator", "train_evaluator"),
-}
-
-
-def run_stage(
-    stage: str,
-    config: Config,
-    dataset_dir: str | Path,
-    run_dir: str | Path,
-    runtime: runtime_module.Runtime | None = None,
-    resume: bool = False,
-) -> Path:
-    """Train ``stage`` with ``config``; opens (and closes) the runtime when not given one."""
-    import importlib
-
-    if stage not in TRAINERS:
-        raise ValueError(f"unknown stage {stage!r}; choose one of {', '.join(STAGES)}")
-    own_runtime = runtime is None
-    if runtime is None:
-        runtime = runtime_module.start(config.device, config.bf16, config.num_threads)
-    try:
-        module_name, function_name = TRAINERS[stage]
-        trainer = getattr(importlib.import_module(module_name), function_name)
-        return trainer(config, dataset_dir, run_dir, runtime, resume)
-    finally:
-        if own_runtime:
-            runtime_module.finish(runtime)
 
 
 def parse_overrides(extra: list[str]) -> dict[str, str]:
@@ -66,7 +35,7 @@ def parse_overrides(extra: list[str]) -> dict[str, str]:
         item = extra[index]
         if not item.startswith("--") or len(item) <= 2:
             raise ValueError(
-                f"unexpected argument {item!r} (overrides look like --t2m.batch_size=16)"
+                f"unexpected argument {item!r} (overrides look like --generator.batch_size=16)"
             )
         key, sep, value = item[2:].partition("=")
         if not sep:
@@ -83,12 +52,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m t2m.train",
         description="Train one stage of T2M (Guo et al., CVPR 2022). Extra --key.sub=value "
-        "arguments override config fields (e.g. --t2m.batch_size=16, --data.word_vectors=PATH).",
+        "arguments override config fields (e.g. --generator.batch_size=16, "
+        "--data.word_vectors=PATH).",
+    )
+    stage_help = ", ".join(
+        stage.name + (f" (needs {', '.join(stage.needs)})" if stage.needs else "")
+        for stage in STAGES
     )
     parser.add_argument(
-        "stage", choices=STAGES, help="ae, length, t2m (needs ae) or eval (needs ae)"
+        "stage",
+        choices=[name for stage in STAGES for name in (stage.name, *stage.old_names)],
+        metavar="stage",
+        help=f"{stage_help}; old names ae, len, t2m, eval are accepted",
     )
-    parser.add_argument("--preset", default="demo", help="paper, demo or tiny (default demo)")
+    parser.add_argument("--preset", default="demo", help=f"{', '.join(PRESETS)} (default demo)")
     parser.add_argument(
         "--dataset", default="data/demo", help="HumanML3D-layout folder (default data/demo)"
     )
@@ -130,19 +107,21 @@ def main(argv: list[str] | None = None) -> int:
         if args.seed is not None:
             overrides["seed"] = str(args.seed)
         config = apply_overrides(preset(args.preset), overrides)
+        stage = find_stage(args.stage).name
         if args.print_config:
+            print(f"# preset {args.preset}: {PRESETS[args.preset].notes}", file=sys.stderr)
             print(config.to_json())
             return 0
         run_dir = Path(args.checkpoints or f"checkpoints/{args.preset}")
         start = time.time()
-        stage_dir = run_stage(args.stage, config, args.dataset, run_dir, resume=args.resume)
+        stage_dir = train_stage(stage, config, args.dataset, run_dir, resume=args.resume)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted; continue with --resume", file=sys.stderr)
         return 130
-    logger.info("%s trained in %.0f s: %s", args.stage, time.time() - start, stage_dir)
+    logger.info("%s trained in %.0f s: %s", stage, time.time() - start, stage_dir)
     return 0
 
 

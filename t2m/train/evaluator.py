@@ -1,27 +1,17 @@
-"""Stage 4: the contrastive text / motion evaluator on the frozen autoencoder's codes."""
+"""Stage ``evaluator``: the contrastive text / motion evaluator on the frozen autoencoder's codes."""
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
-from t2m.config import Config
-from t2m.data.dataset import MotionTextData, epoch_batches
+from t2m.data.dataset import MotionTextData
 from t2m.models.evaluator import Evaluator, contrastive_loss
-from t2m.train.checkpoint import build_models
-from t2m.train.runtime import Runtime, seed_init
-from t2m.train.stage import (
-    StageRun,
-    mean_records,
-    start_on_autoencoder,
-    to_device,
-)
-
-logger = logging.getLogger(__name__)
+from t2m.train.runtime import seed_init
+from t2m.train.stage import LossesOf, StageJob, StageRun, start_on_autoencoder, to_device
 
 
 class EvaluatorObjective(nn.Module):
@@ -53,79 +43,45 @@ def draw_shift(rng: np.random.Generator, batch_size: int) -> int:
     return int(rng.integers(1, batch_size))
 
 
-@torch.no_grad()
-def validate(
-    objective: nn.Module, data: MotionTextData, config: Config, runtime: Runtime
-) -> dict[str, float]:
-    """Mean losses and in-batch R@1 over fixed validation batches."""
-    objective.eval()
-    records = []
-    batch_size = config.eval.batch_size
-    for index in range(max(1, len(data) // batch_size)):
-        indices = np.arange(index * batch_size, min(len(data), (index + 1) * batch_size))
-        if len(indices) < 2:
-            break
-        rng = np.random.default_rng([config.seed, index, 99])
-        batch = to_device(data.unit_crop_batch(indices, rng), runtime.device)
-        with runtime.autocast():
-            records.append(objective(batch, draw_shift(rng, len(indices))))
-    objective.train()
-    return mean_records(records)
-
-
-def train_evaluator(
-    config: Config,
-    dataset_dir: str | Path,
-    run_dir: str | Path,
-    runtime: Runtime,
-    resume: bool = False,
-) -> Path:
-    """Train stage 4 into ``run_dir/eval`` (needs ``run_dir/ae``); returns that folder."""
+def train_evaluator(job: StageJob) -> Path:
+    """Train the evaluator into its stage folder (needs the autoencoder); returns that folder."""
     # 1. the frozen autoencoder and its statistics, then the data
-    start = start_on_autoencoder(config, dataset_dir, Path(run_dir), runtime.device)
-    ae, config, data, dims = start.ae, start.config, start.data, start.dims
-    vectorizer = data.vectorizer
-    stage = config.eval
+    start = start_on_autoencoder(job)
+    job, data, sizes = start.job, start.data, start.sizes
+    config, runtime = job.config, job.runtime
+    section = config.evaluator
     # 2. model (frozen encoder copied in), optimizer, resume
     seed_init(config.seed)
-    models = build_models("eval", config, dims)
+    models = job.stage.build(config, sizes)
     evaluator = models["evaluator"].to(runtime.device)
-    evaluator.movement_encoder.load_state_dict(ae.models["autoencoder"].encoder.state_dict())
-    optimizer = torch.optim.Adam(
-        [p for p in evaluator.parameters() if p.requires_grad], lr=stage.lr
+    evaluator.movement_encoder.load_state_dict(
+        start.autoencoder.models["autoencoder"].encoder.state_dict()
     )
-    run = StageRun("eval", config, run_dir, runtime, dims, models, optimizer, data.normalizer,
-                   vectorizer.info(), resume)  # fmt: skip
-    trainable = runtime.wrap(EvaluatorObjective(evaluator, stage.margin, stage.negative_weight))
+    trainable_parameters = [p for p in evaluator.parameters() if p.requires_grad]
+    optimizer = torch.optim.Adam(trainable_parameters, lr=section.lr)
+    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info())
+    trainable = runtime.wrap(EvaluatorObjective(evaluator, section.margin, section.negative_weight))
     trainable.train()
-    # 3. the loop
-    progress = run.progress
-    for epoch in range(progress["epoch"], stage.epochs):
-        batches = epoch_batches(
-            len(data.train), stage.batch_size, config.seed, epoch, runtime.rank, runtime.world_size
-        )
-        description = f"eval epoch {epoch + 1}/{stage.epochs}"
-        for index, rng in run.steps(epoch, len(batches), description, stage.max_steps):
-            batch = to_device(data.train.unit_crop_batch(batches[index], rng), runtime.device)
-            with runtime.autocast():
-                losses = trainable(batch, draw_shift(rng, len(batches[index])))
-            run.optimize(
-                losses,
-                [p for p in evaluator.parameters() if p.requires_grad],
-                stage.grad_clip,
-                stage.log_every,
-                stage.checkpoint_every,
-            )
-        if run.close_epoch(len(batches), stage.max_steps):
-            break
-        metrics = validate(trainable, data.val, config, runtime)
-        run.log("val", metrics)
-        run.save(best=run.improved(metrics["loss"]))
-        logger.info(
-            "eval epoch %d: val loss %.3f, in-batch R@1 %.3f",
-            epoch + 1,
-            metrics["loss"],
-            metrics["top1"],
-        )
-    run.finish()
-    return run.dir
+
+    # 3. the loop: captions against unit-cropped motions, negatives by a random shift;
+    # validation on fixed batches of at least two items (a shift needs another item)
+    def losses_on(split: MotionTextData) -> LossesOf:
+        def losses_of(items: np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+            batch = to_device(split.unit_crop_batch(items, rng), runtime.device)
+            return trainable(batch, draw_shift(rng, len(items)))
+
+        return losses_of
+
+    size, count = section.batch_size, len(data.val)
+    val_chunks = [
+        np.arange(i * size, min(count, (i + 1) * size)) for i in range(max(1, count // size))
+    ]
+    run.train_epochs(
+        len(data.train),
+        losses_on(data.train),
+        trainable_parameters,
+        validate=lambda: run.validate(
+            trainable, [c for c in val_chunks if len(c) >= 2], losses_on(data.val)
+        ),
+    )
+    return run.finish()

@@ -1,19 +1,23 @@
-"""The bookkeeping every stage loop shares: data, vocabulary, resume, checkpoints, records.
+"""What every stage loop shares: its inputs, its data, and :class:`StageRun`, the loop skeleton.
 
-A stage loop (``t2m/train/ae.py`` ...) builds its models and optimizer, then opens a
-:class:`StageRun`, which restores them from ``latest.pt`` on ``--resume`` (after refusing a
-checkpoint of another stage, size or vocabulary), writes ``config.json``, keeps the progress
-counters, saves ``latest.pt`` / ``best.pt`` atomically and writes the metrics.
+A stage loop (``t2m/train/autoencoder.py`` ...) is given a :class:`StageJob`, reads its data,
+builds its models and optimizer, then opens a :class:`StageRun`, which restores them from
+``latest.pt`` on resume (after refusing a checkpoint of another stage, size or vocabulary),
+writes ``config.json``, and runs the epochs: :meth:`StageRun.train_epoch` (seeded batches,
+optimiser steps, records, periodic ``latest.pt``), :meth:`StageRun.validate` (fixed validation
+batches) and :meth:`StageRun.end_epoch` (record, ``best.pt``). :meth:`StageRun.train_epochs` is
+the whole loop of a stage trained for a number of epochs.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -21,28 +25,57 @@ from torch import nn
 from tqdm import tqdm
 
 from dataset_tools.io import write_json_atomic
-from t2m.config import Config
-from t2m.data.dataset import MotionTextData, batch_rng, load_split
+from t2m.config import Config, StageConfig, from_dict
+from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import TRAINABLE, WordVectors, build_trainable_vocabulary, load_vectorizer
+from t2m.streams import Stream, stream_rng
 from t2m.train.checkpoint import (
-    MAKE_TARGETS,
+    ModelSizes,
+    TrainedStage,
     atomic_save,
     check_compatible,
-    load_stage,
     make_checkpoint,
-    model_config_dict,
     read_checkpoint,
-    stage_path,
     write_config,
 )
 from t2m.train.logbook import Logbook
 from t2m.train.runtime import Runtime, clip_gradients, seed_step, unwrap
 
+if TYPE_CHECKING:
+    from t2m.train.stages import Stage
+
 logger = logging.getLogger(__name__)
 
 # Written into the stage folder when its loop ends normally.
 FINISHED = "finished.json"
+
+# A stage's step: (batch item indices, the batch's random generator) -> named losses, "loss"
+# the one optimised.
+LossesOf = Callable[[np.ndarray, np.random.Generator], dict[str, torch.Tensor]]
+
+
+@dataclass
+class StageJob:
+    """What a stage's loop is given (see :func:`t2m.train.stages.train_stage`).
+
+    Attributes:
+        stage: the registry's record of the stage.
+        config: the run's settings.
+        dataset_dir: the HumanML3D-layout folder to train on.
+        run_dir: the run folder; the stage writes into its own folder there.
+        runtime: device and process rank.
+        resume: continue from ``latest.pt``.
+        prerequisites: the trained stages this one builds on, by name.
+    """
+
+    stage: Stage
+    config: Config
+    dataset_dir: Path
+    run_dir: Path
+    runtime: Runtime
+    resume: bool = False
+    prerequisites: dict[str, TrainedStage] = field(default_factory=dict)
 
 
 @dataclass
@@ -53,6 +86,16 @@ class StageData:
     val: MotionTextData
     vectorizer: WordVectors
     normalizer: Normalizer
+
+    def sizes(self, code_size: int = 0) -> ModelSizes:
+        """The model sizes these data give (``code_size``: of the autoencoder built upon)."""
+        vectorizer = self.vectorizer
+        return ModelSizes(
+            feature_dim=self.train.feature_dim,
+            word_dim=vectorizer.dim,
+            vocab_size=vectorizer.size if vectorizer.trainable else 0,
+            code_size=code_size,
+        )
 
 
 def vocabulary_for(config: Config, dataset_dir: Path) -> WordVectors:
@@ -94,194 +137,250 @@ def load_stage_data(
     return StageData(train, val, vectorizer, normalizer)
 
 
-def require_stage(run_dir: Path, stage: str, device: torch.device) -> Any:
-    """A prerequisite stage (best checkpoint); ValueError naming the make target when missing."""
-    if not stage_path(run_dir, stage, "best").is_file():
+@dataclass
+class OnAutoencoder:
+    """What the stages trained on top of the autoencoder (generator, evaluator) start from."""
+
+    job: StageJob
+    """The job, its config adopting the trained autoencoder's model settings."""
+    autoencoder: TrainedStage
+    data: StageData
+    sizes: ModelSizes
+
+
+def start_on_autoencoder(job: StageJob) -> OnAutoencoder:
+    """Adopt the trained autoencoder's model config (on a copy: the caller's config stays), read
+    the data with its statistics, and derive the model sizes; refuse a dataset whose feature
+    dimension differs from the autoencoder's."""
+    autoencoder = job.prerequisites["autoencoder"]
+    config = from_dict(job.config.to_dict())
+    config.autoencoder.model = autoencoder.config.autoencoder.model
+    data = load_stage_data(config, job.dataset_dir, normalizer=autoencoder.normalizer)
+    sizes = data.sizes(code_size=config.autoencoder.model.code_size)
+    if autoencoder.dims.feature_dim != sizes.feature_dim:
         raise ValueError(
-            f"stage needs a trained {stage!r} in {run_dir / stage}: run `make {MAKE_TARGETS[stage]}` first"
+            f"the autoencoder was trained on {autoencoder.dims.feature_dim}-d features, "
+            f"the dataset has {sizes.feature_dim}"
         )
-    return load_stage(run_dir, stage, device=device, which="best")
+    return OnAutoencoder(dataclasses.replace(job, config=config), autoencoder, data, sizes)
 
 
 @dataclass
-class OnAutoencoder:
-    """What the stages trained on top of the autoencoder (t2m, eval) start from."""
+class Progress:
+    """Where a stage is: stored in every checkpoint, so a resume continues mid-epoch."""
 
-    ae: Any
-    config: Config
-    data: StageData
-    dims: dict[str, int]
-
-
-def start_on_autoencoder(config: Config, dataset_dir: str | Path, run_dir: Path,
-                         device: torch.device) -> OnAutoencoder:  # fmt: skip
-    """Load the trained ``ae`` stage, adopt its model config (on a copy: the caller's config stays),
-    read the data with its statistics, and derive the model sizes; refuse a dataset whose feature
-    dimension differs from the autoencoder's."""
-    from t2m.config import from_dict
-
-    ae = require_stage(run_dir, "ae", device)
-    config = from_dict(config.to_dict())
-    config.ae.model = ae.config.ae.model
-    data = load_stage_data(config, dataset_dir, normalizer=ae.normalizer)
-    vectorizer = data.vectorizer
-    dims = {
-        "feature_dim": data.train.feature_dim,
-        "word_dim": vectorizer.dim,
-        "vocab_size": vectorizer.size if vectorizer.trainable else 0,
-        "code_size": config.ae.model.code_size,
-    }
-    if ae.dims["feature_dim"] != dims["feature_dim"]:
-        raise ValueError(
-            f"the autoencoder was trained on {ae.dims['feature_dim']}-d features, "
-            f"the dataset has {dims['feature_dim']}"
-        )
-    return OnAutoencoder(ae, config, data, dims)
+    epoch: int = 0
+    epoch_step: int = 0
+    """Batches of the current epoch already trained."""
+    step: int = 0
+    """Optimiser steps in total."""
+    best: float = math.inf
+    """Best validation value so far (what ``best.pt`` holds)."""
 
 
 class StageRun:
-    """Resume, checkpoints and records of one stage in ``run_dir/<stage>``.
+    """Resume, the epoch skeleton, checkpoints and records of one stage in its folder.
 
     Args:
-        stage, config, run_dir: what and where.
-        runtime: device and process rank.
-        dims: sizes from the data (stored; checked on resume).
+        job: the stage, config, folders, runtime and resume flag.
+        sizes: sizes from the data (stored; checked on resume).
         models: name -> module (unwrapped) saved in the checkpoint.
         optimizer: saved and restored with them.
         normalizer, vocabulary: stored for later stages and sampling.
-        resume: continue from ``latest.pt``.
         extra: stage extras stored in the checkpoint.
+        counters: the stage's own progress counters (a dataclass, e.g. the generator's
+            curriculum), stored with the progress and restored on resume.
     """
 
     def __init__(
         self,
-        stage: str,
-        config: Config,
-        run_dir: str | Path,
-        runtime: Runtime,
-        dims: dict[str, int],
+        job: StageJob,
+        sizes: ModelSizes,
         models: dict[str, nn.Module],
         optimizer: torch.optim.Optimizer,
         normalizer: Normalizer,
         vocabulary: dict[str, Any] | None,
-        resume: bool = False,
         extra: dict[str, Any] | None = None,
+        counters: Any = None,
     ):
-        self.stage = stage
-        self.config = config
-        self.dir = Path(run_dir) / stage
-        self.runtime = runtime
-        self.dims = dims
+        self.name = job.stage.name
+        self.config = job.config
+        self.section: StageConfig = getattr(job.config, self.name)
+        self.dir = job.stage.folder(job.run_dir)
+        self.runtime = runtime = job.runtime
+        self.sizes = sizes
         self.models = models
         self.optimizer = optimizer
         self.normalizer = normalizer
         self.vocabulary = vocabulary
         self.extra = dict(extra or {})
-        self.progress: dict[str, Any] = {"epoch": 0, "epoch_step": 0, "step": 0, "best": math.inf}
-        latest = stage_path(self.dir.parent, stage, "latest")
-        if resume:
+        self.progress = Progress()
+        self.counters = counters
+        latest = self.dir / "latest.pt"
+        if job.resume:
             checkpoint = read_checkpoint(latest)
-            check_compatible(
-                checkpoint, stage, model_config_dict(config, stage), dims, vocabulary, str(latest)
-            )
+            names = (self.name, *job.stage.old_names)
+            check_compatible(checkpoint, names, self.config, sizes, vocabulary, str(latest))
             for name, module in models.items():
                 module.load_state_dict(checkpoint["models"][name])
             optimizer.load_state_dict(checkpoint["optimizer"])
-            self.progress.update(checkpoint["progress"])
+            self._restore(checkpoint["progress"])
             logger.info(
-                "%s: resumed at step %d (epoch %d)",
-                stage,
-                self.progress["step"],
-                self.progress["epoch"],
+                "%s: resumed at step %d (epoch %d)", self.name, self.step, self.progress.epoch
             )
         elif latest.is_file() and runtime.is_main:
-            logger.warning("%s: starting afresh over the existing run in %s", stage, self.dir)
+            logger.warning("%s: starting afresh over the existing run in %s", self.name, self.dir)
         if runtime.is_main:
             self.dir.mkdir(parents=True, exist_ok=True)
             (self.dir / FINISHED).unlink(missing_ok=True)
-            write_config(self.dir, config)
+            write_config(self.dir, self.config)
         self.logbook = Logbook(
             self.dir,
-            stage,
+            self.name,
             enabled=runtime.is_main,
-            resume_step=self.progress["step"] if resume else None,
+            resume_step=self.step if job.resume else None,
         )
+
+    def _stored_progress(self) -> dict[str, Any]:
+        counters = dataclasses.asdict(self.counters) if self.counters is not None else {}
+        return {**dataclasses.asdict(self.progress), **counters}
+
+    def _restore(self, stored: dict[str, Any]) -> None:
+        def known(record: Any) -> dict[str, Any]:
+            return {f.name: stored[f.name] for f in dataclasses.fields(record) if f.name in stored}
+
+        self.progress = dataclasses.replace(self.progress, **known(self.progress))
+        if self.counters is not None:
+            self.counters = dataclasses.replace(self.counters, **known(self.counters))
 
     @property
     def step(self) -> int:
-        return int(self.progress["step"])
+        return self.progress.step
 
-    def reached_max_steps(self, max_steps: int) -> bool:
-        return max_steps > 0 and self.step >= max_steps
+    def reached_max_steps(self) -> bool:
+        return 0 < self.section.max_steps <= self.step
 
     def save(self, best: bool = False) -> None:
         """Write latest.pt (and best.pt) from the main process; every process waits for it."""
         if self.runtime.is_main:
             checkpoint = make_checkpoint(
-                self.stage, self.config, self.dims,
+                self.name,
+                self.config,
+                self.sizes,
                 {name: unwrap(module) for name, module in self.models.items()},
-                self.optimizer, self.progress, self.normalizer, self.vocabulary, self.extra,
-            )  # fmt: skip
+                self.optimizer,
+                self._stored_progress(),
+                self.normalizer,
+                self.vocabulary,
+                self.extra,
+            )
             atomic_save(checkpoint, self.dir / "latest.pt")
             if best:
                 atomic_save(checkpoint, self.dir / "best.pt")
         self.runtime.barrier()
 
-    def steps(
-        self, epoch: int, num_batches: int, description: str, max_steps: int
-    ) -> Iterator[tuple[int, np.random.Generator]]:
-        """The batches of one epoch still to run, from where a resumed run stopped: yields
-        (batch index, the batch's random generator) after seeding torch for that step, and
-        keeps the epoch's progress bar; stops early at ``max_steps``."""
-        self.bar = tqdm(total=num_batches, initial=self.progress["epoch_step"], desc=description,
-                        disable=not self.runtime.is_main, leave=False)  # fmt: skip
-        for index in range(self.progress["epoch_step"], num_batches):
-            if self.reached_max_steps(max_steps):
-                break
-            seed_step(self.config.seed, epoch, index, self.runtime.rank)
-            yield index, batch_rng(self.config.seed, epoch, index, self.runtime.rank)
+    # -- the epoch skeleton -------------------------------------------------------------------
 
-    def optimize(
+    def epoch_batches(self, num_items: int) -> list[np.ndarray]:
+        """This process's shuffled batches of the current epoch (indices into ``num_items``)."""
+        runtime = self.runtime
+        return epoch_batches(num_items, self.section.batch_size, self.config.seed,
+                             self.progress.epoch, runtime.rank, runtime.world_size)  # fmt: skip
+
+    def train_epoch(
         self,
-        losses: dict[str, torch.Tensor],
-        parameters: Any,
-        grad_clip: float,
-        log_every: int,
-        checkpoint_every: int,
-        extra: dict[str, Any] | None = None,
-    ) -> None:
-        """One optimizer step on ``losses["loss"]`` and the bookkeeping every stage shares:
-        counters, progress bar, a train record every ``log_every`` steps, ``latest.pt`` every
-        ``checkpoint_every`` steps."""
-        self.optimizer.zero_grad(set_to_none=True)
-        losses["loss"].backward()
-        clip_gradients(parameters, grad_clip)
-        self.optimizer.step()
-        self.progress["step"] += 1
-        self.progress["epoch_step"] += 1
-        self.bar.update()
-        if self.step % log_every == 0:
-            self.log("train", {**losses, **(extra or {})})
-            self.bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4g}")
-        if self.step % checkpoint_every == 0:
-            self.save()
+        batches: list[np.ndarray],
+        description: str,
+        losses_of: LossesOf,
+        parameters: list[nn.Parameter],
+        log_extra: dict[str, Any] | None = None,
+    ) -> bool:
+        """Train the batches of the current epoch still to run (all of them, or the rest of an
+        interrupted epoch); True when the epoch completed (the counters move to the next one),
+        False when ``max_steps`` cut it short (latest.pt is saved so a resume continues here).
 
-    def close_epoch(self, num_batches: int, max_steps: int) -> bool:
-        """End an epoch's batches. True when ``max_steps`` cut the epoch short (latest.pt is
-        saved so a resume continues mid-epoch); otherwise the counters move to the next epoch."""
-        self.bar.close()
-        if self.reached_max_steps(max_steps) and self.progress["epoch_step"] < num_batches:
+        Each batch: torch seeded from its coordinates (dropout, latent noise), its generator of
+        the BATCH stream, ``losses_of`` under autocast, one optimiser step on ``losses["loss"]``,
+        a record every ``log_every`` steps and ``latest.pt`` every ``checkpoint_every``.
+        """
+        section, runtime, progress = self.section, self.runtime, self.progress
+        seed, epoch = self.config.seed, progress.epoch
+        bar = tqdm(total=len(batches), initial=progress.epoch_step, desc=description,
+                   disable=not runtime.is_main, leave=False)  # fmt: skip
+        for index in range(progress.epoch_step, len(batches)):
+            if self.reached_max_steps():
+                break
+            seed_step(seed, epoch, index, runtime.rank)
+            rng = stream_rng(Stream.BATCH, seed, epoch, index, runtime.rank)
+            with runtime.autocast():
+                losses = losses_of(batches[index], rng)
+            self.optimizer.zero_grad(set_to_none=True)
+            losses["loss"].backward()
+            clip_gradients(parameters, section.grad_clip)
+            self.optimizer.step()
+            progress.step += 1
+            progress.epoch_step += 1
+            bar.update()
+            if self.step % section.log_every == 0:
+                self.log("train", {**losses, **(log_extra or {})})
+                bar.set_postfix(loss=f"{float(losses['loss'].detach()):.4g}")
+            if self.step % section.checkpoint_every == 0:
+                self.save()
+        bar.close()
+        if self.reached_max_steps() and progress.epoch_step < len(batches):
             self.save()
-            return True
-        self.progress["epoch"] += 1
-        self.progress["epoch_step"] = 0
-        return False
+            return False
+        progress.epoch += 1
+        progress.epoch_step = 0
+        return True
+
+    @torch.no_grad()
+    def validate(
+        self, trainable: nn.Module, chunks: Iterable[np.ndarray], losses_of: LossesOf
+    ) -> dict[str, float]:
+        """Mean losses over validation batches (``chunks`` of item indices), each drawing from
+        its own generator of the VALIDATION stream, so every epoch sees the same batches."""
+        trainable.eval()
+        records = []
+        for index, chunk in enumerate(chunks):
+            rng = stream_rng(Stream.VALIDATION, self.config.seed, index)
+            with self.runtime.autocast():
+                records.append(losses_of(chunk, rng))
+        trainable.train()
+        return mean_records(records)
+
+    def end_epoch(self, metrics: dict[str, Any], improved: bool) -> None:
+        """Record the validation metrics, save latest.pt (and best.pt when ``improved``), log."""
+        self.log("val", metrics)
+        self.save(best=improved)
+        shown = ", ".join(f"{key} {value:.4g}" for key, value in metrics.items())
+        logger.info("%s epoch %d: val %s", self.name, self.progress.epoch, shown)
+
+    def train_epochs(
+        self,
+        num_items: int,
+        losses_of: LossesOf,
+        parameters: list[nn.Parameter],
+        validate: Callable[[], dict[str, float]],
+    ) -> None:
+        """The loop of a stage trained for ``epochs``: shuffled batches of ``num_items`` training
+        items, then validation; best.pt holds the lowest validation loss."""
+        epochs = self.section.epochs
+        while self.progress.epoch < epochs:
+            description = f"{self.name} epoch {self.progress.epoch + 1}/{epochs}"
+            batches = self.epoch_batches(num_items)
+            if not self.train_epoch(batches, description, losses_of, parameters):
+                break
+            metrics = validate()
+            self.end_epoch(metrics, self.improved(metrics["loss"]))
+
+    # -- records ------------------------------------------------------------------------------
 
     def improved(self, value: float) -> bool:
         """Record a validation value (rank 0's); True (and best updated) when it is the best yet."""
         value = self.runtime.broadcast_float(value)
-        if value < self.progress["best"]:
-            self.progress["best"] = value
+        if value < self.progress.best:
+            self.progress.best = value
             return True
         return False
 
@@ -297,24 +396,30 @@ class StageRun:
         loss = plain.get("loss")
         if isinstance(loss, float) and not math.isfinite(loss):
             raise ValueError(
-                f"{self.stage}: {split} loss is {loss} at step {self.step}; lower the learning "
+                f"{self.name}: {split} loss is {loss} at step {self.step}; lower the learning "
                 "rate or resume from the last good checkpoint"
             )
-        self.logbook.write(split, self.step, int(self.progress["epoch"]), plain)
+        self.logbook.write(split, self.step, self.progress.epoch, plain)
         if split == "val":
             self.logbook.draw(force=False)
 
-    def finish(self) -> None:
+    def finish(self) -> Path:
         """Draw the curves; make sure best.pt exists (a run too short to validate saves latest);
         mark the stage finished (``finished.json``), so a driver such as ``make demo`` can tell a
-        completed stage from an interrupted one."""
+        completed stage from an interrupted one. Returns the stage folder."""
         if self.runtime.is_main and not (self.dir / "best.pt").is_file():
             self.save(best=True)  # waits at the barrier itself
         else:
             self.runtime.barrier()
         if self.runtime.is_main:
             self.logbook.draw()
-            write_json_atomic(self.dir / FINISHED, dict(self.progress))
+            write_json_atomic(self.dir / FINISHED, self._stored_progress())
+        return self.dir
+
+
+def validation_chunks(indices: np.ndarray, batch_size: int) -> list[np.ndarray]:
+    """``indices`` cut into about ``len / batch_size`` batches of ``batch_size`` or more items."""
+    return np.array_split(indices, max(1, len(indices) // batch_size))
 
 
 def mean_records(records: list[dict[str, torch.Tensor]]) -> dict[str, float]:

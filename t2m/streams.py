@@ -1,0 +1,28 @@
+"""Named random streams: every random choice of a run is drawn from one of these.
+
+A stream's generator is seeded from the run's seed, the coordinates of the draw (epoch, step,
+rank, batch index ...) and the stream's number, so two streams never share draws, and a resumed
+run draws exactly what the uninterrupted run drew at the same coordinates.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+
+class Stream(IntEnum):
+    """The random streams of training (the numbers are part of what a seed reproduces)."""
+
+    EPOCH_ORDER = 7
+    """The shuffle of one epoch (``t2m.data.dataset.epoch_batches`` draws it)."""
+    BATCH = 11
+    """One training batch's choices: captions, crops, teacher forcing, negative shifts."""
+    VALIDATION = 99
+    """One validation batch's choices: captions, crops, latent noise (the same every epoch)."""
+
+
+def stream_rng(stream: Stream, seed: int, *coordinates: int) -> np.random.Generator:
+    """The generator of ``stream`` at ``coordinates`` (e.g. epoch, step, rank) of run ``seed``."""
+    return np.random.default_rng([seed, *coordinates, int(stream)])

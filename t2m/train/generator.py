@@ -1,0 +1,197 @@
+"""Stage ``generator``: text encoder + temporal VAE, with the autoencoder's decoder fine-tuned.
+
+Curriculum: training starts on crops of ``start_snippets`` snippets (40 frames) and grows by
+``curriculum_step`` snippets per curriculum stage up to ``end_snippets`` (196 frames), moving on
+when the validation reconstruction has not improved for ``patience`` epochs or after
+``max_stage_epochs`` epochs (:class:`Curriculum`); only clips long enough for the current length
+are used. Scheduled
+sampling: per batch, with probability ``teacher_forcing`` the ground-truth previous codes are fed,
+otherwise the model's own (detached) predictions.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from t2m.config import Config, GeneratorStageConfig
+from t2m.data.dataset import MotionTextData
+from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
+from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+from t2m.train.runtime import seed_init
+from t2m.train.stage import (
+    LossesOf,
+    StageJob,
+    StageRun,
+    start_on_autoencoder,
+    to_device,
+    validation_chunks,
+)
+
+logger = logging.getLogger(__name__)
+
+
+class GeneratorObjective(nn.Module):
+    """The trainable module: captions + motion crops -> the temporal-VAE loss parts.
+
+    The movement encoder is frozen (it defines the target codes); the decoder is fine-tuned.
+    """
+
+    def __init__(
+        self,
+        vae: TemporalVAE,
+        encoder: MovementEncoder,
+        decoder: MovementDecoder,
+        initial_code: torch.Tensor,
+        config: Config,
+    ):
+        super().__init__()
+        self.vae = vae
+        self.encoder = encoder.requires_grad_(False)
+        self.decoder = decoder
+        self.register_buffer("initial_code", initial_code)
+        section = config.generator
+        self.weights = {"kl_weight": section.kl_weight, "code_weight": section.code_weight,
+                        "feature_weight": section.feature_weight}  # fmt: skip
+
+    def train(self, mode: bool = True) -> GeneratorObjective:
+        super().train(mode)
+        self.encoder.eval()
+        return self
+
+    def forward(
+        self,
+        batch: dict[str, torch.Tensor],
+        teacher_forcing: bool,
+        noise: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
+        motion = batch["motion"]  # (B, 4S, D) normalised
+        with torch.no_grad():
+            target_codes = self.encoder(motion[..., :-CONTACT_DIMS])  # (B, S, C)
+        word_features, sentence, word_mask = self.vae.encode_text(
+            batch["words"], batch["pos"], batch["text_lengths"]
+        )
+        outputs = self.vae(word_features, sentence, word_mask, target_codes, self.initial_code,
+                           teacher_forcing, noise)  # fmt: skip
+        decoded = self.decoder(outputs["codes"])
+        losses = temporal_vae_loss(outputs, target_codes, decoded, motion, **self.weights)
+        losses["reconstruction"] = losses["features"] + losses["codes"]
+        return losses
+
+
+@torch.no_grad()
+def mean_pose_code(
+    encoder: MovementEncoder, feature_dim: int, device: torch.device
+) -> torch.Tensor:
+    """(C,) code of 4 frames of zero normalised features, i.e. the mean pose."""
+    encoder.eval()
+    return encoder(torch.zeros(1, 4, feature_dim - CONTACT_DIMS, device=device))[0, 0]
+
+
+@dataclass
+class Curriculum:
+    """Where the generator is along its curriculum (stored with the checkpoint's progress)."""
+
+    snippets: int
+    """The crop length trained now, in snippets."""
+    stage_epochs: int = 0
+    """Epochs trained at this length."""
+    bad_epochs: int = 0
+    """Epochs at this length since the validation value last improved."""
+    stage_best: float = math.inf
+    """Best validation value at this length."""
+    done: bool = False
+
+    def record(self, value: float, section: GeneratorStageConfig) -> bool:
+        """Record an epoch's validation value; move to the next length when the stage is over.
+        True when ``value`` is the best at the current length."""
+        improved = value < self.stage_best
+        if improved:
+            self.stage_best, self.bad_epochs = value, 0
+        else:
+            self.bad_epochs += 1
+        self.stage_epochs += 1
+        last = self.snippets >= section.end_snippets
+        limit = section.max_stage_epochs + (section.final_epochs if last else 0)
+        if self.bad_epochs >= section.patience or self.stage_epochs >= limit:
+            if last:
+                self.done = True
+            else:
+                self.snippets = min(section.end_snippets, self.snippets + section.curriculum_step)
+                self.stage_epochs, self.bad_epochs, self.stage_best = 0, 0, math.inf
+                logger.info("generator: curriculum moves to %d snippets", self.snippets)
+        return improved
+
+
+def train_generator(job: StageJob) -> Path:
+    """Train the generator into its stage folder (needs the autoencoder); returns that folder."""
+    # 1. the trained autoencoder (frozen encoder, decoder to fine-tune) and the data
+    start = start_on_autoencoder(job)
+    job, data, sizes = start.job, start.data, start.sizes
+    config, runtime = job.config, job.runtime
+    section, unit = config.generator, config.data.unit_length
+    autoencoder = start.autoencoder.models["autoencoder"]
+    # 2. models, optimizer (decoder at its own rate), resume
+    seed_init(config.seed)
+    models = job.stage.build(config, sizes)
+    vae = models["vae"].to(runtime.device)
+    decoder = models["decoder"].to(runtime.device)
+    decoder.load_state_dict(autoencoder.decoder.state_dict())
+    initial_code = mean_pose_code(autoencoder.encoder, sizes.feature_dim, runtime.device)
+    objective = GeneratorObjective(vae, autoencoder.encoder, decoder, initial_code, config)
+    optimizer = torch.optim.Adam([
+        {"params": vae.parameters(), "lr": section.lr},
+        {"params": decoder.parameters(), "lr": section.decoder_lr},
+    ])  # fmt: skip
+    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info(),
+                   extra={"initial_code": initial_code.cpu()},
+                   counters=Curriculum(section.start_snippets))  # fmt: skip
+    curriculum: Curriculum = run.counters
+    trainable = runtime.wrap(objective)
+    trainable.train()
+    trainable_parameters = [p for p in objective.parameters() if p.requires_grad]
+
+    def losses_on(split: MotionTextData, snippets: int, teacher: bool) -> LossesOf:
+        """Losses of crops of ``snippets``; with ``teacher``, ground-truth codes fed back with
+        probability ``teacher_forcing`` per batch, else free-running with noise drawn from the
+        batch's generator (validation: the same noise every epoch)."""
+
+        def losses_of(items: np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+            batch = to_device(split.fixed_crop_batch(items, rng, snippets * unit), runtime.device)
+            if teacher:
+                return trainable(batch, bool(rng.random() < section.teacher_forcing))
+            shape = (len(items), snippets, section.model.latent_size)
+            noise = torch.from_numpy(rng.standard_normal(shape, dtype=np.float32))
+            return trainable(batch, False, noise.to(runtime.device))
+
+        return losses_of
+
+    # 3. the loop: epochs at the current curriculum length
+    while not curriculum.done and not run.reached_max_steps():
+        snippets = curriculum.snippets
+        frames = snippets * unit
+        items = data.train.indices_at_least(frames)
+        batches = [items[b] for b in run.epoch_batches(len(items))]
+        if not batches:
+            logger.warning("generator: fewer than %d training clips of %d frames; curriculum ends",
+                           section.batch_size, frames)  # fmt: skip
+            curriculum.done = True
+            break
+        description = f"generator epoch {run.progress.epoch + 1} ({frames} frames)"
+        if not run.train_epoch(batches, description, losses_on(data.train, snippets, True),
+                               trainable_parameters, log_extra={"snippets": snippets}):  # fmt: skip
+            break
+        # 4. end of epoch: validate on the clips long enough, then move along the curriculum;
+        # best.pt = the best model at the longest length reached so far
+        val_chunks = validation_chunks(data.val.indices_at_least(frames), section.batch_size)
+        metrics = run.validate(trainable, val_chunks, losses_on(data.val, snippets, False))
+        value = runtime.broadcast_float(metrics.get("reconstruction", math.inf))
+        improved = curriculum.record(value, section)
+        run.end_epoch({**metrics, "snippets": snippets}, improved)
+    return run.finish()

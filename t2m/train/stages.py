@@ -1,0 +1,230 @@
+"""The training stages, in one table: what each trains, stores and needs; train one; load one.
+
+=============  ===============  ==================  ===========  =============================
+stage          ``make`` target  models stored       needs        old names (still accepted)
+=============  ===============  ==================  ===========  =============================
+autoencoder    train-ae         autoencoder         -            ae
+length         train-len        length              -            len, text2length
+generator      train-t2m        vae, decoder        autoencoder  t2m
+evaluator      train-eval       evaluator           autoencoder  eval
+=============  ===============  ==================  ===========  =============================
+
+A stage's name is also its config section (``--generator.batch_size=16``) and its folder in the
+run folder (``checkpoints/demo/generator/``). Runs written before the renaming keep their
+folders (``ae/ t2m/ eval/``): a stage is read from, and resumed in, the folder that exists.
+
+Adding a stage is one :class:`Stage` in :data:`STAGES`, its config section in ``t2m.config``
+and its loop module.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from t2m.config import Config, from_dict
+from t2m.data.normalization import Normalizer
+from t2m.data.words import vectorizer_from_info
+from t2m.models.autoencoder import MovementAutoencoder, MovementDecoder
+from t2m.models.evaluator import Evaluator
+from t2m.models.length import LengthEstimator
+from t2m.models.temporal_vae import TemporalVAE
+from t2m.train import runtime as runtime_module
+from t2m.train.autoencoder import train_autoencoder
+from t2m.train.checkpoint import ModelSizes, TrainedStage, read_checkpoint
+from t2m.train.evaluator import train_evaluator
+from t2m.train.generator import train_generator
+from t2m.train.length import train_length
+from t2m.train.runtime import Runtime
+from t2m.train.stage import StageJob
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One training stage.
+
+    Attributes:
+        name: what users see and type; also its config section and its folder.
+        make_target: the ``make`` target that trains it (named in "run this first" messages).
+        models: the names of the modules its checkpoints store.
+        build: fresh (untrained) models from a Config and the data's sizes, by name.
+        train: its loop (see :class:`t2m.train.stage.StageJob`).
+        needs: the stages it builds on (trained first; given to ``train`` loaded).
+        old_names: names of the first releases: accepted wherever a stage is named, and the
+            folder and checkpoint names of runs written then.
+    """
+
+    name: str
+    make_target: str
+    models: tuple[str, ...]
+    build: Callable[[Config, ModelSizes], dict[str, nn.Module]]
+    train: Callable[[StageJob], Path]
+    needs: tuple[str, ...] = ()
+    old_names: tuple[str, ...] = ()
+
+    def folder(self, run_dir: str | Path) -> Path:
+        """The stage's folder in ``run_dir``: the one that exists (a run of the first releases
+        keeps its old folder name), else the stage's name."""
+        for name in (self.name, *self.old_names):
+            if (Path(run_dir) / name).is_dir():
+                return Path(run_dir) / name
+        return Path(run_dir) / self.name
+
+    def not_trained(self, run_dir: str | Path) -> ValueError:
+        """The one-line error for a missing stage, naming the make target that trains it."""
+        return ValueError(
+            f"no trained {self.name!r} stage in {self.folder(run_dir)} (run "
+            f"`make {self.make_target}` with the same PRESET/CHECKPOINTS first)"
+        )
+
+
+STAGES: tuple[Stage, ...] = (
+    Stage(
+        name="autoencoder",
+        make_target="train-ae",
+        models=("autoencoder",),
+        build=lambda config, sizes: {
+            "autoencoder": MovementAutoencoder(sizes.feature_dim, config.autoencoder.model)
+        },
+        train=train_autoencoder,
+        old_names=("ae",),
+    ),
+    Stage(
+        name="length",
+        make_target="train-len",
+        models=("length",),
+        build=lambda config, sizes: {
+            "length": LengthEstimator(sizes.word_dim, config.length.model, sizes.vocab_size)
+        },
+        train=train_length,
+        old_names=("len", "text2length"),
+    ),
+    Stage(
+        name="generator",
+        make_target="train-t2m",
+        models=("vae", "decoder"),
+        build=lambda config, sizes: {
+            "vae": TemporalVAE(
+                sizes.word_dim, sizes.code_size, config.generator.model, sizes.vocab_size
+            ),
+            "decoder": MovementDecoder(sizes.feature_dim, config.autoencoder.model),
+        },
+        train=train_generator,
+        needs=("autoencoder",),
+        old_names=("t2m",),
+    ),
+    Stage(
+        name="evaluator",
+        make_target="train-eval",
+        models=("evaluator",),
+        build=lambda config, sizes: {
+            "evaluator": Evaluator(
+                sizes.word_dim,
+                sizes.feature_dim,
+                config.autoencoder.model,
+                config.evaluator.model,
+                sizes.vocab_size,
+            )
+        },
+        train=train_evaluator,
+        needs=("autoencoder",),
+        old_names=("eval",),
+    ),
+)
+
+STAGE_NAMES: tuple[str, ...] = tuple(stage.name for stage in STAGES)
+
+
+def find_stage(name: str) -> Stage:
+    """The stage called ``name`` (or one of its old names); ValueError naming the choices."""
+    for stage in STAGES:
+        if name == stage.name or name in stage.old_names:
+            return stage
+    raise ValueError(f"unknown stage {name!r}; choose one of {', '.join(STAGE_NAMES)}")
+
+
+def load_stage(
+    run_dir: str | Path, stage: str, device: str | torch.device = "cpu", which: str = "best"
+) -> TrainedStage:
+    """Rebuild a trained stage from its ``<which>.pt``, models in eval mode on ``device``.
+
+    ``stage``: a stage name or an old one (``"ae"`` is the autoencoder). Raises ValueError (one
+    line, naming the make target to run) when the stage is not trained. Example::
+
+        generator = load_stage("checkpoints/demo", "generator")
+        text = generator.vectorizer.encode_text("a person walks forward")[0]
+        vae, decoder = generator.models["vae"], generator.models["decoder"]
+    """
+    record = find_stage(stage)
+    if which not in ("best", "latest"):
+        raise ValueError(f"which must be 'best' or 'latest', got {which!r}")
+    path = record.folder(run_dir) / f"{which}.pt"
+    if not path.is_file():
+        raise record.not_trained(run_dir)
+    checkpoint = read_checkpoint(path)
+    if checkpoint["stage"] not in (record.name, *record.old_names):
+        raise ValueError(f"{path} is a {checkpoint['stage']!r} checkpoint, not {record.name!r}")
+    config = from_dict(checkpoint["config"])
+    sizes = ModelSizes.from_dict(checkpoint["dims"])
+    models = record.build(config, sizes)
+    device = torch.device(device)
+    for name, module in models.items():
+        module.load_state_dict(checkpoint["models"][name])
+        module.to(device).eval()
+    vocabulary = checkpoint.get("vocabulary")
+    extra = checkpoint.get("extra", {})
+    initial_code = extra.get("initial_code")
+    return TrainedStage(
+        stage=record.name,
+        config=config,
+        models=models,
+        normalizer=Normalizer(**checkpoint["normalizer"]),
+        vectorizer=vectorizer_from_info(vocabulary) if vocabulary else None,
+        progress=checkpoint["progress"],
+        dims=sizes,
+        initial_code=initial_code.to(device) if initial_code is not None else None,
+        path=path,
+        extra={k: v for k, v in extra.items() if k != "initial_code"},
+    )
+
+
+def train_stage(
+    stage: str,
+    config: Config,
+    dataset_dir: str | Path,
+    run_dir: str | Path,
+    runtime: Runtime | None = None,
+    resume: bool = False,
+) -> Path:
+    """Train ``stage`` with ``config`` into its folder of ``run_dir``; returns that folder.
+
+    The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line ValueError
+    names the make target of a missing one). Opens (and closes) the runtime when not given one.
+    Example::
+
+        train_stage("autoencoder", tiny(), "data/demo", "checkpoints/tiny")
+    """
+    record = find_stage(stage)
+    run_dir = Path(run_dir)
+    own_runtime = runtime is None
+    if runtime is None:
+        runtime = runtime_module.start(config.device, config.bf16, config.num_threads)
+    try:
+        prerequisites = {}
+        for name in record.needs:
+            needed = find_stage(name)
+            if not (needed.folder(run_dir) / "best.pt").is_file():
+                raise ValueError(
+                    f"{record.name} needs a trained {name!r} in {needed.folder(run_dir)}: "
+                    f"run `make {needed.make_target}` first"
+                )
+            prerequisites[name] = load_stage(run_dir, name, runtime.device)
+        job = StageJob(record, config, Path(dataset_dir), run_dir, runtime, resume, prerequisites)
+        return record.train(job)
+    finally:
+        if own_runtime:
+            runtime_module.finish(runtime)
