@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 import subprocess
 import sys
 import zlib
@@ -9,11 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
+from dataset_tools.command import field_docs
 from dataset_tools.synth.scoring import SemanticScorer, find_corpus_labels
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip
-from t2m.evaluate.__main__ import main
+from t2m.evaluate.__main__ import EvalFolders, eval_config, main, parser
 
 EMBED = 16
 NOISE = 0.5
@@ -157,13 +160,86 @@ def test_standard_settings_have_no_deviation():
     assert notes == ["replications = 5 (standard: 20)"]
 
 
-def test_cli_rejects_bad_input(tmp_path, capsys):
-    assert evaluate.main is main  # the package still offers the command
-    assert main(["--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error:") and "\n" not in err
-    code = main(["--dataset", str(tmp_path), "--checkpoints", str(tmp_path), "--replications", "0"])
-    assert code == 2
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_help_lists_the_documented_options_with_their_docstrings(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "1000")  # one line per option: no word broken at a hyphen
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    usage = next(
+        line for line in README.read_text().splitlines() if "python -m t2m.evaluate" in line
+    )
+    documented = set(re.findall(r"--[a-z][a-z-]+", usage))
+    assert {"--dataset", "--checkpoints", "--replications", "--quick", "--precision"} <= documented
+    for name in documented | {"--threads", "--max-items", "--seed", "--device", "--batch-size"}:
+        assert re.search(rf" {name}[ ,]", text), name
+    for cls in (evaluate.EvalConfig, EvalFolders):
+        for name, doc in field_docs(cls).items():
+            assert doc and doc in text, name
+    assert "(default: auto)" in text and "[--which best|latest]" in text
+
+
+def test_quick_lowers_only_the_values_not_given():
+    base = ["--dataset", "d", "--checkpoints", "c"]
+    standard = eval_config(parser().parse_args(base))
+    assert standard == evaluate.STANDARD and standard.device == "auto"
+    quick = eval_config(parser().parse_args([*base, "--quick", "--replications", "5"]))
+    assert quick.quick and quick.replications == 5
+    assert (quick.mm_texts, quick.mm_samples, quick.max_items) == (16, 10, 128)
+    assert eval_config(parser().parse_args([*base, "--threads", "2"])).num_threads == 2
+
+
+@pytest.fixture
+def folders(tmp_path):
+    """An empty run folder and a dataset folder whose test split lists one clip."""
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "test.txt").write_text("000000\n")
+    (tmp_path / "run").mkdir()
+    return ["--dataset", str(tmp_path / "data"), "--checkpoints", str(tmp_path / "run")]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--replications", "0"], "--replications must be >= 1, got 0"),
+        (["--mm-texts", "0"], "--mm-texts must be >= 1"),
+        (["--mm-samples", "1"], "--mm-samples must be >= 2"),
+        (["--max-items", "0"], "--max-items must be >= 1"),
+        (["--batch-size", "0"], "--batch-size must be >= 1"),
+        (["--threads", "-1"], "--threads must be >= 0"),
+        (["--replications", "two"], "invalid int value"),
+        (["--precision", "fp16"], "invalid choice"),
+        (["--split", "val"], "no split file val.txt"),
+        (["--device", "tpu"], "unknown device 'tpu'"),
+        (["--dataset", "/no/such/dataset"], "--dataset /no/such/dataset: no such folder"),
+        (["--checkpoints", "/no/such/run"], "--checkpoints /no/such/run: no such folder"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(folders, capsys, extra, message):
+    assert main([*folders, *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert message in err
+
+
+def test_inputs_are_checked_before_anything_is_loaded(tmp_path, folders, capsys):
+    (tmp_path / "data" / "empty.txt").write_text("\n")
+    assert main([*folders, "--split", "empty"]) == 2
+    assert "lists no clip" in capsys.readouterr().err
+    (tmp_path / "file").write_text("")
+    assert main([*folders, "--out", str(tmp_path / "file")]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+    # A run folder without its stages: the one line names the make target that trains them.
+    assert main(folders) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "make " in err
+
+
+def test_cli_is_offered_by_the_package():
+    assert evaluate.main is main
 
 
 def test_checkpoint_backend_generates_requested_lengths_deterministically(tiny_run):
@@ -198,6 +274,9 @@ def test_tiny_end_to_end_evaluation(tiny_run, tiny_dataset, tmp_path, capsys):
     assert main(args) == 0
     summary = json.loads((out / "results.json").read_text())
     assert summary["num_items"] == 32 and not summary["standard_protocol"]
+    # --device auto: the evaluator and the generator ran on the resolved device.
+    assert summary["settings"]["device"] == "auto"
+    assert summary["device"] == ("cuda:0" if torch.cuda.is_available() else "cpu")
     assert "split = all (standard: test)" in summary["deviations"]
     for row in evaluate.ROWS:
         for name, entry in summary["rows"][row].items():

@@ -33,14 +33,15 @@ import dataclasses
 import functools
 import importlib
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from tqdm import tqdm
 
+from dataset_tools.command import UsageError, option
 from t2m.data.dataset import Caption, Clip
 from t2m.evaluate import metrics
 from t2m.evaluate.backend import Backend
@@ -71,40 +72,61 @@ EXTRA_METRICS = (
 class EvalConfig:
     """Settings of one evaluation; the defaults are the standard protocol.
 
-    Each field's docstring is its command-line help.
+    Each field's docstring is its ``python -m t2m.evaluate`` help; impossible values raise
+    :class:`~dataset_tools.command.UsageError` (a ``ValueError``) naming the option.
     """
 
     split: str = "test"
-    """Split file of the dataset to evaluate on (``<split>.txt``)."""
-    replications: int = 20
-    """Independent repetitions, each regenerating everything with its own seed (3 with quick)."""
-    mm_texts: int = 100
-    """Captions used for MultiModality (16 with quick)."""
-    mm_samples: int = 30
-    """Generations per MultiModality caption (10 with quick)."""
-    pool_size: int = metrics.R_PRECISION_BATCH_SIZE
-    """R-precision pool: each caption ranks its motion among pool_size motions."""
-    diversity_pairs: int = metrics.DIVERSITY_PAIRS
-    """Random pairs of motions whose mean distance is the Diversity."""
-    mm_pairs: int = metrics.MULTIMODALITY_PAIRS
-    """Random pairs of generations per caption whose mean distance is the MultiModality."""
-    max_items: int | None = None
-    """Evaluate at most this many items of the split (None: all of it; 128 with quick)."""
-    batch_size: int = 128
-    """Items per generation / embedding forward pass (speed only; raise it on a GPU)."""
-    num_threads: int = 0
-    """Torch CPU threads (0: torch's choice). On a small shared CPU, 1 is often fastest."""
+    """split file of the dataset to evaluate on (<split>.txt)"""
+    replications: int = field(default=20, metadata=option(metavar="N"))
+    """independent repetitions, each regenerating everything with its own seed (default 20; 3
+    with --quick)"""
+    mm_texts: int = field(default=100, metadata=option(metavar="N"))
+    """captions used for MultiModality (default 100; 16 with --quick)"""
+    mm_samples: int = field(default=30, metadata=option(metavar="N"))
+    """generations per MultiModality caption, at least 2 (default 30; 10 with --quick)"""
+    pool_size: int = field(default=metrics.R_PRECISION_BATCH_SIZE, metadata=option(metavar="N"))
+    """R-precision pool: each caption ranks its motion among this many motions"""
+    diversity_pairs: int = field(default=metrics.DIVERSITY_PAIRS, metadata=option(metavar="N"))
+    """random pairs of motions whose mean distance is the Diversity"""
+    mm_pairs: int = field(default=metrics.MULTIMODALITY_PAIRS, metadata=option(metavar="N"))
+    """random pairs of generations per caption whose mean distance is the MultiModality"""
+    max_items: int | None = field(default=None, metadata=option(metavar="N"))
+    """evaluate at most this many items of the split (default: all of it; 128 with --quick)"""
+    batch_size: int = field(default=128, metadata=option(metavar="N"))
+    """items per generation / embedding forward pass (speed only; raise it on a GPU)"""
+    num_threads: int = field(default=0, metadata=option("--threads", metavar="N"))
+    """torch CPU threads (0: torch's choice; on a small shared CPU, 1 is often fastest)"""
     seed: int = 0
-    """Seed of replication 0; each replication derives its own from it."""
-    device: str = "cpu"
-    """Torch device of the models (cpu, cuda, auto, ...)."""
-    which: str = "best"
-    """Checkpoint of each stage: best or latest."""
-    precision: str = "fp32"
-    """Generator precision (fp32, bf16, int8; others than fp32 are marked as deviations); the
-    evaluator always runs in float32."""
+    """seed of replication 0; each replication derives its own from it"""
+    device: str = "auto"
+    """device of the evaluator and the generator: auto, cpu, cuda or cuda:N (auto: CUDA when
+    present, the CPU for int8)"""
+    which: Literal["best", "latest"] = "best"
+    """checkpoint of each stage"""
+    precision: Literal["fp32", "bf16", "int8"] = "fp32"
+    """generator precision (bf16 and int8 are marked as deviations; int8 runs on the CPU); the
+    evaluator always runs in float32"""
     quick: bool = False
-    """Development run: few replications on a subset, marked as such in every output."""
+    """development run: few replications on a subset, marked as such in every output"""
+
+    def __post_init__(self) -> None:
+        at_least = {
+            "replications": 1,
+            "mm_texts": 1,
+            "mm_samples": 2,  # MultiModality compares generations of one caption
+            "pool_size": 3,  # R-precision reports the top 3
+            "diversity_pairs": 1,
+            "mm_pairs": 1,
+            "max_items": 1,
+            "batch_size": 1,
+            "num_threads": 0,
+        }
+        for key, least in at_least.items():
+            value = getattr(self, key)
+            if value is not None and value < least:
+                name = "threads" if key == "num_threads" else key.replace("_", "-")
+                raise UsageError(f"--{name} must be >= {least}, got {value}")
 
 
 STANDARD = EvalConfig()
@@ -113,12 +135,14 @@ STANDARD = EvalConfig()
 QUICK_SETTINGS = {"replications": 3, "max_items": 128, "mm_texts": 16, "mm_samples": 10}
 
 
-def quick_config(config: EvalConfig) -> EvalConfig:
-    """The config with the quick-mode reductions applied (never raising a value)."""
+def quick_config(config: EvalConfig, keep: Collection[str] = ()) -> EvalConfig:
+    """The config with the quick-mode reductions applied (never raising a value) to the
+    :data:`QUICK_SETTINGS` not named in ``keep`` (those the user chose)."""
     changes: dict[str, Any] = {"quick": True}
     for key, value in QUICK_SETTINGS.items():
         current = getattr(config, key)
-        changes[key] = value if current is None else min(current, value)
+        if key not in keep:
+            changes[key] = value if current is None else min(current, value)
     return dataclasses.replace(config, **changes)
 
 
@@ -345,16 +369,13 @@ def run_protocol(
     per-replication values; :func:`~t2m.evaluate.report.summarize` turns them into means and
     intervals.
     """
-    if config.replications < 1:
-        raise ValueError(f"replications must be >= 1, got {config.replications}")
-    if config.mm_samples < 2 or config.mm_texts < 1:
-        raise ValueError("MultiModality needs mm_texts >= 1 and mm_samples >= 2")
     available = len(clips) if config.max_items is None else min(len(clips), config.max_items)
     num_items = (available // config.pool_size) * config.pool_size
     if num_items == 0:
-        raise ValueError(
-            f"the {config.split} split has {len(clips)} usable items; R-precision needs at least "
-            f"one pool of {config.pool_size}"
+        limit = "" if config.max_items is None else f", of which --max-items {config.max_items}"
+        raise UsageError(
+            f"the {config.split} split has {len(clips)} usable items{limit}; R-precision needs "
+            f"at least one pool of {config.pool_size}"
         )
     values = {
         row: {

@@ -1,22 +1,46 @@
 """The library entry point: evaluate a run folder on a dataset folder and write the results.
 
-:func:`evaluate` is what ``python -m t2m.evaluate`` calls, in four steps: load the trained stages
+:func:`evaluate` is what ``python -m t2m.evaluate`` calls: check the inputs (:func:`check_inputs`,
+one-line :class:`~dataset_tools.command.UsageError` before anything is loaded), load the stages
 as a :class:`~t2m.evaluate.backend.CheckpointBackend`, read the split (and find the dataset's
 scorer, if any), run the protocol, summarise and write ``results.json`` and ``results.md``.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from dataset_tools.command import UsageError
 from t2m.config import DataConfig
 from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
 from t2m.evaluate.protocol import EvalConfig, find_scorer, run_protocol
 from t2m.evaluate.report import summarize, write_results
+
+logger = logging.getLogger("t2m.evaluate")
+
+
+def check_inputs(
+    dataset_dir: str | Path, checkpoints_dir: str | Path, out_dir: str | Path | None, split: str
+) -> None:
+    """What can be checked before anything is loaded: :class:`UsageError` (one line) for a
+    missing dataset or run folder, a missing or empty split file, an ``out_dir`` that is a file."""
+    dataset_dir, checkpoints_dir = Path(dataset_dir), Path(checkpoints_dir)
+    if not dataset_dir.is_dir():
+        raise UsageError(f"--dataset {dataset_dir}: no such folder")
+    if not checkpoints_dir.is_dir():
+        raise UsageError(f"--checkpoints {checkpoints_dir}: no such folder")
+    split_file = dataset_dir / f"{split}.txt"
+    if not split_file.is_file():
+        raise UsageError(f"--dataset {dataset_dir}: no split file {split_file.name} (--split)")
+    if not split_file.read_text(encoding="utf-8").strip():
+        raise UsageError(f"--split {split}: {split_file} lists no clip")
+    if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
+        raise UsageError(f"--out {out_dir} exists and is not a folder")
 
 
 def evaluate(
@@ -28,21 +52,34 @@ def evaluate(
 ) -> dict[str, Any]:
     """Evaluate the run in ``checkpoints_dir`` on ``dataset_dir``; write results into ``out_dir``.
 
-    Steps: 1. load the stages, 2. read the split, 3. run the protocol, 4. summarise and write.
-    Returns the summary (the content of results.json).
+    Steps: 0. check the inputs, 1. load the stages, 2. read the split, 3. run the protocol,
+    4. summarise and write. Returns the summary (the content of results.json). What the user got
+    wrong (folders, split, device, a missing stage, too few items) is a :class:`UsageError`,
+    raised before the long work.
     """
+    # 0. inputs
+    check_inputs(dataset_dir, checkpoints_dir, out_dir, config.split)
     # 1. models
     if config.num_threads > 0:
         torch.set_num_threads(config.num_threads)
     if backend is None:
-        backend = CheckpointBackend.from_run_dir(
-            checkpoints_dir, config.device, config.which, config.batch_size, config.precision
-        )
+        # int8 kernels exist on the CPU only: there "auto" means the CPU.
+        device = "cpu" if config.precision == "int8" and config.device == "auto" else config.device
+        try:
+            backend = CheckpointBackend.from_run_dir(
+                checkpoints_dir, device, config.which, config.batch_size, config.precision
+            )
+        except ValueError as error:  # unknown device, missing stage (naming its make target)
+            raise UsageError(str(error)) from None
+        logger.info("evaluator and generator on %s", backend.device)
     data_config = getattr(backend, "data_config", None)
     if data_config is None:
         data_config = DataConfig()
     # 2. data
-    clips = load_split(dataset_dir, config.split, data_config)
+    try:
+        clips = load_split(dataset_dir, config.split, data_config)
+    except ValueError as error:  # not a dataset folder, unreadable clip, no usable clip
+        raise UsageError(str(error)) from None
     semantic = find_scorer(dataset_dir)
     # 3. protocol
     result = run_protocol(
@@ -57,6 +94,8 @@ def evaluate(
     summary = summarize(result)
     summary["dataset"] = str(dataset_dir)
     summary["checkpoints"] = str(checkpoints_dir)
+    if isinstance(backend, CheckpointBackend):
+        summary["device"] = str(backend.device)
     if out_dir is not None:
         write_results(summary, out_dir)
     return summary
