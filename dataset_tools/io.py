@@ -77,6 +77,7 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
     """Write ``data`` as indented JSON to ``path`` atomically."""
     return write_text_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
+
 _NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file
 
 

@@ -42,9 +42,7 @@ class RenderCommandConfig:
 
     def __post_init__(self) -> None:
         if self.output.suffix.lower() not in SUFFIXES:
-            raise UsageError(
-                f"output must end in {', '.join(SUFFIXES)}, got {self.output.name!r}"
-            )
+            raise UsageError(f"output must end in {', '.join(SUFFIXES)}, got {self.output.name!r}")
         if not self.fps > 0:
             raise UsageError(f"--fps must be positive, got {self.fps}")
         if self.keyframes < 1:

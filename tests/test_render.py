@@ -199,11 +199,10 @@ def bad_motion_files(folder: Path) -> dict[str, tuple[Path, str]]:
     return files
 
 
-@pytest.mark.parametrize(
-    "bad",
-    ["missing", "pickled", "joint_count", "feature_width", "scalar", "no_frames", "strings", "nan",
-     "text", "archive"],
-)  # fmt: skip
+BAD_FILES = "missing pickled joint_count feature_width scalar no_frames strings nan text archive"
+
+
+@pytest.mark.parametrize("bad", BAD_FILES.split())
 def test_cli_bad_input_is_one_error_line_exit_2_and_writes_nothing(tmp_path, capsys, bad):
     from t2m.render import main
 
@@ -236,7 +235,13 @@ def test_cli_bad_options_are_one_error_line_exit_2(tmp_path, capsys, argv, expec
 def test_cli_error_has_no_traceback_in_a_real_process(tmp_path):
     np.save(tmp_path / "pickled.npy", np.array([object()], dtype=object), allow_pickle=True)
     done = subprocess.run(
-        [sys.executable, "-m", "t2m.render", str(tmp_path / "pickled.npy"), str(tmp_path / "x.gif")],
+        [
+            sys.executable,
+            "-m",
+            "t2m.render",
+            str(tmp_path / "pickled.npy"),
+            str(tmp_path / "x.gif"),
+        ],
         capture_output=True,
         text=True,
     )
