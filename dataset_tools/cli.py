@@ -16,7 +16,7 @@ from dataset_tools.command import (
     config_from_args,
     option,
 )
-from dataset_tools.io import save_npy_atomic
+from dataset_tools.io import load_npy, save_npy_atomic
 from dataset_tools.representation import (
     FeatureLayout,
     process_motion,
@@ -57,21 +57,6 @@ class RecoverConfig:
     the target skeleton"""
 
 
-def _load(file: Path) -> np.ndarray:
-    """A finite array from a .npy file the user named; UsageError otherwise."""
-    if not file.is_file():
-        raise UsageError(f"no such file: {file}")
-    try:
-        array = np.load(file, allow_pickle=False)
-    except (OSError, ValueError) as error:
-        raise UsageError(f"cannot read {file} as a .npy array ({error})") from error
-    if not np.issubdtype(array.dtype, np.number):
-        raise UsageError(f"{file} holds {array.dtype} values, not numbers")
-    if not np.all(np.isfinite(array)):
-        raise UsageError(f"{file} contains NaN or infinite values")
-    return array
-
-
 @command
 def features_main(argv: list[str] | None = None) -> int:
     parser = CommandParser(
@@ -81,7 +66,7 @@ def features_main(argv: list[str] | None = None) -> int:
     )
     add_config_options(parser, FeaturesConfig)
     config = config_from_args(FeaturesConfig, parser.parse_args(argv))
-    joints = _load(config.input)
+    joints = load_npy(config.input)
     if joints.ndim != 3 or joints.shape[-1] != 3 or joints.shape[1] not in (21, 22):
         raise UsageError(f"{config.input}: expected joints (T, 22 or 21, 3), got {joints.shape}")
     if len(joints) < 2:
@@ -89,7 +74,7 @@ def features_main(argv: list[str] | None = None) -> int:
     skeleton = skeleton_for(joints.shape[1])
     offsets = None
     if config.target_skeleton is not None:
-        example = _load(config.target_skeleton)
+        example = load_npy(config.target_skeleton)
         if example.ndim != 2 or example.shape[0] < skeleton.num_joints or example.shape[1] != 3:
             raise UsageError(
                 f"{config.target_skeleton}: expected one frame (>= {skeleton.num_joints}, 3), "
@@ -111,7 +96,7 @@ def recover_main(argv: list[str] | None = None) -> int:
     )
     add_config_options(parser, RecoverConfig)
     config = config_from_args(RecoverConfig, parser.parse_args(argv))
-    features = _load(config.input)
+    features = load_npy(config.input)
     dims = {FeatureLayout(joints).dim: joints for joints in (22, 21)}
     if features.ndim != 2 or features.shape[1] not in dims:
         raise UsageError(

@@ -25,7 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from dataset_tools.io import save_npy_atomic, write_text_atomic
+from dataset_tools.command import UsageError
+from dataset_tools.io import load_npy, save_npy_atomic, write_text_atomic
+from dataset_tools.representation import FeatureLayout, recover_from_ric
+from dataset_tools.skeleton import SKELETONS
 
 FEATURES_DIR = "new_joint_vecs"
 JOINTS_DIR = "new_joints"
@@ -223,16 +226,19 @@ def write_mean_std(folder: str | Path, mean: np.ndarray, std: np.ndarray) -> Non
 
 
 def read_joints(path: str | Path) -> np.ndarray:
-    """Joints (T, J, 3) from a .npy file holding joints (as in ``new_joints/``) or features
-    (T, D) (as in ``new_joint_vecs/``, recovered to joints). ValueError for unreadable files and
-    feature widths no layout has."""
-    from dataset_tools.representation import FeatureLayout, recover_from_ric
-
-    try:
-        array = np.load(path)
-    except (OSError, ValueError) as error:
-        raise ValueError(f"cannot read {path}: {error}") from None
-    if array.ndim == 2:  # features: recover the joints they describe
-        FeatureLayout.for_dim(array.shape[-1])
-        return recover_from_ric(array)
-    return array
+    """Joints (T, J, 3) from a .npy file that a user named, holding joints (T, J, 3) of a known
+    skeleton (as in ``new_joints/``) or features (T, D) of a known layout (as in
+    ``new_joint_vecs/``, recovered to joints), T >= 1. Raises UsageError (one line) for anything
+    else (see :func:`dataset_tools.io.load_npy` for what a readable file is)."""
+    array = load_npy(path)
+    joint_counts = sorted((spec.num_joints for spec in SKELETONS.values()), reverse=True)
+    widths = {FeatureLayout(count).dim: count for count in joint_counts}
+    frames = array.shape[0] if array.ndim else 0
+    if frames and array.ndim == 3 and array.shape[1:] in [(n, 3) for n in joint_counts]:
+        return array
+    if frames and array.ndim == 2 and array.shape[1] in widths:
+        return recover_from_ric(array, widths[array.shape[1]])
+    raise UsageError(
+        f"{path}: expected joints (T, {' or '.join(map(str, joint_counts))}, 3) or features "
+        f"(T, {' or '.join(map(str, widths))}) with T >= 1, got shape {array.shape}"
+    )

@@ -1,4 +1,5 @@
-"""Atomic file writes: a reader never sees a half-written file, a crash leaves the old one.
+"""Atomic file writes (a reader never sees a half-written file, a crash leaves the old one), and
+the one reader of arrays that a user names on a command line (:func:`load_npy`).
 
 This is the one atomic writer of the project (datasets, checkpoints, renders, exports all use it).
 The temporary file is made beside the target (same file system, so the rename is atomic) and
@@ -17,6 +18,8 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
+
+from dataset_tools.command import UsageError
 
 
 def _current_umask() -> int:
@@ -73,3 +76,32 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
 def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
     """Write ``data`` as indented JSON to ``path`` atomically."""
     return write_text_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+
+
+_NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file
+
+
+def load_npy(path: str | os.PathLike) -> np.ndarray:
+    """The array of a .npy file that a user named: numbers, all finite; pickles are never loaded.
+
+    Raises UsageError (one line naming the file) for a missing file, a file that is not a .npy
+    array (a text file, an .npz archive) or holds Python objects, non-numeric values, NaN or
+    infinity.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"no such file: {path}")
+    try:
+        with open(path, "rb") as file:
+            is_npy = file.read(len(_NPY_MAGIC)) == _NPY_MAGIC
+        array = np.load(path, allow_pickle=False) if is_npy else None
+    except (OSError, ValueError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise UsageError(f"cannot read {path} as a .npy array ({reason})") from error
+    if array is None:
+        raise UsageError(f"{path} is not a .npy file (no numpy header)")
+    if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
+        raise UsageError(f"{path} holds {array.dtype} values, not real numbers")
+    if not np.all(np.isfinite(array)):
+        raise UsageError(f"{path} contains NaN or infinite values")
+    return array

@@ -1,57 +1,76 @@
 """``python -m t2m.export IN.npy OUT.bvh``: joints or features to a BVH file of the SMPL skeleton.
 
-The BVH writer (IK with its twist choice, the file text) is :mod:`dataset_tools.bvh`; its names
-are re-exported here for existing callers.
+The BVH writer (IK with its twist choice, the file text) is :mod:`dataset_tools.bvh`; this module
+is only its command.
 """
 
 from __future__ import annotations
 
-from dataset_tools.bvh import (
-    UNITS,
-    BvhMotion,
-    forward_kinematics,
-    motion_from_joints,
-    rest_directions,
-    solve_rotations,
-    write_bvh,
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from dataset_tools.bvh import write_bvh
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
 )
 from dataset_tools.humanml3d import read_joints
-
-__all__ = [
-    "UNITS",
-    "BvhMotion",
-    "forward_kinematics",
-    "main",
-    "motion_from_joints",
-    "rest_directions",
-    "solve_rotations",
-    "write_bvh",
-]
+from dataset_tools.skeleton import SMPL
 
 
+@dataclass
+class ExportCommandConfig:
+    """``python -m t2m.export``."""
+
+    input: Path = field(metadata=option(positional=True))
+    """.npy joints (T, 22, 3) (metres, y-up) or HumanML3D features (T, 263)"""
+    output: Path = field(metadata=option(positional=True))
+    """.bvh file to write"""
+    fps: float = 20.0
+    """frames per second of the motion (the file's frame time is 1 / fps)"""
+    units: Literal["cm", "m"] = "cm"
+    """length unit of the file's offsets and root positions"""
+    template_rest_pose: bool = False
+    """use the template hips / collars instead of fitting them to the motion"""
+
+    def __post_init__(self) -> None:
+        if self.output.suffix.lower() != ".bvh":
+            raise UsageError(f"output must end in .bvh, got {self.output.name!r}")
+        if not self.fps > 0:
+            raise UsageError(f"--fps must be positive, got {self.fps}")
+
+
+@command
 def main(argv: list[str] | None = None) -> int:
-    """``python -m t2m.export IN.npy OUT.bvh``: joints (T, 22, 3) or features (T, 263) to BVH."""
-    import argparse
-    import sys
-
-    parser = argparse.ArgumentParser(
+    """``python -m t2m.export IN.npy OUT.bvh [--units cm|m]``; returns the exit code (2 on bad
+    input)."""
+    parser = CommandParser(
         prog="python -m t2m.export",
         description="Write joints (T, 22, 3) (metres, y-up) or HumanML3D features (T, 263) from "
         "a .npy file as a BVH file of the 22-joint SMPL skeleton.",
     )
-    parser.add_argument("input", help=".npy joints (T, 22, 3) or features (T, 263)")
-    parser.add_argument("output", help="output .bvh file")
-    parser.add_argument("--fps", type=float, default=20.0, help="frames per second (default 20)")
-    parser.add_argument("--units", choices=sorted(UNITS), default="cm", help="default cm")
-    parser.add_argument("--template-rest-pose", action="store_true",
-                        help="use the template hips / collars instead of fitting them")  # fmt: skip
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    try:
-        write_bvh(read_joints(args.input), args.output, fps=args.fps, units=args.units,
-                  fit_rest_pose=not args.template_rest_pose)  # fmt: skip
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    add_config_options(parser, ExportCommandConfig)
+    config = config_from_args(ExportCommandConfig, parser.parse_args(argv))
+    configure_logging()
+    joints = read_joints(config.input)
+    if joints.shape[1] != SMPL.num_joints:
+        raise UsageError(
+            f"{config.input}: BVH export needs the {SMPL.num_joints}-joint SMPL skeleton, "
+            f"got {joints.shape[1]} joints"
+        )
+    write_bvh(
+        joints,
+        config.output,
+        fps=config.fps,
+        units=config.units,
+        fit_rest_pose=not config.template_rest_pose,
+    )
     return 0
 
 

@@ -1,58 +1,71 @@
 """``python -m t2m.render IN.npy OUT.mp4|gif|png``: render a motion file with the project's renderer.
 
-The renderer itself is :mod:`dataset_tools.viz` (torch-free, shared with the dataset tools); its
-names are re-exported here for existing callers.
+The renderer itself is :mod:`dataset_tools.viz` (torch-free, shared with the dataset tools); this
+module is only its command.
 """
 
 from __future__ import annotations
 
-from dataset_tools.humanml3d import read_joints
-from dataset_tools.viz import (
-    FORMATS,
-    RenderConfig,
-    render_animation,
-    render_contact_sheet,
-    render_frames,
-    render_keyframes,
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
 )
+from dataset_tools.humanml3d import read_joints
+from dataset_tools.viz import FORMATS, render_animation, render_keyframes
 
-__all__ = [
-    "FORMATS",
-    "RenderConfig",
-    "main",
-    "render_animation",
-    "render_contact_sheet",
-    "render_frames",
-    "render_keyframes",
-]
+SUFFIXES = tuple(f".{name}" for name in FORMATS) + (".png",)
 
 
+@dataclass
+class RenderCommandConfig:
+    """``python -m t2m.render``."""
+
+    input: Path = field(metadata=option(positional=True))
+    """.npy joints (T, J, 3) (metres, y-up; J = 22 SMPL or 21 KIT) or HumanML3D features
+    (T, 263 or 251)"""
+    output: Path = field(metadata=option(positional=True))
+    """file to write: .mp4 or .gif (an animation) or .png (a strip of key frames)"""
+    caption: str = ""
+    """title shown above the figure"""
+    fps: float = 20.0
+    """frames per second of the motion (and of the animation)"""
+    keyframes: int = 6
+    """panels of a PNG strip"""
+
+    def __post_init__(self) -> None:
+        if self.output.suffix.lower() not in SUFFIXES:
+            raise UsageError(f"output must end in {', '.join(SUFFIXES)}, got {self.output.name!r}")
+        if not self.fps > 0:
+            raise UsageError(f"--fps must be positive, got {self.fps}")
+        if self.keyframes < 1:
+            raise UsageError(f"--keyframes must be at least 1, got {self.keyframes}")
+
+
+@command
 def main(argv: list[str] | None = None) -> int:
-    """``python -m t2m.render IN.npy OUT.mp4|gif|png [--caption TEXT]``: render a motion file
-    (joints (T, J, 3) or features (T, D)); PNG gives a key-frame strip."""
-    import argparse
-    import sys
-
-    parser = argparse.ArgumentParser(
+    """``python -m t2m.render IN.npy OUT.mp4|gif|png [--caption TEXT]``; returns the exit code
+    (2 on bad input)."""
+    parser = CommandParser(
         prog="python -m t2m.render",
         description="Render joints (T, J, 3) or features (T, D) from a .npy file as an mp4 or "
         "gif stick-figure animation, or a PNG strip of key frames.",
     )
-    parser.add_argument("input", help=".npy joints (T, J, 3), metres, y-up, or features (T, D)")
-    parser.add_argument("output", help="output file: .mp4, .gif or .png (key-frame strip)")
-    parser.add_argument("--caption", default="", help="title shown above the figure")
-    parser.add_argument("--fps", type=float, default=20.0, help="frames per second (default 20)")
-    parser.add_argument("--keyframes", type=int, default=6, help="panels of a PNG strip")
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    try:
-        joints = read_joints(args.input)
-        if args.output.lower().endswith(".png"):
-            render_keyframes(joints, args.output, args.caption, args.keyframes, args.fps)
-        else:
-            render_animation(joints, args.output, args.caption, args.fps)
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    add_config_options(parser, RenderCommandConfig)
+    config = config_from_args(RenderCommandConfig, parser.parse_args(argv))
+    configure_logging()
+    joints = read_joints(config.input)
+    if config.output.suffix.lower() == ".png":
+        render_keyframes(joints, config.output, config.caption, config.keyframes, config.fps)
+    else:
+        render_animation(joints, config.output, config.caption, config.fps)
     return 0
 
 

@@ -171,9 +171,9 @@ def sample_to_folder(
     Raises UsageError (a ValueError) before any generation for an unusable ``out``, ``render``
     or ``bvh`` request.
     """
-    from t2m.export import write_bvh
+    from dataset_tools.bvh import write_bvh
+    from dataset_tools.viz import render_animation
     from t2m.pipeline import FPS
-    from t2m.render import render_animation
 
     if render not in RENDER_CHOICES:
         raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")

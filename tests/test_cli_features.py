@@ -41,4 +41,8 @@ def test_help_and_bad_inputs(tmp_path):
     np.save(tmp_path / "nan.npy", nan)
     bad = _run("recover", str(tmp_path / "nan.npy"), str(tmp_path / "out.npy"))
     assert bad.returncode == 2 and "NaN" in bad.stderr
+    np.save(tmp_path / "pickled.npy", np.array([{"joints": 1}], dtype=object), allow_pickle=True)
+    pickled = _run("recover", str(tmp_path / "pickled.npy"), str(tmp_path / "out.npy"))
+    assert pickled.returncode == 2 and pickled.stderr.startswith("error: cannot read")
+    assert len(pickled.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out.npy").exists()

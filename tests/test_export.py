@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -242,6 +244,7 @@ def test_bad_units_and_fps(tmp_path):
 
 
 def test_cli_writes_bvh_from_joints_or_features(tmp_path, capsys):
+    from dataset_tools.representation import process_motion
     from t2m.export import main
 
     joints = _reference_joints()[:30]
@@ -249,7 +252,97 @@ def test_cli_writes_bvh_from_joints_or_features(tmp_path, capsys):
     assert main([str(tmp_path / "joints.npy"), str(tmp_path / "a.bvh"), "--units", "m"]) == 0
     positions, *_ = _read_with_bvh_package(tmp_path / "a.bvh")
     assert np.linalg.norm(positions - joints, axis=-1).max() < 0.01
-    np.save(tmp_path / "bad.npy", np.zeros((5, 21, 3)))
-    assert main([str(tmp_path / "bad.npy"), str(tmp_path / "b.bvh")]) == 2
-    assert "22" in capsys.readouterr().err
-    assert not (tmp_path / "b.bvh").exists()
+    features, recovered = process_motion(joints)
+    np.save(tmp_path / "features.npy", features.astype(np.float32))
+    assert main([str(tmp_path / "features.npy"), str(tmp_path / "b.bvh"), "--fps", "30"]) == 0
+    positions, _, frame_time, _ = _read_with_bvh_package(tmp_path / "b.bvh")
+    assert frame_time == pytest.approx(1 / 30)
+    assert np.linalg.norm(positions / 100 - recovered, axis=-1).max() < 0.01  # cm by default
+    assert capsys.readouterr().err == ""
+
+
+def test_cli_help_lists_the_documented_options_with_their_docstrings(capsys):
+    from t2m.export import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for expected in (
+        "input output",
+        "--units cm|m length unit of the file's offsets and root positions (default: cm)",
+        "--fps FPS frames per second of the motion",
+        "--template-rest-pose, --no-template-rest-pose use the template hips / collars",
+        ".bvh file to write",
+    ):
+        assert expected in text, expected
+
+
+def test_cli_units_are_the_writers_units():
+    from typing import get_args, get_type_hints
+
+    from dataset_tools.bvh import UNITS
+    from t2m.export import ExportCommandConfig
+
+    assert set(get_args(get_type_hints(ExportCommandConfig)["units"])) == set(UNITS)
+
+
+def _bad(folder: Path, name: str) -> Path:
+    """An unusable input or output: the file to pass (written unless it must be missing)."""
+    path = folder / f"{name}.npy"
+    if name == "pickled":
+        np.save(path, np.array([{"joints": 1}], dtype=object), allow_pickle=True)
+    elif name == "kit_joints":
+        np.save(path, np.zeros((5, 21, 3)))
+    elif name == "shape":
+        np.save(path, np.zeros((5, 22)))
+    elif name == "nan":
+        np.save(path, np.full((5, 22, 3), np.nan))
+    elif name != "missing":
+        np.save(path, np.repeat(_pose({})[None], 3, axis=0))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "expected"),
+    [
+        ("missing", [], "no such file"),
+        ("pickled", [], "cannot read"),
+        ("kit_joints", [], "needs the 22-joint SMPL skeleton, got 21 joints"),
+        ("shape", [], "expected joints (T, 22 or 21, 3) or features (T, 263 or 251)"),
+        ("nan", [], "NaN"),
+        ("good", ["--units", "inch"], "argument --units: invalid choice: 'inch'"),
+        ("good", ["--fps", "-1"], "--fps must be positive"),
+        ("good", ["--output-name-is", "x"], "unrecognized arguments"),
+    ],
+)
+def test_cli_bad_input_is_one_error_line_exit_2_and_writes_nothing(
+    tmp_path, capsys, name, options, expected
+):
+    from t2m.export import main
+
+    path = _bad(tmp_path, name)
+    assert main([str(path), str(tmp_path / "out" / "x.bvh"), *options]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and expected in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_output_must_be_a_bvh_file(tmp_path, capsys):
+    from t2m.export import main
+
+    path = _bad(tmp_path, "good")
+    assert main([str(path), str(tmp_path / "x.txt")]) == 2
+    assert capsys.readouterr().err == "error: output must end in .bvh, got 'x.txt'\n"
+    assert not (tmp_path / "x.txt").exists()
+
+
+def test_cli_error_has_no_traceback_in_a_real_process(tmp_path):
+    path = _bad(tmp_path, "nan")
+    done = subprocess.run(
+        [sys.executable, "-m", "t2m.export", str(path), str(tmp_path / "x.bvh")],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip() == f"error: {path} contains NaN or infinite values"

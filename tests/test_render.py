@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import imageio_ffmpeg
@@ -152,9 +154,100 @@ def test_cli_renders_joints_and_features_files(tmp_path, capsys):
         assert gif.n_frames == 45
     with Image.open(tmp_path / "strip.png") as strip:
         assert strip.size[0] == 3 * 240
-    assert main([str(tmp_path / "missing.npy"), str(tmp_path / "x.mp4")]) == 2
-    assert main([str(tmp_path / "joints.npy"), str(tmp_path / "x.avi")]) == 2
-    assert capsys.readouterr().err.count("error:") == 2
+    assert capsys.readouterr().err == ""
+
+
+def test_cli_help_lists_the_documented_options_with_their_docstrings(capsys):
+    from t2m.render import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    for expected in (
+        "input output",
+        "--caption CAPTION title shown above the figure",
+        "--fps FPS frames per second of the motion (and of the animation) (default: 20.0)",
+        "--keyframes KEYFRAMES panels of a PNG strip (default: 6)",
+        "or .png (a strip of key frames)",
+    ):
+        assert expected in text, expected
+
+
+def bad_motion_files(folder: Path) -> dict[str, tuple[Path, str]]:
+    """Unusable input files for the render and export commands: name -> (file, expected words)."""
+    files = {}
+
+    def save(name: str, array: np.ndarray, expected: str, **keywords) -> None:
+        np.save(folder / f"{name}.npy", array, **keywords)
+        files[name] = (folder / f"{name}.npy", expected)
+
+    files["missing"] = (folder / "missing.npy", "no such file")
+    save("pickled", np.array([{"joints": 1}], dtype=object), "cannot read", allow_pickle=True)
+    save("joint_count", np.zeros((5, 23, 3)), "expected joints (T, 22 or 21, 3)")
+    save("feature_width", np.zeros((5, 100)), "or features (T, 263 or 251)")
+    save("scalar", np.float32(1.0), "got shape ()")
+    save("no_frames", np.zeros((0, 22, 3)), "T >= 1")
+    save("strings", np.array(["a", "b"]), "not real numbers")
+    nan = _standing(5)
+    nan[2, 3, 1] = np.nan
+    save("nan", nan, "NaN")
+    (folder / "text.npy").write_text("0.1 0.2 0.3\n")
+    files["text"] = (folder / "text.npy", "not a .npy file")
+    np.savez(folder / "archive.npz", joints=_standing(5))
+    files["archive"] = (folder / "archive.npz", "not a .npy file")
+    return files
+
+
+BAD_FILES = "missing pickled joint_count feature_width scalar no_frames strings nan text archive"
+
+
+@pytest.mark.parametrize("bad", BAD_FILES.split())
+def test_cli_bad_input_is_one_error_line_exit_2_and_writes_nothing(tmp_path, capsys, bad):
+    from t2m.render import main
+
+    path, expected = bad_motion_files(tmp_path)[bad]
+    assert main([str(path), str(tmp_path / "out" / "x.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and expected in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["x.avi"], "output must end in .mp4, .gif, .png"),
+        (["x.gif", "--fps", "0"], "--fps must be positive"),
+        (["x.png", "--keyframes", "0"], "--keyframes must be at least 1"),
+        (["x.gif", "--fps", "fast"], "invalid float value"),
+    ],
+)
+def test_cli_bad_options_are_one_error_line_exit_2(tmp_path, capsys, argv, expected):
+    from t2m.render import main
+
+    np.save(tmp_path / "joints.npy", _standing(5))
+    assert main([str(tmp_path / "joints.npy"), str(tmp_path / argv[0]), *argv[1:]]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and expected in err, err
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["joints.npy"]
+
+
+def test_cli_error_has_no_traceback_in_a_real_process(tmp_path):
+    np.save(tmp_path / "pickled.npy", np.array([object()], dtype=object), allow_pickle=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "t2m.render",
+            str(tmp_path / "pickled.npy"),
+            str(tmp_path / "x.gif"),
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2
+    assert done.stderr.startswith("error: cannot read") and "Traceback" not in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
 
 
 def test_contact_sheet_has_a_row_per_clip_and_is_deterministic(tmp_path):
@@ -170,10 +263,3 @@ def test_contact_sheet_has_a_row_per_clip_and_is_deterministic(tmp_path):
         render_contact_sheet([], tmp_path / "d.png")
     with pytest.raises(ValueError, match="PNG"):
         render_contact_sheet(clips, tmp_path / "d.gif")
-
-
-def test_t2m_render_re_exports_the_renderer():
-    import dataset_tools.viz
-    import t2m.render
-
-    assert t2m.render.render_animation is dataset_tools.viz.render_animation

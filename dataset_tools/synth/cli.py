@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dataset_tools import humanml3d
 from dataset_tools.command import (
     CommandParser,
     UsageError,
@@ -16,6 +17,7 @@ from dataset_tools.command import (
     config_from_args,
     configure_logging,
 )
+from dataset_tools.rotations import to_y_up
 
 
 @dataclass
@@ -89,34 +91,35 @@ def main(argv: list[str] | None = None) -> int:
 def _load_for_sheet(
     folder: Path, count: int, seed: int
 ) -> tuple[list[tuple[np.ndarray, str]], float]:
-    """(joints y-up, caption) of ``count`` random clips, and their fps."""
+    """(joints y-up, caption) of ``count`` random clips of a synth corpus (``joints/``, any up
+    axis and fps, per its ``source.json``) or a HumanML3D folder (``new_joints/``, y-up, 20 fps),
+    and their fps."""
     rng = np.random.default_rng(seed)
     if (folder / "source.json").exists() and (folder / "joints").is_dir():
-        from dataset_tools.synth.corpus import z_up_to_y_up
-
         source = json.loads((folder / "source.json").read_text(encoding="utf-8"))
-        if source.get("up", "y") not in ("y", "z"):
+        up = source.get("up", "y")
+        if up not in ("y", "z"):
             raise UsageError(f"{folder}/source.json: up must be 'y' or 'z'")
         files, fps = sorted((folder / "joints").glob("*.npy")), float(source.get("fps", 60))
-        convert = z_up_to_y_up if source.get("up") == "z" else np.asarray
-    elif (folder / "new_joints").is_dir():
-        files, fps, convert = sorted((folder / "new_joints").glob("*.npy")), 20.0, np.asarray
+    elif (folder / humanml3d.JOINTS_DIR).is_dir():
+        files, fps, up = sorted((folder / humanml3d.JOINTS_DIR).glob("*.npy")), 20.0, "y"
     else:
-        raise UsageError(f"{folder} has neither joints/ with source.json nor new_joints/")
+        raise UsageError(
+            f"{folder} has neither joints/ with source.json nor {humanml3d.JOINTS_DIR}/"
+        )
     if not files:
         raise UsageError(f"no clips in {folder}")
     picks = rng.choice(len(files), size=min(count, len(files)), replace=False)
     clips = []
     for i in sorted(picks):
         path = files[i]
-        joints = convert(np.load(path))
-        text_path = folder / "texts" / f"{path.stem}.txt"
         caption = path.stem
-        if text_path.exists():
-            lines = text_path.read_text(encoding="utf-8").splitlines()
-            if lines:
-                caption = f"{path.stem}: {lines[0].split('#')[0]}"
-        clips.append((joints, caption))
+        # Corpus captions are plain lines, HumanML3D's tagged ones; the first line is shown.
+        text_path = humanml3d.texts_path(folder, path.stem)
+        lines = text_path.read_text(encoding="utf-8").splitlines() if text_path.exists() else []
+        if lines and lines[0].strip():
+            caption = f"{path.stem}: {humanml3d.parse_caption_line(lines[0], str(text_path)).text}"
+        clips.append((to_y_up(np.load(path), up), caption))
     return clips, fps
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from dataset_tools import humanml3d
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.synth.corpus import GENERATOR
 from dataset_tools.synth.detectors import clip_matches, mirror_label
@@ -33,9 +34,9 @@ def find_corpus_labels(dataset_dir: str | Path) -> Path | None:
     names, which must be a corpus written by ``dataset_tools.synth`` (its ``source.json`` says so).
     """
     dataset_dir = Path(dataset_dir)
-    if (dataset_dir / "labels.json").is_file():
-        return dataset_dir / "labels.json"
-    report_path = dataset_dir / "build_report.json"
+    if (dataset_dir / humanml3d.LABELS_FILE).is_file():
+        return dataset_dir / humanml3d.LABELS_FILE
+    report_path = dataset_dir / humanml3d.REPORT_FILE
     if not report_path.is_file():
         return None
     try:
@@ -44,7 +45,7 @@ def find_corpus_labels(dataset_dir: str | Path) -> Path | None:
         source = json.loads((source_dir / "source.json").read_text(encoding="utf-8"))
     except (OSError, KeyError, TypeError, json.JSONDecodeError):
         return None
-    labels = source_dir / "labels.json"
+    labels = source_dir / humanml3d.LABELS_FILE
     if source.get("generator") != GENERATOR or not labels.is_file():
         return None
     return labels
@@ -55,7 +56,7 @@ class SemanticScorer:
 
     An item counts as right when every labelled segment of its source clip is recovered from the
     joints (the motion is cut in proportion to the segments' frames, see
-    :func:`~dataset_tools.synth.detectors.clip_matches`); mirrored clips (``M`` prefix) are
+    :func:`~dataset_tools.synth.detectors.clip_matches`); mirrored clips (:func:`~dataset_tools.humanml3d.mirror_name`) are
     checked against the mirrored labels. Sub-clips with their own time range are not scored.
 
     Args:
@@ -74,8 +75,9 @@ class SemanticScorer:
             return None
         if name in self.clips:
             return self.clips[name]["segments"]
-        if name.startswith("M") and name[1:] in self.clips:
-            return [mirror_label(segment) for segment in self.clips[name[1:]]["segments"]]
+        if humanml3d.is_mirror(name, self.clips):
+            original = self.clips[humanml3d.unmirrored_name(name)]
+            return [mirror_label(segment) for segment in original["segments"]]
         return None
 
     def __call__(self, names: Sequence[str], motions: Sequence[np.ndarray]) -> dict[str, float]:
@@ -86,7 +88,7 @@ class SemanticScorer:
             segments = self.segments_for(name)
             if segments is None:
                 continue
-            base = name[1:] if name not in self.clips else name
+            base = name if name in self.clips else humanml3d.unmirrored_name(name)
             joints = recover_from_ric(motion, FeatureLayout.for_dim(motion.shape[-1]).num_joints)
             matched = clip_matches(joints, self.fps, segments, self.clips[base]["frames"])
             items += 1

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dataset_tools import humanml3d
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip
 from t2m.pipeline import TextToMotion
@@ -98,7 +99,8 @@ def _synthetic_clips(count: int, rng: np.random.Generator) -> list[Clip]:
 
 def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str, bool]:
     """The backend, the test items, a description, and whether they are the real demo run."""
-    if (DEMO_RUN / "eval" / "best.pt").is_file() and (DEMO_DATASET / "test.txt").is_file():
+    trained = (DEMO_RUN / "eval" / "best.pt").is_file()
+    if trained and humanml3d.split_path(DEMO_DATASET, "test").is_file():
         from t2m.data.dataset import load_split
 
         backend = evaluate.CheckpointBackend.from_run_dir(DEMO_RUN)

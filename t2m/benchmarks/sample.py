@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dataset_tools import humanml3d
 from t2m.config import paper
 from t2m.data.normalization import Normalizer
 from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
@@ -133,8 +134,8 @@ def _measure(quick: bool) -> dict:
             results[f"sample.{precision}_vs_fp32_random_weights_mean_mm"] = round(
                 float(difference.mean()) * 1e3, 2)  # fmt: skip
     # Files: rendering and BVH export of one 196-frame motion.
-    from t2m.export import write_bvh
-    from t2m.render import RenderConfig, render_animation
+    from dataset_tools.bvh import write_bvh
+    from dataset_tools.viz import RenderConfig, render_animation
 
     with tempfile.TemporaryDirectory() as tmp:
         joints = _walking_joints()
@@ -150,7 +151,7 @@ def _measure(quick: bool) -> dict:
 def _walking_joints() -> np.ndarray:
     """The real reference clip when ../shared is present, else a procedural stand-in."""
     shared = Path(__file__).resolve().parents[2].parent / "shared"
-    clip = shared / "reference" / "humanml3d" / "new_joints" / "012314.npy"
+    clip = humanml3d.joints_path(shared / "reference" / "humanml3d", "012314")
     if clip.exists():
         joints = np.load(clip)
         return np.concatenate([joints, joints[::-1]])[:FRAMES]

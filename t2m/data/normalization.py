@@ -14,6 +14,7 @@ from typing import TypeVar
 import numpy as np
 import torch
 
+from dataset_tools.humanml3d import read_mean_std
 from dataset_tools.representation import FeatureLayout
 
 ArrayT = TypeVar("ArrayT", np.ndarray, torch.Tensor)
@@ -43,11 +44,10 @@ class Normalizer:
 
     @classmethod
     def from_dataset(cls, dataset_dir: str | Path, feature_bias: float = 5.0) -> Normalizer:
-        """Read ``Mean.npy`` and ``Std.npy`` of a HumanML3D-layout folder and up-weight them."""
-        dataset_dir = Path(dataset_dir)
+        """Read the feature statistics of a HumanML3D-layout folder
+        (:func:`dataset_tools.humanml3d.read_mean_std`) and up-weight them."""
         try:
-            mean = np.load(dataset_dir / "Mean.npy")
-            std = np.load(dataset_dir / "Std.npy")
+            mean, std = read_mean_std(dataset_dir)
         except FileNotFoundError as error:
             raise ValueError(f"{dataset_dir}: missing {Path(error.filename).name}") from None
         return cls.weighted(mean, std, feature_bias)
