@@ -260,7 +260,7 @@ def add_config_options(
             keywords["metavar"] = "|".join(map(str, keywords["choices"]))
         if spec.metavar is not None:
             keywords["metavar"] = spec.metavar
-        if not required and default not in (None, ()):
+        if not required and default not in (None, (), ""):
             help_text = f"{help_text} (default: {default})".lstrip()
         if spec.positional:
             if not required:

@@ -59,3 +59,27 @@ def test_error_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
         raise KeyboardInterrupt
     assert target.read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
+
+
+def test_load_npy_reads_numbers_and_refuses_everything_else(tmp_path):
+    from dataset_tools.command import UsageError
+    from dataset_tools.io import load_npy
+
+    good = save_npy_atomic(tmp_path / "good.npy", np.arange(6, dtype=np.float32).reshape(2, 3))
+    np.testing.assert_array_equal(load_npy(good), np.arange(6).reshape(2, 3))
+    pickled = tmp_path / "pickled.npy"
+    np.save(pickled, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    (tmp_path / "text.npy").write_text("not an array")
+    np.save(tmp_path / "nan.npy", np.array([1.0, np.nan]))
+    np.save(tmp_path / "strings.npy", np.array(["a", "b"]))
+    cases = {
+        tmp_path / "missing.npy": "no such file",
+        pickled: "cannot read",
+        tmp_path / "text.npy": "no numpy header",
+        tmp_path / "nan.npy": "NaN",
+        tmp_path / "strings.npy": "not real numbers",
+    }
+    for path, message in cases.items():
+        with pytest.raises(UsageError, match=message) as caught:
+            load_npy(path)
+        assert "\n" not in str(caught.value)
