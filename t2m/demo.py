@@ -184,7 +184,12 @@ def run_demo(config: DemoConfig) -> str:
 @command(interrupted="interrupted; run it again to continue where it stopped")
 def main(argv: list[str] | None = None) -> int:
     """``python -m t2m.demo``; exit status 0 on success, 2 with a one-line reason on bad input."""
-    parser = CommandParser(prog="python -m t2m.demo", description=__doc__.split("\n\n")[0])
+    parser = CommandParser(
+        prog="python -m t2m.demo",
+        description="The whole system end to end: build the demo dataset, train the four "
+        "stages, sample example prompts, run a quick evaluation. A step whose result exists "
+        "is skipped (an interrupted training stage resumes).",
+    )
     add_config_options(parser, DemoConfig)
     config = config_from_args(DemoConfig, parser.parse_args(sys.argv[1:] if argv is None else argv))
     configure_logging()
