@@ -23,6 +23,8 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from dataset_tools.command import UsageError
+
 RECONSTRUCTION_LOSSES: tuple[str, ...] = ("l1", "smooth_l1")
 
 
@@ -218,7 +220,8 @@ class Config:
             if isinstance(getattr(self, f.name), StageConfig)
         }
 
-    # Read-only old names for code not yet moved to the stage names; remove with the last caller.
+    # Read-only old names for code not yet moved to the stage names (t2m/benchmarks/sample.py,
+    # t2m/benchmarks/evaluate.py); remove with the last caller.
     @property
     def ae(self) -> AutoencoderStageConfig:
         return self.autoencoder
@@ -226,10 +229,6 @@ class Config:
     @property
     def t2m(self) -> GeneratorStageConfig:
         return self.generator
-
-    @property
-    def eval(self) -> EvaluatorStageConfig:
-        return self.evaluator
 
 
 # ----------------------------------------------------------------------------------------------
@@ -374,9 +373,9 @@ PRESETS = {
 
 
 def preset(name: str) -> Config:
-    """The Config of a named preset; ValueError for an unknown name."""
+    """The Config of a named preset; UsageError (a ValueError) for an unknown name."""
     if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+        raise UsageError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     return PRESETS[name].build()
 
 
@@ -438,8 +437,9 @@ def apply_overrides(cfg: Config, overrides: dict[str, str]) -> Config:
     """Return a copy of ``cfg`` with dotted-key overrides applied (``generator.model.hidden_size``
     ...; the old section names ``ae.``, ``t2m.``, ``eval.`` name the same fields).
 
-    Raises ValueError naming the key for an unknown key, a section given a value, or a value
-    that does not convert to the field's type.
+    Raises :class:`~dataset_tools.command.UsageError` (a ValueError) naming the key for an
+    unknown key, a section given a value, a value that does not convert to the field's type, or
+    settings that cannot work together.
     """
     cfg = from_dict(cfg.to_dict())
     for key, raw in overrides.items():
@@ -448,18 +448,24 @@ def apply_overrides(cfg: Config, overrides: dict[str, str]) -> Config:
         node: Any = cfg
         for depth, part in enumerate(parts):
             if not dataclasses.is_dataclass(node):
-                raise ValueError(f"unknown config key {key!r}")
+                raise UsageError(f"unknown config key {key!r}")
             names = {f.name for f in dataclasses.fields(node)}
             if part not in names:
-                raise ValueError(f"unknown config key {key!r} ({'.'.join(parts[: depth + 1])!r})")
+                raise UsageError(f"unknown config key {key!r} ({'.'.join(parts[: depth + 1])!r})")
             if depth == len(parts) - 1:
                 annotation = _field_types(type(node))[part]
                 if dataclasses.is_dataclass(annotation):
-                    raise ValueError(f"config key {key!r} is a section; set one of its fields")
-                setattr(node, part, _convert(raw, annotation, key))
+                    raise UsageError(f"config key {key!r} is a section; set one of its fields")
+                try:
+                    setattr(node, part, _convert(raw, annotation, key))
+                except ValueError as error:
+                    raise UsageError(str(error)) from None
             else:
                 node = getattr(node, part)
-    validate(cfg)
+    try:
+        validate(cfg)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
     return cfg
 
 

@@ -11,14 +11,24 @@ and print where everything is with a short summary.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
-from t2m.config import preset
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
+)
+from t2m.config import PRESETS, preset
 from t2m.train.stage import FINISHED
 from t2m.train.stages import STAGES, train_stage
 
@@ -44,7 +54,7 @@ def build_dataset(dataset: Path, source: Path, clips: int, seed: int, workers: i
         write_corpus(source, clips, seed=seed, workers=workers, force=True)
     report = build_dataset(BuildConfig("joints", source, dataset, workers=workers, seed=seed))
     if not report["clips_out"]:
-        raise RuntimeError(f"building {dataset} from {source} gave no clip (see build_report.json)")
+        raise UsageError(f"building {dataset} from {source} gave no clip (see build_report.json)")
 
 
 def train_stages(dataset: Path, run_dir: Path, preset_name: str) -> dict[str, str]:
@@ -99,30 +109,51 @@ def quick_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict:
     return evaluate(dataset, run_dir, out, quick_config(EvalConfig()))
 
 
-def run_demo(
-    dataset: Path = Path("data/demo"),
-    source: Path = Path("data/demo_src"),
-    run_dir: Path = Path("checkpoints/demo"),
-    out: Path = Path("outputs/demo"),
-    clips: int = 2000,
-    seed: int = 0,
-    workers: int = 2,
-    num_samples: int = 3,
-    render: str = "mp4",
-    preset_name: str = "demo",
-) -> str:
+@dataclass
+class DemoConfig:
+    """What ``make demo`` builds, trains, samples and evaluates, and where it puts it."""
+
+    clips: int = 2000
+    """demo corpus size (clips before mirroring)"""
+    samples: int = 3
+    """motions per example prompt"""
+    render: Literal["mp4", "gif", "none"] = "mp4"
+    """animation of each sampled motion"""
+    preset: str = field(default="demo", metadata=option(choices=PRESETS))
+    """training preset"""
+    seed: int = 0
+    """seed of the corpus, the dataset build and the samples"""
+    workers: int = 2
+    """processes for the corpus and the dataset build"""
+    dataset: Path = field(default=Path("data/demo"), metadata=option(metavar="DIR"))
+    """the HumanML3D-layout dataset folder"""
+    source: Path = field(default=Path("data/demo_src"), metadata=option(metavar="DIR"))
+    """the procedural corpus folder the dataset is built from"""
+    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
+    """the run folder"""
+    out: Path = field(default=Path("outputs/demo"), metadata=option(metavar="DIR"))
+    """the samples folder (the quick evaluation goes beside it, into <out>_eval)"""
+
+    def __post_init__(self) -> None:
+        for name in ("clips", "samples", "workers"):
+            if getattr(self, name) < 1:
+                raise UsageError(f"--{name} must be at least 1, got {getattr(self, name)}")
+
+
+def run_demo(config: DemoConfig) -> str:
     """Run every step that has no result yet; return the summary text."""
     start = time.perf_counter()
+    dataset, run_dir, out = config.dataset, config.checkpoints, config.out
     # 1. dataset
     if _dataset_ready(dataset):
         logger.info("dataset %s exists: reused", dataset)
     else:
-        build_dataset(dataset, source, clips, seed, workers)
+        build_dataset(dataset, config.source, config.clips, config.seed, config.workers)
     report = json.loads((dataset / "build_report.json").read_text(encoding="utf-8"))
     # 2. training
-    status = train_stages(dataset, run_dir, preset_name)
+    status = train_stages(dataset, run_dir, config.preset)
     # 3. samples
-    sample_prompts(run_dir, out, num_samples, render, seed)
+    sample_prompts(run_dir, out, config.samples, config.render, config.seed)
     # 4. evaluation
     eval_dir = out.parent / f"{out.name}_eval"
     quick_evaluation(dataset, run_dir, eval_dir)
@@ -150,29 +181,19 @@ def run_demo(
     return "\n".join(lines)
 
 
+@command(interrupted="interrupted; run it again to continue where it stopped")
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m t2m.demo", description=__doc__.split("\n\n")[0]
+    """``python -m t2m.demo``; exit status 0 on success, 2 with a one-line reason on bad input."""
+    parser = CommandParser(
+        prog="python -m t2m.demo",
+        description="The whole system end to end: build the demo dataset, train the four "
+        "stages, sample example prompts, run a quick evaluation. A step whose result exists "
+        "is skipped (an interrupted training stage resumes).",
     )
-    parser.add_argument("--dataset", type=Path, default=Path("data/demo"))
-    parser.add_argument("--source", type=Path, default=Path("data/demo_src"))
-    parser.add_argument("--checkpoints", type=Path, default=Path("checkpoints/demo"))
-    parser.add_argument("--out", type=Path, default=Path("outputs/demo"))
-    parser.add_argument("--clips", type=int, default=2000, help="demo corpus size (default 2000)")
-    parser.add_argument("--samples", type=int, default=3, help="motions per prompt (default 3)")
-    parser.add_argument("--render", choices=("mp4", "gif", "none"), default="mp4")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--preset", default="demo", help="training preset (default demo)")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    try:
-        summary = run_demo(args.dataset, args.source, args.checkpoints, args.out, args.clips,
-                           args.seed, args.workers, args.samples, args.render, args.preset)  # fmt: skip
-    except (RuntimeError, ValueError, OSError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(summary)
+    add_config_options(parser, DemoConfig)
+    config = config_from_args(DemoConfig, parser.parse_args(sys.argv[1:] if argv is None else argv))
+    configure_logging()
+    print(run_demo(config))
     return 0
 
 

@@ -316,8 +316,9 @@ def main(argv: list[str] | None = None) -> int:
 
         torch.set_num_threads(config.threads)
     # 2. the models (the library says what is missing or mismatched, naming the make target)
-    # int8 kernels exist on the CPU only: "auto" means the CPU there.
-    device = "cpu" if config.precision == "int8" and config.device == "auto" else config.device
+    from t2m.train.runtime import inference_device
+
+    device = inference_device(config.device, config.precision)
     try:
         pipe = TextToMotion.from_checkpoints(
             config.checkpoints,

@@ -1,22 +1,49 @@
-from t2m.demo import PROMPTS, run_demo
+import pytest
+
+from t2m.demo import PROMPTS, DemoConfig, main, run_demo
 
 
 def test_demo_runs_end_to_end_then_reuses_everything(tmp_path):
-    paths = {
-        "dataset": tmp_path / "data",
-        "source": tmp_path / "src",
-        "run_dir": tmp_path / "run",
-        "out": tmp_path / "out",
-    }
-    summary = run_demo(**paths, clips=120, num_samples=2, render="none", preset_name="tiny")
+    config = DemoConfig(
+        clips=120,
+        samples=2,
+        render="none",
+        preset="tiny",
+        dataset=tmp_path / "data",
+        source=tmp_path / "src",
+        checkpoints=tmp_path / "run",
+        out=tmp_path / "out",
+    )
+    summary = run_demo(config)
     assert "make demo finished" in summary and "Real motions" in summary
     for stage in ("autoencoder", "length", "generator", "evaluator"):
-        assert (paths["run_dir"] / stage / "finished.json").is_file()
+        assert (config.checkpoints / stage / "finished.json").is_file()
         assert f"{stage} trained in" in summary
-    motions = sorted(p.name for p in paths["out"].glob("sample*_rep*.npy") if "feats" not in p.name)
+    motions = sorted(p.name for p in config.out.glob("sample*_rep*.npy") if "feats" not in p.name)
     assert len(motions) == len(PROMPTS) * 2
-    assert len(list(paths["out"].glob("*.bvh"))) == len(PROMPTS) * 2
+    assert len(list(config.out.glob("*.bvh"))) == len(PROMPTS) * 2
     assert (tmp_path / "out_eval" / "results.md").is_file()
     # A second run trains nothing and rebuilds nothing.
-    again = run_demo(**paths, clips=120, num_samples=2, render="none", preset_name="tiny")
+    again = run_demo(config)
     assert "autoencoder reused, length reused, generator reused, evaluator reused" in again
+
+
+def test_demo_options_come_from_the_config_docstrings(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    shown = " ".join(capsys.readouterr().out.split())
+    for option in ("--clips", "--samples", "--render mp4|gif|none", "--preset paper|demo|tiny"):
+        assert option in shown
+    for option in ("--seed", "--workers", "--dataset DIR", "--source DIR", "--checkpoints DIR"):
+        assert option in shown
+    assert "motions per example prompt (default: 3)" in shown
+
+
+def test_demo_bad_options_are_one_line_and_exit_2(tmp_path, capsys):
+    assert main(["--clips", "0", "--dataset", str(tmp_path / "never")]) == 2
+    assert capsys.readouterr().err == "error: --clips must be at least 1, got 0\n"
+    assert main(["--render", "avi"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: argument --render: invalid choice") and err.count("\n") == 1
+    assert not (tmp_path / "never").exists()

@@ -125,6 +125,27 @@ def test_protocol_is_deterministic_per_seed():
     assert third[evaluate.GT_LENGTH]["fid"] != first[evaluate.GT_LENGTH]["fid"]
 
 
+def test_generation_seeds_come_from_the_named_streams():
+    from t2m.streams import GenerationStream, stream_seed
+
+    class Recording(FakeBackend):
+        def generate(self, captions, lengths, seed):
+            seeds.append(seed)
+            return super().generate(captions, lengths, seed)
+
+    seeds = []
+    config = evaluate.EvalConfig(replications=2, mm_texts=4, mm_samples=3, seed=5)
+    evaluate.run_protocol(_clips(), Recording(), config)
+    # per replication and generated row: its motions, then its MultiModality extras
+    assert seeds == [
+        stream_seed(stream, 5, rep, row)
+        for rep in range(2)
+        for row in range(2)
+        for stream in (GenerationStream.MOTIONS, GenerationStream.MULTIMODALITY)
+    ]
+    assert [int(stream) for stream in GenerationStream] == [0, 1]  # part of what a seed reproduces
+
+
 def test_too_few_items_is_a_clear_error():
     with pytest.raises(ValueError, match="pool of 32"):
         evaluate.run_protocol(_clips(20), FakeBackend(), evaluate.EvalConfig(replications=1))

@@ -30,23 +30,32 @@ def test_presets_round_trip_and_paper_sizes():
         assert from_dict(config.to_dict()) == config
     config = paper()
     assert (
-        config.ae.model.hidden_size,
-        config.ae.model.code_size,
-        config.ae.batch_size,
-        config.ae.window_frames,
+        config.autoencoder.model.hidden_size,
+        config.autoencoder.model.code_size,
+        config.autoencoder.batch_size,
+        config.autoencoder.window_frames,
     ) == (512, 512, 128, 24)
     assert (
-        config.t2m.model.hidden_size,
-        config.t2m.model.latent_size,
-        config.t2m.model.attention_size,
+        config.generator.model.hidden_size,
+        config.generator.model.latent_size,
+        config.generator.model.attention_size,
     ) == (1024, 128, 512)
-    assert (config.t2m.batch_size, config.t2m.lr, config.t2m.decoder_lr, config.t2m.grad_clip) == (
+    assert (
+        config.generator.batch_size,
+        config.generator.lr,
+        config.generator.decoder_lr,
+        config.generator.grad_clip,
+    ) == (
         32,
         2e-4,
         2e-5,
         0.5,
     )
-    assert (config.t2m.start_snippets, config.t2m.end_snippets, config.t2m.teacher_forcing) == (
+    assert (
+        config.generator.start_snippets,
+        config.generator.end_snippets,
+        config.generator.teacher_forcing,
+    ) == (
         10,
         49,
         0.4,
@@ -56,21 +65,24 @@ def test_presets_round_trip_and_paper_sizes():
         256,
         128,
     )
-    assert config.eval.margin == 10.0 and config.t2m.kl_weight == 0.01
+    assert config.evaluator.margin == 10.0 and config.generator.kl_weight == 0.01
     # the original's L1 autoencoder loss at the paper preset, smooth L1 for the small demo models
-    assert config.ae.reconstruction_loss == "l1" and demo().ae.reconstruction_loss == "smooth_l1"
     assert (
-        demo().t2m.model.hidden_size < 1024
-        and tiny().t2m.model.hidden_size < demo().t2m.model.hidden_size
+        config.autoencoder.reconstruction_loss == "l1"
+        and demo().autoencoder.reconstruction_loss == "smooth_l1"
+    )
+    assert (
+        demo().generator.model.hidden_size < 1024
+        and tiny().generator.model.hidden_size < demo().generator.model.hidden_size
     )
 
 
 def test_overrides_are_validated():
     config = apply_overrides(tiny(), {"t2m.model.hidden_size": "64", "bf16": "true",
                                       "length.model.mlp_sizes": "8,4", "t2m.lr": "3e-4"})  # fmt: skip
-    assert config.t2m.model.hidden_size == 64 and config.bf16 is True
-    assert config.length.model.mlp_sizes == (8, 4) and config.t2m.lr == 3e-4
-    assert tiny().t2m.model.hidden_size != 64  # presets are not mutated
+    assert config.generator.model.hidden_size == 64 and config.bf16 is True
+    assert config.length.model.mlp_sizes == (8, 4) and config.generator.lr == 3e-4
+    assert tiny().generator.model.hidden_size != 64  # presets are not mutated
     for key, value, message in [
         ("t2m.model.hiden_size", "3", "unknown config key"),
         ("nothing", "1", "unknown config key"),

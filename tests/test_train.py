@@ -14,6 +14,7 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
+from dataset_tools.command import UsageError
 from t2m.config import apply_overrides, from_dict, tiny
 from t2m.data.dataset import load_split
 from t2m.data.words import TRAINABLE
@@ -117,22 +118,22 @@ def test_mismatched_checkpoints_are_refused(tiny_dataset, tiny_config, tiny_run,
         (run_dir / stage).mkdir(parents=True)
         (run_dir / stage / "latest.pt").write_bytes((tiny_run / stage / "latest.pt").read_bytes())
     bigger = apply_overrides(tiny_config, {"autoencoder.model.hidden_size": "48"})
-    with pytest.raises(ValueError, match="model size differs"):
+    with pytest.raises(UsageError, match="model size differs"):
         train_stage("autoencoder", bigger, tiny_dataset, run_dir, resume=True)
     latest = run_dir / "autoencoder" / "latest.pt"
     latest.write_bytes((tiny_run / "length" / "latest.pt").read_bytes())
-    with pytest.raises(ValueError, match="'length' checkpoint, not 'autoencoder'"):
+    with pytest.raises(UsageError, match="'length' checkpoint, not 'autoencoder'"):
         train_stage("autoencoder", tiny_config, tiny_dataset, run_dir, resume=True)
     other_words = apply_overrides(
         tiny_config, {"data.word_vectors": TRAINABLE, "data.trainable_word_dim": "50"}
     )
-    with pytest.raises(ValueError, match="vocabulary differs"):
+    with pytest.raises(UsageError, match="vocabulary differs"):
         train_stage("length", other_words, tiny_dataset, run_dir, resume=True)
-    with pytest.raises(ValueError, match="make train-ae"):
+    with pytest.raises(UsageError, match="make train-ae"):
         train_stage("generator", tiny_config, tiny_dataset, tmp_path / "empty")
-    with pytest.raises(ValueError, match="make train-len"):
+    with pytest.raises(UsageError, match="make train-len"):
         load_stage(tmp_path / "empty", "length")
-    with pytest.raises(ValueError, match="unknown stage 'vae'; choose one of autoencoder, length"):
+    with pytest.raises(UsageError, match="unknown stage 'vae'; choose one of autoencoder, length"):
         load_stage(tiny_run, "vae")
 
 
@@ -162,37 +163,58 @@ def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
         "--device",
         "cpu",
     ]
+
+    def one_line_error(*needles: str) -> None:
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1, err
+        assert "Traceback" not in err and all(needle in err for needle in needles), err
+
     assert main(base + ["--autoencoder.nonexistent=1"]) == 2
-    assert "unknown config key" in capsys.readouterr().err
+    one_line_error("unknown config key 'autoencoder.nonexistent'")
     assert main(base + ["--ae.batch_size=abc"]) == 2
-    assert "expected an integer" in capsys.readouterr().err
+    one_line_error("expected an integer")
+    assert main(base + ["--autoencoder.batch_size", "0"]) == 2
+    one_line_error("autoencoder.batch_size and autoencoder.lr must be positive")
+    assert main(base + ["stray"]) == 2
+    one_line_error("unexpected argument 'stray'")
+    assert main(base + ["--device", "tpu"]) == 2
+    one_line_error("unknown device 'tpu'")
     assert main(["ae", "--preset", "huge"]) == 2
-    with pytest.raises(SystemExit) as exit_info:  # argparse: usage and exit status 2
-        main(["vae", "--preset", "tiny"])
-    assert exit_info.value.code == 2
-    assert (
-        main(
-            [
-                "ae",
-                "--preset",
-                "tiny",
-                "--dataset",
-                str(tmp_path / "nope"),
-                "--checkpoints",
-                str(tmp_path),
-            ]
-        )
-        == 2
-    )
+    one_line_error("--preset: invalid choice: 'huge'")
+    assert main(["vae", "--preset", "tiny"]) == 2
+    one_line_error("invalid choice: 'vae'")
+    missing_dataset = ["--dataset", str(tmp_path / "nope"), "--checkpoints", str(tmp_path)]
+    assert main(["ae", "--preset", "tiny", *missing_dataset]) == 2
+    one_line_error("does not exist (run `make dataset` first)")
+    (tmp_path / "empty").mkdir()
+    assert main([*base, "--dataset", str(tmp_path / "empty")]) == 2
+    one_line_error("empty")  # not a dataset folder: no Mean/Std or split
+    assert main(["generator", *base[1:]]) == 2
+    one_line_error("run `make train-ae` first")
     assert main(base + ["--autoencoder.max_steps=2", "--autoencoder.epochs=1"]) == 0
     assert (tmp_path / "autoencoder" / "best.pt").is_file()
     # the old stage name trains the same stage, into the same folder
     assert main(["ae", *base[1:], "--ae.max_steps=2", "--ae.epochs=1", "--resume"]) == 0
     assert not (tmp_path / "ae").exists()
-    assert main(base + ["--print-config", "--t2m.batch_size=5"]) == 0
+    assert main(base + ["--print-config", "--t2m.batch_size=5", "--seed", "7", "--bf16"]) == 0
     printed = capsys.readouterr()
-    assert json.loads(printed.out)["generator"]["batch_size"] == 5
+    resolved = json.loads(printed.out)
+    assert resolved["generator"]["batch_size"] == 5
+    assert (resolved["seed"], resolved["bf16"], resolved["device"]) == (7, True, "cpu")
     assert "preset tiny:" in printed.err
+
+
+def test_cli_help_comes_from_the_options_docstrings(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    shown = " ".join(capsys.readouterr().out.split())
+    assert "--preset paper|demo|tiny the config to start from" in shown
+    assert "generator (needs autoencoder)" in shown and "text2length, t2m, eval" in shown
+    assert "--checkpoints DIR run folder (default: checkpoints/<preset>)" in shown
+    assert "--device DEVICE auto, cpu, cuda, cuda:N (default: the config's, auto)" in shown
+    for flag in ("--resume", "--bf16, --no-bf16", "--seed", "--print-config", "-v, --verbose"):
+        assert flag in shown
 
 
 def _free_port() -> int:
@@ -241,7 +263,7 @@ def test_diverging_loss_stops_with_a_clear_error(tiny_dataset, tiny_config, tmp_
     exploding = apply_overrides(
         tiny_config, {"autoencoder.lr": "1e30", "autoencoder.log_every": "1"}
     )
-    with pytest.raises(ValueError, match="loss is (nan|inf)"):
+    with pytest.raises(UsageError, match="loss is (nan|inf)"):
         train_stage("autoencoder", exploding, tiny_dataset, tmp_path)
 
 

@@ -26,6 +26,7 @@ from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.models.length import LengthEstimator, length_loss
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+from t2m.train.runtime import resolve_device
 
 FEATURE_DIM, WORD_DIM, TOKENS = 263, 300, 22
 
@@ -66,9 +67,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     """
     if threads > 0:
         torch.set_num_threads(threads)
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    device_ = torch.device(device)
+    device_ = resolve_device(device)
     config = paper()
     generator = torch.Generator().manual_seed(0)
     torch.manual_seed(0)
@@ -76,10 +75,13 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     results: dict = {"device": str(device_), "torch_threads": torch.get_num_threads()}
 
     # -- stage 1: autoencoder, batch 128 windows of 24 frames
-    ae = MovementAutoencoder(FEATURE_DIM, config.ae.model).to(device_)
-    ae_opt = torch.optim.Adam(ae.parameters(), lr=config.ae.lr)
+    ae = MovementAutoencoder(FEATURE_DIM, config.autoencoder.model).to(device_)
+    ae_opt = torch.optim.Adam(ae.parameters(), lr=config.autoencoder.lr)
     windows = torch.randn(
-        config.ae.batch_size, config.ae.window_frames, FEATURE_DIM, generator=generator
+        config.autoencoder.batch_size,
+        config.autoencoder.window_frames,
+        FEATURE_DIM,
+        generator=generator,
     ).to(device_)
 
     def ae_step() -> None:
@@ -108,10 +110,11 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
                    length_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
 
     # -- stage 3: temporal VAE, batch 32, 49 snippets (196 frames)
-    batch, snippets = config.t2m.batch_size, config.t2m.end_snippets
-    vae = TemporalVAE(WORD_DIM, config.ae.model.code_size, config.t2m.model).to(device_)
-    t2m_opt = torch.optim.Adam([{"params": vae.parameters(), "lr": config.t2m.lr},
-                                {"params": ae.decoder.parameters(), "lr": config.t2m.decoder_lr}])  # fmt: skip
+    batch, snippets = config.generator.batch_size, config.generator.end_snippets
+    code_size = config.autoencoder.model.code_size
+    vae = TemporalVAE(WORD_DIM, code_size, config.generator.model).to(device_)
+    t2m_opt = torch.optim.Adam([{"params": vae.parameters(), "lr": config.generator.lr},
+                                {"params": ae.decoder.parameters(), "lr": config.generator.decoder_lr}])  # fmt: skip
     words, pos, lengths = _text(batch, generator, device_)
     motion = torch.randn(batch, snippets * 4, FEATURE_DIM, generator=generator).to(device_)
     ae.encoder.eval().requires_grad_(False)
@@ -131,7 +134,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
                 losses = temporal_vae_loss(outputs, codes, ae.decode(outputs["codes"]), motion)
             t2m_opt.zero_grad(set_to_none=True)
             losses["loss"].backward()
-            torch.nn.utils.clip_grad_norm_(trainable, config.t2m.grad_clip)
+            torch.nn.utils.clip_grad_norm_(trainable, config.generator.grad_clip)
             t2m_opt.step()
 
         return step
@@ -161,9 +164,11 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     results.update(t2m_generate_batch32_s=round(seconds, 3))
 
     # -- stage 4: evaluator, batch 32, 196 frames
-    evaluator = Evaluator(WORD_DIM, FEATURE_DIM, config.ae.model, config.eval.model).to(device_)
+    evaluator = Evaluator(
+        WORD_DIM, FEATURE_DIM, config.autoencoder.model, config.evaluator.model
+    ).to(device_)
     eval_opt = torch.optim.Adam(
-        [p for p in evaluator.parameters() if p.requires_grad], lr=config.eval.lr
+        [p for p in evaluator.parameters() if p.requires_grad], lr=config.evaluator.lr
     )
     motion_lengths = torch.randint(10, 50, (batch,), generator=generator).to(device_) * 4
     motion = torch.randn(batch, 196, FEATURE_DIM, generator=generator).to(device_)

@@ -32,7 +32,7 @@ class EvalFolders:
     dataset: Path = field(metadata=option(metavar="DIR"))
     """HumanML3D-layout dataset folder"""
     checkpoints: Path = field(metadata=option(metavar="DIR"))
-    """run folder with the eval/ length/ t2m/ stages"""
+    """run folder with the evaluator, length and generator stages"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default: <checkpoints>/eval_results, eval_results_quick with --quick)"""
 

@@ -50,23 +50,23 @@ class CheckpointBackend:
     (the benchmark builds untrained ones of a preset's sizes).
 
     Args:
-        eval_stage: the trained ``eval`` stage (its evaluator, statistics and vocabulary).
+        evaluator_stage: the trained ``evaluator`` stage (its evaluator, statistics and vocabulary).
         pipeline: generation (text2length + temporal VAE + decoder), batched.
         batch_size: items per forward pass.
     """
 
-    def __init__(self, eval_stage: Any, pipeline: Any, batch_size: int = 128):
+    def __init__(self, evaluator_stage: Any, pipeline: Any, batch_size: int = 128):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        self.eval_stage = eval_stage
+        self.evaluator_stage = evaluator_stage
         self.pipeline = pipeline
         self.batch_size = batch_size
-        self.evaluator = eval_stage.models["evaluator"]
+        self.evaluator = evaluator_stage.models["evaluator"]
         self.device = next(self.evaluator.parameters()).device
-        self.data_config = eval_stage.config.data
-        if eval_stage.normalizer.dim != pipeline.normalizer.dim:
+        self.data_config = evaluator_stage.config.data
+        if evaluator_stage.normalizer.dim != pipeline.normalizer.dim:
             raise ValueError(
-                f"the evaluator reads {eval_stage.normalizer.dim}-d features but the generator "
+                f"the evaluator reads {evaluator_stage.normalizer.dim}-d features but the generator "
                 f"writes {pipeline.normalizer.dim}-d ones"
             )
         # Replications reuse captions: encode each once per vocabulary.
@@ -81,16 +81,16 @@ class CheckpointBackend:
         batch_size: int = 128,
         precision: str = "fp32",
     ) -> CheckpointBackend:
-        """Load ``eval/ length/ t2m/`` of a run folder (a one-line ValueError names the make
-        target of a missing stage)."""
+        """Load the evaluator, length and generator stages of a run folder (a one-line
+        UsageError names the make target of a missing stage)."""
         from t2m.pipeline import TextToMotion
-        from t2m.train.checkpoint import load_stage
+        from t2m.train import load_stage
         from t2m.train.runtime import resolve_device
 
         resolved = resolve_device(device)
-        eval_stage = load_stage(run_dir, "eval", resolved, which)
+        evaluator_stage = load_stage(run_dir, "evaluator", resolved, which)
         pipeline = TextToMotion.from_checkpoints(run_dir, str(resolved), precision, which=which)
-        return cls(eval_stage, pipeline, batch_size)
+        return cls(evaluator_stage, pipeline, batch_size)
 
     def _encode(self, vectorizer: Any, captions: Sequence[Caption]) -> list[Any]:
         """Dataset tokens (``word/POS``) -> EncodedText, as the models were trained on them."""
@@ -105,7 +105,7 @@ class CheckpointBackend:
 
     @torch.no_grad()
     def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
-        encoded = self._encode(self.eval_stage.vectorizer, captions)
+        encoded = self._encode(self.evaluator_stage.vectorizer, captions)
         out = []
         for chunk in _chunks(len(encoded), self.batch_size):
             items = encoded[chunk]
@@ -117,7 +117,7 @@ class CheckpointBackend:
 
     @torch.no_grad()
     def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
-        normalizer = self.eval_stage.normalizer
+        normalizer = self.evaluator_stage.normalizer
         unit = self.data_config.unit_length
         lengths = np.array([len(m) for m in motions], dtype=np.int64)
         if np.any(lengths % unit) or np.any(lengths < unit):

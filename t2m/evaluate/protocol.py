@@ -45,6 +45,7 @@ from dataset_tools.command import UsageError, option
 from t2m.data.dataset import Caption, Clip
 from t2m.evaluate import metrics
 from t2m.evaluate.backend import Backend
+from t2m.streams import EvalStream, GenerationStream, stream_rng, stream_seed
 
 REAL = "Real motions"
 GT_LENGTH = "Ours (ground-truth length)"
@@ -267,11 +268,6 @@ def find_scorer(dataset_dir: str | Path) -> Scorer | None:
 # ----------------------------------------------------------------------------------------------
 # the protocol
 
-# Random streams of replication ``rep``: numpy generators seeded with [seed, rep, stream] draw the
-# items and the metrics' pairs; generation seeds derive from [seed, rep, row, stream].
-DRAW_STREAM, METRIC_STREAM = 1, 2
-GENERATION_STREAM, MULTIMODALITY_STREAM = 0, 1
-
 
 @dataclass
 class ProtocolResult:
@@ -296,11 +292,6 @@ class _Timer:
         out = fn(*args)
         self.seconds[key] += time.perf_counter() - start
         return out
-
-
-def _seed(*keys: int) -> int:
-    """A 63-bit seed derived from integer keys (stable across platforms)."""
-    return int(np.random.default_rng(list(keys)).integers(2**63 - 1))
 
 
 def _row_metrics(
@@ -396,8 +387,8 @@ def run_protocol(
 
     total_start = time.perf_counter()
     for rep in tqdm(range(config.replications), desc="replications", unit="rep"):
-        rng = np.random.default_rng([config.seed, rep, DRAW_STREAM])
-        metric_rng = np.random.default_rng([config.seed, rep, METRIC_STREAM])
+        rng = stream_rng(EvalStream.ITEMS, config.seed, rep)
+        metric_rng = stream_rng(EvalStream.METRICS, config.seed, rep)
 
         # A subset (max_items) is drawn once per replication, so that the reference, the real
         # row and the generated rows all describe the same clips.
@@ -429,7 +420,7 @@ def run_protocol(
                 backend.generate,
                 captions,
                 lengths,
-                _seed(config.seed, rep, variant, GENERATION_STREAM),
+                stream_seed(GenerationStream.MOTIONS, config.seed, rep, variant),
             )
             text = timed("embed_s", backend.embed_texts, captions)
             motion = timed("embed_s", backend.embed_motions, generated)
@@ -440,7 +431,7 @@ def run_protocol(
                 lengths,
                 motion,
                 config,
-                _seed(config.seed, rep, variant, MULTIMODALITY_STREAM),
+                stream_seed(GenerationStream.MULTIMODALITY, config.seed, rep, variant),
                 metric_rng,
                 timed,
             )

@@ -20,6 +20,7 @@ from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
 from t2m.evaluate.protocol import EvalConfig, find_scorer, run_protocol
 from t2m.evaluate.report import summarize, write_results
+from t2m.train.runtime import inference_device
 
 logger = logging.getLogger("t2m.evaluate")
 
@@ -63,8 +64,7 @@ def evaluate(
     if config.num_threads > 0:
         torch.set_num_threads(config.num_threads)
     if backend is None:
-        # int8 kernels exist on the CPU only: there "auto" means the CPU.
-        device = "cpu" if config.precision == "int8" and config.device == "auto" else config.device
+        device = inference_device(config.device, config.precision)
         try:
             backend = CheckpointBackend.from_run_dir(
                 checkpoints_dir, device, config.which, config.batch_size, config.precision

@@ -30,6 +30,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from dataset_tools.command import UsageError
 from dataset_tools.io import atomic_write, write_text_atomic
 from t2m.config import Config, from_dict
 from t2m.data.normalization import Normalizer
@@ -73,15 +74,15 @@ def write_config(stage_dir: Path, config: Config) -> None:
 
 
 def read_checkpoint(path: Path) -> dict[str, Any]:
-    """Load a checkpoint dict on CPU; ValueError when missing or not ours."""
+    """Load a checkpoint dict on CPU; UsageError (a ValueError) when missing or not ours."""
     if not path.is_file():
-        raise ValueError(f"no checkpoint at {path}")
+        raise UsageError(f"no checkpoint at {path}")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except (RuntimeError, EOFError, OSError) as error:
-        raise ValueError(f"{path}: unreadable checkpoint ({error})") from None
+        raise UsageError(f"{path}: unreadable checkpoint ({error})") from None
     if not isinstance(checkpoint, dict) or checkpoint.get("format_version") != FORMAT_VERSION:
-        raise ValueError(f"{path}: not a t2m checkpoint of format {FORMAT_VERSION}")
+        raise UsageError(f"{path}: not a t2m checkpoint of format {FORMAT_VERSION}")
     return checkpoint
 
 
@@ -104,17 +105,17 @@ def check_compatible(
     vocabulary: dict[str, Any] | None,
     where: str,
 ) -> None:
-    """Refuse (ValueError, one line) a checkpoint of another stage, size or vocabulary.
+    """Refuse (UsageError, one line) a checkpoint of another stage, size or vocabulary.
 
     ``stage_names``: the stage's name first, then the old names its checkpoints may carry.
     """
     name = stage_names[0]
     if checkpoint["stage"] not in stage_names:
-        raise ValueError(f"{where} is a {checkpoint['stage']!r} checkpoint, not {name!r}")
+        raise UsageError(f"{where} is a {checkpoint['stage']!r} checkpoint, not {name!r}")
     stored_model = dataclasses.asdict(getattr(from_dict(checkpoint["config"]), name).model)
     diff = _differences(stored_model, dataclasses.asdict(getattr(config, name).model))
     if diff:
-        raise ValueError(
+        raise UsageError(
             f"{where}: model size differs ({'; '.join(diff[:3])}); use the same preset and "
             "overrides, or another --checkpoints folder"
         )
@@ -126,10 +127,10 @@ def check_compatible(
     ):
         stored = stored_vocab and stored_vocab["source"]
         current = vocabulary and vocabulary["source"]
-        raise ValueError(f"{where}: vocabulary differs ({stored!r} vs {current!r})")
+        raise UsageError(f"{where}: vocabulary differs ({stored!r} vs {current!r})")
     diff = _differences(ModelSizes.from_dict(checkpoint["dims"]).to_dict(), sizes.to_dict())
     if diff:
-        raise ValueError(f"{where}: data sizes differ ({'; '.join(diff[:3])})")
+        raise UsageError(f"{where}: data sizes differ ({'; '.join(diff[:3])})")
 
 
 def make_checkpoint(
@@ -188,13 +189,3 @@ class TrainedStage:
     initial_code: torch.Tensor | None = None
     path: Path | None = None
     extra: dict[str, Any] = field(default_factory=dict)
-
-
-def __getattr__(name: str) -> Any:
-    # ``load_stage`` lived here before the stage registry; kept for callers not yet moved to
-    # ``from t2m.train import load_stage`` (imported late: the registry imports this module).
-    if name == "load_stage":
-        from t2m.train.stages import load_stage
-
-        return load_stage
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -17,6 +17,8 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from dataset_tools.command import UsageError
+
 logger = logging.getLogger(__name__)
 
 
@@ -69,23 +71,30 @@ class Runtime:
 def resolve_device(name: str, local_rank: int = 0) -> torch.device:
     """``auto`` -> CUDA when present, else CPU; ``cuda`` with several processes -> cuda:local_rank.
 
-    Raises ValueError for an unavailable or unknown device.
+    Raises UsageError (a ValueError) for an unavailable or unknown device.
     """
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
     try:
         device = torch.device(name)
     except RuntimeError:
-        raise ValueError(f"unknown device {name!r} (auto, cpu, cuda, cuda:N)") from None
+        raise UsageError(f"unknown device {name!r} (auto, cpu, cuda, cuda:N)") from None
     if device.type == "cuda":
         if not torch.cuda.is_available():
-            raise ValueError("device 'cuda' requested but CUDA is not available")
+            raise UsageError("device 'cuda' requested but CUDA is not available")
         if device.index is None:
             device = torch.device("cuda", local_rank % torch.cuda.device_count())
         torch.cuda.set_device(device)
     elif device.type not in ("cpu", "mps"):
-        raise ValueError(f"unsupported device {name!r}")
+        raise UsageError(f"unsupported device {name!r}")
     return device
+
+
+def inference_device(device: str, precision: str) -> str:
+    """The device to run inference at ``precision`` on: int8 kernels exist on the CPU only, so
+    with int8 ``auto`` means the CPU; any other name is kept (to be resolved by
+    :func:`resolve_device`)."""
+    return "cpu" if precision == "int8" and device == "auto" else device
 
 
 def start(device: str = "auto", bf16: bool = False, num_threads: int = 0) -> Runtime:

@@ -24,6 +24,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
+from dataset_tools.command import UsageError
 from dataset_tools.io import write_json_atomic
 from t2m.config import Config, StageConfig, from_dict
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
@@ -118,22 +119,26 @@ def load_stage_data(
 
     ``normalizer`` defaults to the dataset's Mean/Std with the root/contact weighting.
     The validation split falls back to ``test`` when ``val.txt`` is missing or empty of clips.
+    What is wrong with the folder (missing, no Mean/Std, no usable clip, features of another
+    size than the statistics) is a one-line :class:`UsageError`.
     """
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
-        raise ValueError(f"dataset folder {dataset_dir} does not exist (run `make dataset` first)")
-    if normalizer is None:
-        normalizer = Normalizer.from_dataset(dataset_dir, config.data.feature_bias)
-    vectorizer = vocabulary_for(config, dataset_dir)
-    train = MotionTextData(
-        load_split(dataset_dir, "train", config.data), normalizer, vectorizer, config.data
-    )
+        raise UsageError(f"dataset folder {dataset_dir} does not exist (run `make dataset` first)")
     try:
-        val_clips = load_split(dataset_dir, "val", config.data)
-    except ValueError:
-        logger.warning("%s: no usable val split, validating on test", dataset_dir)
-        val_clips = load_split(dataset_dir, "test", config.data)
-    val = MotionTextData(val_clips, normalizer, vectorizer, config.data)
+        if normalizer is None:
+            normalizer = Normalizer.from_dataset(dataset_dir, config.data.feature_bias)
+        vectorizer = vocabulary_for(config, dataset_dir)
+        train_clips = load_split(dataset_dir, "train", config.data)
+        try:
+            val_clips = load_split(dataset_dir, "val", config.data)
+        except ValueError:
+            logger.warning("%s: no usable val split, validating on test", dataset_dir)
+            val_clips = load_split(dataset_dir, "test", config.data)
+        train = MotionTextData(train_clips, normalizer, vectorizer, config.data)
+        val = MotionTextData(val_clips, normalizer, vectorizer, config.data)
+    except ValueError as error:  # the folder's content, or the configured word vectors
+        raise UsageError(str(error)) from None
     return StageData(train, val, vectorizer, normalizer)
 
 
@@ -158,7 +163,7 @@ def start_on_autoencoder(job: StageJob) -> OnAutoencoder:
     data = load_stage_data(config, job.dataset_dir, normalizer=autoencoder.normalizer)
     sizes = data.sizes(code_size=config.autoencoder.model.code_size)
     if autoencoder.dims.feature_dim != sizes.feature_dim:
-        raise ValueError(
+        raise UsageError(
             f"the autoencoder was trained on {autoencoder.dims.feature_dim}-d features, "
             f"the dataset has {sizes.feature_dim}"
         )
@@ -395,7 +400,7 @@ class StageRun:
         }
         loss = plain.get("loss")
         if isinstance(loss, float) and not math.isfinite(loss):
-            raise ValueError(
+            raise UsageError(
                 f"{self.name}: {split} loss is {loss} at step {self.step}; lower the learning "
                 "rate or resume from the last good checkpoint"
             )

@@ -26,6 +26,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from dataset_tools.command import UsageError
 from t2m.config import Config, from_dict
 from t2m.data.normalization import Normalizer
 from t2m.data.words import vectorizer_from_info
@@ -74,9 +75,9 @@ class Stage:
                 return Path(run_dir) / name
         return Path(run_dir) / self.name
 
-    def not_trained(self, run_dir: str | Path) -> ValueError:
+    def not_trained(self, run_dir: str | Path) -> UsageError:
         """The one-line error for a missing stage, naming the make target that trains it."""
-        return ValueError(
+        return UsageError(
             f"no trained {self.name!r} stage in {self.folder(run_dir)} (run "
             f"`make {self.make_target}` with the same PRESET/CHECKPOINTS first)"
         )
@@ -140,11 +141,11 @@ STAGE_NAMES: tuple[str, ...] = tuple(stage.name for stage in STAGES)
 
 
 def find_stage(name: str) -> Stage:
-    """The stage called ``name`` (or one of its old names); ValueError naming the choices."""
+    """The stage called ``name`` (or one of its old names); UsageError naming the choices."""
     for stage in STAGES:
         if name == stage.name or name in stage.old_names:
             return stage
-    raise ValueError(f"unknown stage {name!r}; choose one of {', '.join(STAGE_NAMES)}")
+    raise UsageError(f"unknown stage {name!r}; choose one of {', '.join(STAGE_NAMES)}")
 
 
 def load_stage(
@@ -152,8 +153,8 @@ def load_stage(
 ) -> TrainedStage:
     """Rebuild a trained stage from its ``<which>.pt``, models in eval mode on ``device``.
 
-    ``stage``: a stage name or an old one (``"ae"`` is the autoencoder). Raises ValueError (one
-    line, naming the make target to run) when the stage is not trained. Example::
+    ``stage``: a stage name or an old one (``"ae"`` is the autoencoder). Raises UsageError (a
+    ValueError: one line, naming the make target to run) when the stage is not trained. Example::
 
         generator = load_stage("checkpoints/demo", "generator")
         text = generator.vectorizer.encode_text("a person walks forward")[0]
@@ -202,7 +203,7 @@ def train_stage(
 ) -> Path:
     """Train ``stage`` with ``config`` into its folder of ``run_dir``; returns that folder.
 
-    The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line ValueError
+    The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line UsageError
     names the make target of a missing one). Opens (and closes) the runtime when not given one.
     Example::
 
@@ -218,7 +219,7 @@ def train_stage(
         for name in record.needs:
             needed = find_stage(name)
             if not (needed.folder(run_dir) / "best.pt").is_file():
-                raise ValueError(
+                raise UsageError(
                     f"{record.name} needs a trained {name!r} in {needed.folder(run_dir)}: "
                     f"run `make {needed.make_target}` first"
                 )
