@@ -220,16 +220,6 @@ class Config:
             if isinstance(getattr(self, f.name), StageConfig)
         }
 
-    # Read-only old names for code not yet moved to the stage names (t2m/benchmarks/sample.py,
-    # t2m/benchmarks/evaluate.py); remove with the last caller.
-    @property
-    def ae(self) -> AutoencoderStageConfig:
-        return self.autoencoder
-
-    @property
-    def t2m(self) -> GeneratorStageConfig:
-        return self.generator
-
 
 # ----------------------------------------------------------------------------------------------
 # presets

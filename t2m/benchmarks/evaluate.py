@@ -25,6 +25,7 @@ from dataset_tools import humanml3d
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip
 from t2m.pipeline import TextToMotion
+from t2m.train import find_stage
 
 logger = logging.getLogger(__name__)
 
@@ -43,7 +44,7 @@ def _untrained_stages(preset_name: str) -> dict:
     from t2m.config import preset
     from t2m.data.normalization import Normalizer
     from t2m.data.words import load_vectorizer
-    from t2m.train import ModelSizes, TrainedStage, find_stage
+    from t2m.train import ModelSizes, TrainedStage
 
     config = preset(preset_name)
     vectorizer = load_vectorizer(config.data.word_vectors, config.data.max_text_tokens)
@@ -51,7 +52,7 @@ def _untrained_stages(preset_name: str) -> dict:
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
     torch.manual_seed(0)
     stages = {}
-    for stage in ("eval", "length", "t2m"):
+    for stage in ("evaluator", "length", "generator"):
         models = find_stage(stage).build(config, dims)
         for module in models.values():
             module.eval()
@@ -63,25 +64,27 @@ def _untrained_stages(preset_name: str) -> dict:
             vectorizer=vectorizer,
             progress={},
             dims=dims,
-            initial_code=torch.zeros(config.ae.model.code_size) if stage == "t2m" else None,
+            initial_code=(
+                torch.zeros(config.autoencoder.model.code_size) if stage == "generator" else None
+            ),
         )
     return stages
 
 
 def _untrained_backend(preset_name: str) -> evaluate.CheckpointBackend:
     stages = _untrained_stages(preset_name)
-    t2m, length = stages["t2m"], stages["length"]
+    generator, length = stages["generator"], stages["length"]
     pipeline = TextToMotion(
-        vae=t2m.models["vae"],
-        decoder=t2m.models["decoder"],
-        normalizer=t2m.normalizer,
-        vectorizer=t2m.vectorizer,
-        initial_code=t2m.initial_code,
-        data=t2m.config.data,
+        vae=generator.models["vae"],
+        decoder=generator.models["decoder"],
+        normalizer=generator.normalizer,
+        vectorizer=generator.vectorizer,
+        initial_code=generator.initial_code,
+        data=generator.config.data,
         length_model=length.models["length"],
         length_vectorizer=length.vectorizer,
     )
-    return evaluate.CheckpointBackend(stages["eval"], pipeline)
+    return evaluate.CheckpointBackend(stages["evaluator"], pipeline)
 
 
 def _synthetic_clips(count: int, rng: np.random.Generator) -> list[Clip]:
@@ -99,7 +102,7 @@ def _synthetic_clips(count: int, rng: np.random.Generator) -> list[Clip]:
 
 def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str, bool]:
     """The backend, the test items, a description, and whether they are the real demo run."""
-    trained = (DEMO_RUN / "eval" / "best.pt").is_file()
+    trained = (find_stage("evaluator").folder(DEMO_RUN) / "best.pt").is_file()
     if trained and humanml3d.split_path(DEMO_DATASET, "test").is_file():
         from t2m.data.dataset import load_split
 
@@ -164,7 +167,7 @@ def _with_precision(pipeline: TextToMotion, precision: str) -> TextToMotion:
 
 def _paper_evaluator_forward(repeats: int) -> float:
     """Seconds for the paper-size evaluator to embed 32 captions and 32 motions of 196 frames."""
-    eval_stage = _untrained_stages("paper")["eval"]
+    eval_stage = _untrained_stages("paper")["evaluator"]
     evaluator = eval_stage.models["evaluator"]
     words = torch.randn(32, 22, eval_stage.dims.word_dim)
     pos = torch.zeros(32, 22, 15)

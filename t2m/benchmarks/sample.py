@@ -42,9 +42,11 @@ def _paper_pipeline(precision: str, modules: tuple | None = None) -> tuple[TextT
     vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)
     if modules is None:
         torch.manual_seed(0)
-        vae = TemporalVAE(vectorizer.dim, config.ae.model.code_size, config.t2m.model)
-        decoder = MovementDecoder(263, config.ae.model)
-        initial_code = torch.zeros(config.ae.model.code_size)
+        vae = TemporalVAE(
+            vectorizer.dim, config.autoencoder.model.code_size, config.generator.model
+        )
+        decoder = MovementDecoder(263, config.autoencoder.model)
+        initial_code = torch.zeros(config.autoencoder.model.code_size)
         modules = (vae, decoder, initial_code)
     vae, decoder, initial_code = modules
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
