@@ -329,7 +329,6 @@ class TemporalVAE(nn.Module):
         num_snippets: torch.Tensor,
         initial_code: torch.Tensor | None = None,
         generator: torch.Generator | None = None,
-        projections: object = None,
         *,
         noise: torch.Tensor | None = None,
         state: RecurrentState | None = None,
@@ -343,7 +342,6 @@ class TemporalVAE(nn.Module):
             num_snippets: (B,) int, snippets to generate per item (frames // 4).
             initial_code: (C,) or (B, C) mean-pose code; unused when ``state`` is given.
             generator: the source of the latent draws when ``noise`` is None.
-            projections: int8 copies of the input projections (see :mod:`t2m.quantize`).
             noise: (B, max(num_snippets), Z) standard normal draws: z = mean + exp(logvar / 2)
                 * noise; None: drawn from ``generator``.
             state: where to start (a :meth:`prefix_state`, or a state this method returned);
@@ -363,7 +361,9 @@ class TemporalVAE(nn.Module):
         limit = self.config.max_snippets - 1
         if int(num_snippets.min()) < 1 or bool((snippets_left < num_snippets).any()) or int(
             snippets_left.max()) > limit:  # fmt: skip
-            raise ValueError(f"num_snippets must be in 1..{limit} (and <= snippets_left <= {limit})")
+            raise ValueError(
+                f"num_snippets must be in 1..{limit} (and <= snippets_left <= {limit})"
+            )
         if noise is None:
             noise = torch.randn(
                 batch, steps, self.config.latent_size, generator=generator,
