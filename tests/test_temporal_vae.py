@@ -59,8 +59,9 @@ def test_fast_forward_equals_the_plain_step(teacher_forcing):
     results = {}
     for fast in (True, False):
         outputs = vae(*text(vae), codes, initial, teacher_forcing, noise, fast=fast)
-        grads = torch.autograd.grad(loss_of(outputs, codes), list(parameters.values()),
-                                    allow_unused=True)  # fmt: skip
+        grads = torch.autograd.grad(
+            loss_of(outputs, codes), list(parameters.values()), allow_unused=True
+        )
         results[fast] = outputs, dict(zip(parameters, grads, strict=True))
     (fast_out, fast_grads), (plain_out, plain_grads) = results[True], results[False]
     assert fast_out.keys() == plain_out.keys() and fast_out["codes"].shape == (3, 7, CODE)
@@ -84,8 +85,12 @@ def test_prior_learns_from_the_kl_only(fast):
         outputs["codes"].square().sum(), prior, allow_unused=True, retain_graph=True
     )
     assert all(g is None or not g.any() for g in grads)
-    kl = gaussian_kl(outputs["posterior_mean"], outputs["posterior_logvar"],
-                     outputs["prior_mean"], outputs["prior_logvar"]).mean()  # fmt: skip
+    kl = gaussian_kl(
+        outputs["posterior_mean"],
+        outputs["posterior_logvar"],
+        outputs["prior_mean"],
+        outputs["prior_logvar"],
+    ).mean()
     assert all(g is not None and g.any() for g in torch.autograd.grad(kl, prior))
 
 
@@ -107,16 +112,18 @@ def test_generate_is_the_step_by_step_rollout_with_explicit_or_drawn_noise():
     num_snippets, initial = torch.tensor([10, 4, 7]), randn(CODE, seed=2)
     noise = torch.randn(3, 10, LATENT, generator=torch.Generator().manual_seed(5))
     codes = vae.generate(features, sentence, mask, num_snippets, initial, noise=noise)
-    drawn = vae.generate(features, sentence, mask, num_snippets, initial,
-                         torch.Generator().manual_seed(5))  # fmt: skip
+    drawn = vae.generate(
+        features, sentence, mask, num_snippets, initial, torch.Generator().manual_seed(5)
+    )
     assert torch.equal(codes, drawn)
     with torch.no_grad():
         manual = manual_rollout(vae, features, sentence, mask, num_snippets, initial, noise)
     valid = torch.arange(10)[None, :, None] < num_snippets[:, None, None]
     assert torch.equal(codes, manual * valid)
     assert codes[1, :4].abs().sum() > 0 and not codes[1, 4:].any() and not codes[2, 7:].any()
-    other = vae.generate(features, sentence, mask, num_snippets, initial,
-                         torch.Generator().manual_seed(6))  # fmt: skip
+    other = vae.generate(
+        features, sentence, mask, num_snippets, initial, torch.Generator().manual_seed(6)
+    )
     assert not torch.allclose(codes, other)
 
 
@@ -127,17 +134,29 @@ def test_generation_split_in_two_continues_exactly():
     total, initial = torch.tensor([10, 6, 8]), randn(CODE, seed=2)
     noise = randn(3, 10, LATENT, seed=4)
     whole, end = vae.generate(*args, total, initial, noise=noise, return_state=True)
-    first, middle = vae.generate(*args, torch.full((3,), 4), initial, noise=noise[:, :4],
-                                 snippets_left=total, return_state=True)  # fmt: skip
-    rest, end2 = vae.generate(*args, total - 4, state=middle, noise=noise[:, 4:],
-                              return_state=True)  # fmt: skip
+    first, middle = vae.generate(
+        *args,
+        torch.full((3,), 4),
+        initial,
+        noise=noise[:, :4],
+        snippets_left=total,
+        return_state=True,
+    )
+    rest, end2 = vae.generate(*args, total - 4, state=middle, noise=noise[:, 4:], return_state=True)
     assert torch.equal(first, whole[:, :4]) and torch.equal(rest, whole[:, 4:])
     assert middle.posterior is None and torch.equal(middle.previous_code, first[:, -1])
     for a, b in zip(end, end2, strict=True):
         assert (a is None and b is None) or torch.equal(a, b)
     # each item's final state is its own, after its own number of steps
-    alone, alone_end = vae.generate(features[1:2], sentence[1:2], mask[1:2], total[1:2], initial,
-                                    noise=noise[1:2, :6], return_state=True)  # fmt: skip
+    alone, alone_end = vae.generate(
+        features[1:2],
+        sentence[1:2],
+        mask[1:2],
+        total[1:2],
+        initial,
+        noise=noise[1:2, :6],
+        return_state=True,
+    )
     torch.testing.assert_close(end.generator[1:2], alone_end.generator, rtol=1e-6, atol=1e-6)
     torch.testing.assert_close(end.previous_code[1], whole[1, 5], rtol=0, atol=0)
 
@@ -177,13 +196,15 @@ def test_bf16_autocast_is_close_to_float32(fast):
     reference = vae(features, sentence, mask, codes, torch.zeros(CODE), False, noise, fast=fast)
     with torch.autocast("cpu", dtype=torch.bfloat16):
         low = vae(features, sentence, mask, codes, torch.zeros(CODE), False, noise, fast=fast)
-        generated = vae.generate(features, sentence, mask, torch.tensor([5, 4]), torch.zeros(CODE),
-                                 noise=noise)  # fmt: skip
+        generated = vae.generate(
+            features, sentence, mask, torch.tensor([5, 4]), torch.zeros(CODE), noise=noise
+        )
     assert low["codes"].dtype == torch.bfloat16
     for key, value in reference.items():
         assert (low[key].float() - value).abs().max() < 0.03 * value.abs().max(), key
-    expected = vae.generate(features, sentence, mask, torch.tensor([5, 4]), torch.zeros(CODE),
-                            noise=noise)  # fmt: skip
+    expected = vae.generate(
+        features, sentence, mask, torch.tensor([5, 4]), torch.zeros(CODE), noise=noise
+    )
     assert (generated.float() - expected).abs().max() < 0.03 * expected.abs().max()
 
 
@@ -217,8 +238,13 @@ def test_temporal_vae_loss_and_kl():
     assert torch.allclose(gaussian_kl(mean, logvar, mean, logvar), torch.zeros(2, 3), atol=1e-6)
     kl = gaussian_kl(torch.ones(1, 1), torch.zeros(1, 1), torch.zeros(1, 1), torch.zeros(1, 1))
     assert torch.allclose(kl, torch.tensor([[0.5]]))
-    outputs = {"codes": torch.zeros(2, 3, 5), "posterior_mean": mean, "posterior_logvar": logvar,
-               "prior_mean": mean, "prior_logvar": logvar}  # fmt: skip
+    outputs = {
+        "codes": torch.zeros(2, 3, 5),
+        "posterior_mean": mean,
+        "posterior_logvar": logvar,
+        "prior_mean": mean,
+        "prior_logvar": logvar,
+    }
     losses = temporal_vae_loss(
         outputs, torch.ones(2, 3, 5), torch.zeros(2, 12, 7), torch.zeros(2, 12, 7)
     )

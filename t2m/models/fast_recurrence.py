@@ -109,8 +109,9 @@ class _FastBlock:
         self.input_gates = StepLinear(cell.weight_ih, cell.bias_ih, steps, batch)
         self.hidden_gates = StepLinear(cell.weight_hh, cell.bias_hh, steps, batch)
 
-    def __call__(self, preactivation: torch.Tensor, time_code: torch.Tensor,
-                 hidden: torch.Tensor, step: int) -> torch.Tensor:  # fmt: skip
+    def __call__(
+        self, preactivation: torch.Tensor, time_code: torch.Tensor, hidden: torch.Tensor, step: int
+    ) -> torch.Tensor:
         inputs = F.leaky_relu(self.norm(preactivation), 0.2) + time_code
         return gru_update(self.input_gates(inputs, step), self.hidden_gates(hidden, step), hidden)
 

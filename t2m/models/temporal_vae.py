@@ -215,8 +215,9 @@ class TemporalVAE(nn.Module):
             posterior = self.posterior(posterior_input, time_code, state.posterior)
             mean, logvar = posterior_mean, posterior_logvar = self.posterior_gaussian(posterior)
         z = mean + torch.exp(0.5 * logvar) * noise
-        generator = self.generator(torch.cat([previous, attention, z], -1), time_code,
-                                   state.generator)  # fmt: skip
+        generator = self.generator(
+            torch.cat([previous, attention, z], -1), time_code, state.generator
+        )
         code = self.output(generator)
         return (
             RecurrentState(prior, generator, code, posterior),
@@ -256,8 +257,10 @@ class TemporalVAE(nn.Module):
                 new = new._replace(previous_code=output.code.detach())
             if lengths is not None:
                 active = (i < lengths)[:, None]
-                new = RecurrentState(*(None if n is None else torch.where(active, n, o)
-                                       for n, o in zip(new, state)))  # fmt: skip
+                kept = (
+                    None if n is None else torch.where(active, n, o) for n, o in zip(new, state)
+                )
+                new = RecurrentState(*kept)
             state = new
             outputs.append(output)
         stacked = (None if o[0] is None else torch.stack(o, dim=1) for o in zip(*outputs))
@@ -298,8 +301,16 @@ class TemporalVAE(nn.Module):
         if fast:
             from t2m.models.fast_recurrence import fast_forward
 
-            return fast_forward(self, word_features, sentence, word_mask, codes, initial_code,
-                                teacher_forcing, noise)  # fmt: skip
+            return fast_forward(
+                self,
+                word_features,
+                sentence,
+                word_mask,
+                codes,
+                initial_code,
+                teacher_forcing,
+                noise,
+            )
         snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
         _, outputs = self.rollout(
             self.initial_state(sentence, initial_code, posterior=True),
@@ -356,22 +367,29 @@ class TemporalVAE(nn.Module):
         """
         batch, device = word_features.shape[0], word_features.device
         num_snippets = num_snippets.to(device).long()
-        snippets_left = num_snippets if snippets_left is None else snippets_left.to(device).long()
-        steps = int(num_snippets.max())  # the one host sync: the loop's length
+        steps = int(num_snippets.max())  # a host sync: the loop's length
         limit = self.config.max_snippets - 1
-        if int(num_snippets.min()) < 1 or bool((snippets_left < num_snippets).any()) or int(
-            snippets_left.max()) > limit:  # fmt: skip
-            raise ValueError(
-                f"num_snippets must be in 1..{limit} (and <= snippets_left <= {limit})"
-            )
+        if snippets_left is None:
+            snippets_left, bad = num_snippets, steps > limit
+        else:
+            snippets_left = snippets_left.to(device).long()
+            bad = bool((snippets_left < num_snippets).any()) or int(snippets_left.max()) > limit
+        if bad or int(num_snippets.min()) < 1:
+            raise ValueError(f"num_snippets must be in 1..{limit}, and <= snippets_left <= {limit}")
         if noise is None:
             noise = torch.randn(
-                batch, steps, self.config.latent_size, generator=generator,
-                device=device, dtype=word_features.dtype,
-            )  # fmt: skip
+                batch,
+                steps,
+                self.config.latent_size,
+                generator=generator,
+                device=device,
+                dtype=word_features.dtype,
+            )
         elif noise.shape != (batch, steps, self.config.latent_size):
-            raise ValueError(f"noise must be (B, S, Z) = {(batch, steps, self.config.latent_size)}, "
-                             f"got {tuple(noise.shape)}")  # fmt: skip
+            raise ValueError(
+                f"noise must be (B, S, Z) = {(batch, steps, self.config.latent_size)}, "
+                f"got {tuple(noise.shape)}"
+            )
         if state is None:
             if initial_code is None:
                 raise ValueError("generate needs an initial_code or a state to start from")
@@ -451,8 +469,10 @@ def temporal_vae_loss(
     feature_loss = F.smooth_l1_loss(decoded, target_motion)
     code_loss = F.smooth_l1_loss(outputs["codes"], target_codes)
     kl = gaussian_kl(
-        outputs["posterior_mean"], outputs["posterior_logvar"],
-        outputs["prior_mean"], outputs["prior_logvar"],
-    ).mean()  # fmt: skip
+        outputs["posterior_mean"],
+        outputs["posterior_logvar"],
+        outputs["prior_mean"],
+        outputs["prior_logvar"],
+    ).mean()
     total = feature_weight * feature_loss + code_weight * code_loss + kl_weight * kl
     return {"loss": total, "features": feature_loss, "codes": code_loss, "kl": kl}
