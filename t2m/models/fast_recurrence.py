@@ -21,10 +21,13 @@ Three rearrangements, each the same sum in another order:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import torch
 import torch.nn.functional as F
 
-from t2m.models.temporal_vae import RecurrentBlock, TemporalVAE
+if TYPE_CHECKING:
+    from t2m.models.temporal_vae import RecurrentBlock, TemporalVAE
 
 
 class _StepWeightGradient(torch.autograd.Function):
