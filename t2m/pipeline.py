@@ -311,8 +311,14 @@ class TextToMotion:
         words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
         word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
-        codes = self.vae.generate(word_features, sentence, mask, num_snippets.to(self.device),
-                                  self.initial_code, generator)  # fmt: skip
+        codes = self.vae.generate(
+            word_features,
+            sentence,
+            mask,
+            num_snippets.to(self.device),
+            self.initial_code,
+            generator,
+        )
         normalised = self.decoder(codes.to(self.decoder_dtype)).float()  # (B, 4 S, D)
         features = self.normalizer.denormalize(normalised).cpu().numpy()
         return [features[i, :length] for i, length in enumerate(frames)]
