@@ -29,14 +29,12 @@ from __future__ import annotations
 import copy
 import logging
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from t2m.config import DataConfig
@@ -45,6 +43,7 @@ from t2m.data.words import EncodedText, WordVectors
 from t2m.models.autoencoder import MovementDecoder
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
+from t2m.quantize import quantize_int8
 
 logger = logging.getLogger(__name__)
 
@@ -107,27 +106,6 @@ def frames_for_seconds(seconds: float, unit_length: int = 4, min_frames: int = 4
     return frames_for(seconds * FPS, unit_length, min_frames, max_frames)
 
 
-def _quantized(module: nn.Module) -> nn.Module:
-    """A copy of ``module`` with its GRUs and Linears dynamically quantised to int8.
-
-    The recurrent blocks' input Linears stay float: the VAE reads their weights directly to
-    split them by input part (see ``TemporalVAE._split_weights``).
-    """
-    from torch.ao.quantization import quantize_dynamic
-
-    targets = {
-        name
-        for name, child in module.named_modules()
-        if isinstance(child, (nn.Linear, nn.GRUCell, nn.GRU)) and not name.endswith(".input")
-    }
-    with warnings.catch_warnings():
-        # torch marks eager-mode quantisation as deprecated in favour of torchao (not a
-        # dependency here); the API still works in the pinned torch.
-        warnings.simplefilter("ignore", DeprecationWarning)
-        warnings.simplefilter("ignore", UserWarning)
-        return quantize_dynamic(copy.deepcopy(module), targets, dtype=torch.qint8)
-
-
 class TextToMotion:
     """Trained T2M models ready to turn prompts into motions.
 
@@ -170,11 +148,8 @@ class TextToMotion:
         self.layout = FeatureLayout.for_dim(normalizer.dim)
         vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
-        # Generation's per-step input projections, int8 copies for the int8 path (None: float).
-        self.projections = None
         if precision == "int8":
-            self.projections = _quantized(vae.generation_projections())
-            vae = _quantized(vae)
+            vae = quantize_int8(vae)
         elif precision == "bf16":
             vae = copy.deepcopy(vae).to(torch.bfloat16)
         self.vae = vae
@@ -339,8 +314,14 @@ class TextToMotion:
         words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
         word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
-        codes = self.vae.generate(word_features, sentence, mask, num_snippets.to(self.device),
-                                  self.initial_code, generator, self.projections)  # fmt: skip
+        codes = self.vae.generate(
+            word_features,
+            sentence,
+            mask,
+            num_snippets.to(self.device),
+            self.initial_code,
+            generator,
+        )
         normalised = self.decoder(codes.to(self.decoder_dtype)).float()  # (B, 4 S, D)
         features = self.normalizer.denormalize(normalised).cpu().numpy()
         return [features[i, :length] for i, length in enumerate(frames)]

@@ -228,32 +228,3 @@ def test_reduced_precision_stays_close_to_fp32(tiny_run, pipe, precision):
 def test_bad_precision_is_a_value_error(tiny_run):
     with pytest.raises(ValueError, match="precision"):
         TextToMotion.from_checkpoints(tiny_run, precision="fp16")
-
-
-def test_int8_projections_feed_the_one_generation_loop():
-    # The int8 path passes quantised copies of generation's input projections to
-    # TemporalVAE.generate; float copies must give exactly what generate gives by default.
-    import torch
-
-    from t2m.config import TemporalVAEConfig, TextEncoderConfig
-    from t2m.models.temporal_vae import TemporalVAE
-    from t2m.pipeline import _quantized
-
-    torch.manual_seed(0)
-    config = TemporalVAEConfig(text=TextEncoderConfig(hidden_size=16), hidden_size=32,
-                               latent_size=8, attention_size=16)  # fmt: skip
-    vae = TemporalVAE(word_dim=12, code_size=24, config=config).eval()
-    words, pos = torch.randn(3, 7, 12), torch.rand(3, 7, 15)
-    word_features, sentence, mask = vae.encode_text(words, pos, torch.tensor([7, 4, 5]))
-    num_snippets, initial = torch.tensor([10, 6, 13]), torch.randn(24)
-    args = (word_features, sentence, mask, num_snippets, initial)
-    expected = vae.generate(*args, torch.Generator().manual_seed(3))
-    float_copy = vae.generate(*args, torch.Generator().manual_seed(3), vae.generation_projections())
-    torch.testing.assert_close(float_copy, expected, rtol=0, atol=0)
-    int8 = _quantized(vae.generation_projections())
-    assert all(
-        "quantized" in type(m).__module__ for m in (int8.previous, int8.attention, int8.latent)
-    )
-    quantized = vae.generate(*args, torch.Generator().manual_seed(3), int8)
-    assert 0 < (quantized - expected).abs().max() < 0.1 * expected.abs().max()
-    assert (quantized[1, 6:] == 0).all()  # past its length
