@@ -180,21 +180,21 @@ def test_text_lines_and_subclips(tiny_dataset, tiny_config, tmp_path):
     with open(broken / "texts" / "000003.txt", "a", encoding="utf-8") as file:
         file.write("just a caption\n")  # no tokens, no times: not a texts/ line
     with pytest.raises(ValueError, match="000003.txt:.*caption#tokens#from#to"):
-        load_split(broken, "train", tiny_config.data)
-    clips = load_split(tiny_dataset, "train", tiny_config.data)
+        load_split(broken, "train")
+    clips = load_split(tiny_dataset, "train")
     names = [clip.name for clip in clips]
     assert "000003#0.0#2.2" in names and "000003" in names  # a timed caption makes a sub-clip
     sub = next(clip for clip in clips if clip.name == "000003#0.0#2.2")
     assert len(sub.motion) == 44 and len(sub.captions) == 1
     assert all(40 <= len(clip.motion) < 200 for clip in clips)
     with pytest.raises(ValueError, match="no split file"):
-        load_split(tiny_dataset, "nosuch", tiny_config.data)
+        load_split(tiny_dataset, "nosuch")
 
 
 def test_batches_are_deterministic_and_disjoint_across_processes(tiny_dataset, tiny_config):
-    clips = load_split(tiny_dataset, "train", tiny_config.data)
+    clips = load_split(tiny_dataset, "train")
     vectors = load_vectorizer(BUILTIN_GLOVE)
-    data = MotionTextData(clips, Normalizer.from_dataset(tiny_dataset), vectors, tiny_config.data)
+    data = MotionTextData(clips, Normalizer.from_dataset(tiny_dataset), vectors)
     first = epoch_batches(len(data), 4, seed=0, epoch=0, rank=0, world_size=2)
     second = epoch_batches(len(data), 4, seed=0, epoch=0, rank=1, world_size=2)
     assert not set(np.concatenate(first)) & set(np.concatenate(second))
