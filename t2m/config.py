@@ -10,7 +10,10 @@ stage folder and stored in every checkpoint, so models can be rebuilt from it al
 names of the first releases (``ae``, ``t2m``, ``eval``) are still read, in overrides and files.
 
 Sizes derived from the data (feature dimension, word-vector dimension) are not configured here;
-they come from the dataset and the word vectors and are stored in the checkpoints.
+they come from the dataset and the word vectors and are stored in the checkpoints. Nor are the
+frame rate, snippet length and frame limits: they are the dataset's
+(:class:`dataset_tools.skeleton.DatasetSpec`); :func:`validate_for_spec` checks a Config against
+them when a stage starts.
 """
 
 from __future__ import annotations
