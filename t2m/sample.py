@@ -7,7 +7,7 @@ Examples::
     python -m t2m.sample --text "a person jumps" --precision int8 --render none
 
 Writes into ``--out`` (default ``outputs/<timestamp>/``), per prompt NN and sample RR:
-``sampleNN_repRR.npy`` (joints (T, 22, 3), metres, y-up, 20 fps), ``sampleNN_repRR_feats.npy``
+``sampleNN_repRR.npy`` (joints (T, 22, 3), metres, y-up, at the dataset's fps: 20 for HumanML3D), ``sampleNN_repRR_feats.npy``
 (de-normalised features (T, 263)), ``sampleNN_repRR.mp4|gif`` unless ``--render none``,
 ``sampleNN_repRR.bvh`` with ``--bvh``; plus ``results.npy`` (the MDM layout: a dict with
 ``motion`` (N, 22, 3, T_max), ``text``, ``lengths``, ``num_samples``, ``num_repetitions``; motion
@@ -41,6 +41,7 @@ from dataset_tools.command import (
     configure_logging,
     option,
 )
+from dataset_tools.skeleton import HUMANML3D, DatasetSpec
 from t2m.pipeline import GeneratedMotion
 
 logger = logging.getLogger("t2m.sample")
@@ -173,11 +174,11 @@ def sample_to_folder(
     """
     from dataset_tools.bvh import write_bvh
     from dataset_tools.viz import render_animation
-    from t2m.pipeline import FPS
 
     if render not in RENDER_CHOICES:
         raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
-    if bvh and pipe.layout.num_joints != 22:
+    fps = pipe.spec.fps
+    if bvh and pipe.spec.num_joints != 22:
         raise UsageError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
     out = Path(out).resolve()  # "." has no name to put a temp folder beside
     # 1. where to write (fails early, before any model work)
@@ -204,10 +205,10 @@ def sample_to_folder(
             _save_npy(tmp / f"{name}_feats.npy", motion.features)
             files += [f"{name}.npy", f"{name}_feats.npy"]
             if render != "none":
-                render_animation(motion.joints, tmp / f"{name}.{render}", caption=motion.text)
+                render_animation(motion.joints, tmp / f"{name}.{render}", motion.text, fps)
                 files.append(f"{name}.{render}")
             if bvh:
-                write_bvh(motion.joints, tmp / f"{name}.bvh")
+                write_bvh(motion.joints, tmp / f"{name}.bvh", fps=fps)
                 files.append(f"{name}.bvh")
         # 4. the summaries
         _save_npy(tmp / "results.npy", mdm_results(motions, num_samples))
@@ -216,7 +217,7 @@ def sample_to_folder(
             "lengths": [[m.num_frames for m in row] for row in motions],
             "seed": seed,
             "num_samples": num_samples,
-            "fps": FPS,
+            "fps": fps,
             "files": files + ["results.npy", "results.json"],
             **(extra_info or {}),
         }
@@ -240,8 +241,8 @@ class SampleConfig:
     num_samples: int = field(default=1, metadata=option(metavar="N"))
     """different motions per prompt"""
     length: int | None = field(default=None, metadata=option(metavar="FRAMES"))
-    """frames at 20 fps (rounded to 4, clamped to 40..196); default: drawn from the text2length
-    model"""
+    """frames (HumanML3D: at 20 fps, rounded to 4, clamped to 40..196; a KIT-ML model: 12.5 fps,
+    24..196); default: drawn from the text2length model"""
     seconds: float | None = field(default=None, metadata=option(metavar="S"))
     """length in seconds instead of frames"""
     seed: int = 0
@@ -277,16 +278,17 @@ class SampleConfig:
         if self.threads < 0:
             raise UsageError(f"--threads must be >= 0, got {self.threads}")
 
-    def prompts(self) -> list[Prompt]:
-        """The prompts with their lengths in frames (None: drawn by the text2length model)."""
+    def prompts(self, spec: DatasetSpec = HUMANML3D) -> list[Prompt]:
+        """The prompts with their lengths in frames of ``spec`` (the loaded models' dataset;
+        None: drawn by the text2length model)."""
         from t2m.pipeline import frames_for, frames_for_seconds
 
         prompts = [Prompt(self.text.strip())] if self.text else read_prompt_file(self.text_file)
         try:
             if self.length is not None:
-                default_frames = frames_for(self.length)
+                default_frames = frames_for(self.length, spec)
             elif self.seconds is not None:
-                default_frames = frames_for_seconds(self.seconds)
+                default_frames = frames_for_seconds(self.seconds, spec)
             else:
                 default_frames = None
         except ValueError as error:  # frames_for refuses a non-positive length: the user's
@@ -307,7 +309,8 @@ def main(argv: list[str] | None = None) -> int:
     arguments = parser.parse_args(sys.argv[1:] if argv is None else argv)
     configure_logging(arguments.verbose)
     config = config_from_args(SampleConfig, arguments)
-    # 1. everything the user gave, checked before any model is loaded
+    # 1. everything the user gave, checked before any model is loaded (the lengths are made
+    # again in frames of the models' dataset once they are)
     prompts = config.prompts()
     out = config.out or Path("outputs") / time.strftime("%Y-%m-%d_%H-%M-%S")
     _prepare_out(out.resolve(), config.overwrite).rmdir()
@@ -329,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
         pipe.prepare([p.text for p in prompts])  # refuses a prompt with no known word
     except ValueError as error:
         raise UsageError(str(error)) from None
+    prompts = config.prompts(pipe.spec)
     # 3. generate and write
     sample_to_folder(
         pipe,

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny
+from dataset_tools.skeleton import HUMANML3D, KIT_ML
+from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import (
@@ -89,11 +90,26 @@ def test_overrides_are_validated():
         ("t2m.batch_size", "3.5", "expected an integer"),
         ("bf16", "maybe", "true/false"),
         ("t2m.model", "1", "is a section"),
-        ("t2m.end_snippets", "60", "end_snippets"),
+        ("t2m.start_snippets", "60", "start_snippets <= generator.end_snippets"),
         ("ae.reconstruction_loss", "l2", "reconstruction_loss must be one of l1, smooth_l1"),
+        ("data.max_frames", "100", "unknown config key"),  # the dataset's spec decides
     ]:
         with pytest.raises(ValueError, match=message):
             apply_overrides(tiny(), {key: value})
+    # Settings that depend on the dataset are checked against its spec when a stage starts.
+    validate_for_spec(tiny(), HUMANML3D)
+    validate_for_spec(tiny(), KIT_ML)
+    for key, value, message in [
+        ("t2m.end_snippets", "60", "end_snippets must not exceed 49"),
+        ("t2m.start_snippets", "9", "start_snippets must be at least 10"),
+        ("ae.window_frames", "44", "window_frames must be a multiple of 4 frames .* to 40"),
+        ("length.model.num_classes", "49", "num_classes must be at least 50"),
+        ("t2m.model.max_snippets", "49", "max_snippets must exceed 49"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            validate_for_spec(apply_overrides(tiny(), {key: value}), HUMANML3D)
+    with pytest.raises(ValueError, match="window_frames .* to 24 .*KIT-ML"):
+        validate_for_spec(apply_overrides(tiny(), {"ae.window_frames": "28"}), KIT_ML)
     with pytest.raises(ValueError, match="unknown preset"):
         preset("huge")
 
@@ -187,26 +203,26 @@ def test_real_humanml3d_statistics_load():
     assert np.isfinite(normalised).all() and abs(float(normalised[:, 4:259].mean())) < 1.0
 
 
-def test_text_lines_and_subclips(tiny_dataset, tiny_config, tmp_path):
+def test_text_lines_and_subclips(tiny_dataset, tmp_path):
     broken = shutil.copytree(tiny_dataset, tmp_path / "broken")
     with open(broken / "texts" / "000003.txt", "a", encoding="utf-8") as file:
         file.write("just a caption\n")  # no tokens, no times: not a texts/ line
     with pytest.raises(ValueError, match="000003.txt:.*caption#tokens#from#to"):
-        load_split(broken, "train", tiny_config.data)
-    clips = load_split(tiny_dataset, "train", tiny_config.data)
+        load_split(broken, "train")
+    clips = load_split(tiny_dataset, "train")
     names = [clip.name for clip in clips]
     assert "000003#0.0#2.2" in names and "000003" in names  # a timed caption makes a sub-clip
     sub = next(clip for clip in clips if clip.name == "000003#0.0#2.2")
     assert len(sub.motion) == 44 and len(sub.captions) == 1
     assert all(40 <= len(clip.motion) < 200 for clip in clips)
     with pytest.raises(ValueError, match="no split file"):
-        load_split(tiny_dataset, "nosuch", tiny_config.data)
+        load_split(tiny_dataset, "nosuch")
 
 
-def test_batches_are_deterministic_and_disjoint_across_processes(tiny_dataset, tiny_config):
-    clips = load_split(tiny_dataset, "train", tiny_config.data)
+def test_batches_are_deterministic_and_disjoint_across_processes(tiny_dataset):
+    clips = load_split(tiny_dataset, "train")
     vectors = load_vectorizer(BUILTIN_GLOVE)
-    data = MotionTextData(clips, Normalizer.from_dataset(tiny_dataset), vectors, tiny_config.data)
+    data = MotionTextData(clips, Normalizer.from_dataset(tiny_dataset), vectors)
     first = epoch_batches(len(data), 4, seed=0, epoch=0, rank=0, world_size=2)
     second = epoch_batches(len(data), 4, seed=0, epoch=0, rank=1, world_size=2)
     assert not set(np.concatenate(first)) & set(np.concatenate(second))

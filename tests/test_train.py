@@ -248,7 +248,7 @@ def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
     mp.start_processes(_ddp_worker, args=(2, _free_port(), str(tiny_dataset), str(tmp_path), config.to_dict()),
                        nprocs=2, join=True, start_method="spawn")  # fmt: skip
     checkpoint = read_checkpoint(tmp_path / "autoencoder" / "latest.pt")
-    clips = len(load_split(tiny_dataset, "train", config.data))
+    clips = len(load_split(tiny_dataset, "train"))
     assert checkpoint["progress"]["step"] == (clips // 2) // 8  # each process takes half an epoch
     rank0, rank1 = (torch.load(tmp_path / f"rank{r}.pt") for r in (0, 1))
     # the processes saw different data yet hold identical weights: gradients were averaged

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dataset_tools.build import BuildConfig, build_dataset
-from dataset_tools.skeleton import SMPL
+from dataset_tools.skeleton import HUMANML3D, SMPL
 from dataset_tools.texts import load_nlp
 
 CAPTIONS = (
@@ -32,7 +32,7 @@ def _walk(num_frames: int, rng: np.random.Generator) -> np.ndarray:
     for joint in range(1, 22):
         rest[joint] = rest[SMPL.parents[joint]] + SMPL.offsets[joint]
     rest[:, 1] -= rest[:, 1].min()
-    time_s = np.arange(num_frames) / SMPL.fps
+    time_s = np.arange(num_frames) / HUMANML3D.fps
     joints = np.broadcast_to(rest, (num_frames, 22, 3)).copy()
     swing = 0.25 * np.sin(2 * np.pi * (time_s + rng.uniform()))[:, None]
     for leg, sign in (((4, 7, 10), 1.0), ((5, 8, 11), -1.0)):
@@ -52,7 +52,7 @@ def write_source(folder: Path, num_clips: int, num_frames: int = 200, seed: int 
         side = ("left", "right")[index % 2]
         lines = [caption.format(side=side, n=3 + index % 5) for caption in CAPTIONS]
         (folder / "texts" / f"{index:06d}.txt").write_text("\n".join(lines) + "\n")
-    (folder / "source.json").write_text(json.dumps({"fps": SMPL.fps, "up": "y"}))
+    (folder / "source.json").write_text(json.dumps({"fps": HUMANML3D.fps, "up": "y"}))
 
 
 def run(quick: bool = False) -> dict:

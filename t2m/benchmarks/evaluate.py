@@ -80,7 +80,7 @@ def _untrained_backend(preset_name: str) -> evaluate.CheckpointBackend:
         normalizer=generator.normalizer,
         vectorizer=generator.vectorizer,
         initial_code=generator.initial_code,
-        data=generator.config.data,
+        spec=generator.spec,
         length_model=length.models["length"],
         length_vectorizer=length.vectorizer,
     )
@@ -107,7 +107,7 @@ def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str, b
         from t2m.data.dataset import load_split
 
         backend = evaluate.CheckpointBackend.from_run_dir(DEMO_RUN)
-        clips = load_split(DEMO_DATASET, "test", backend.data_config)
+        clips = load_split(DEMO_DATASET, "test", spec=backend.spec)
         return backend, clips, "trained demo run on the demo test split", True
     backend = _untrained_backend("demo")
     clips = _synthetic_clips(SYNTHETIC_ITEMS, np.random.default_rng(0))
@@ -158,7 +158,7 @@ def _with_precision(pipeline: TextToMotion, precision: str) -> TextToMotion:
         normalizer=pipeline.normalizer,
         vectorizer=pipeline.vectorizer,
         initial_code=pipeline.initial_code,
-        data=pipeline.data,
+        spec=pipeline.spec,
         length_model=pipeline.length_model,
         length_vectorizer=pipeline.length_vectorizer,
         precision=precision,

@@ -50,8 +50,7 @@ def _paper_pipeline(precision: str, modules: tuple | None = None) -> tuple[TextT
         modules = (vae, decoder, initial_code)
     vae, decoder, initial_code = modules
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
-    pipe = TextToMotion(vae, decoder, normalizer, vectorizer, initial_code, config.data,
-                        precision=precision)  # fmt: skip
+    pipe = TextToMotion(vae, decoder, normalizer, vectorizer, initial_code, precision=precision)
     return pipe, modules
 
 

@@ -3,7 +3,8 @@
 :func:`load_split` reads the clips of one split of a HumanML3D folder (its layout and caption
 lines are :mod:`dataset_tools.humanml3d`'s): features and tagged captions. A caption with a time
 range makes its own sub-clip (as the original does); clips outside
-``min_frames <= T < length_limit`` are skipped.
+``min_frames <= T < length_limit`` of the dataset's spec
+(:class:`dataset_tools.skeleton.DatasetSpec`) are skipped.
 
 :class:`MotionTextData` keeps the normalised motions and the captions as vocabulary ids, and cuts
 batches for each stage. Every batch is a pure function of the item indices and a
@@ -23,9 +24,7 @@ from tqdm import tqdm
 
 from dataset_tools import humanml3d
 from dataset_tools.humanml3d import SPLITS, Caption
-from dataset_tools.representation import FeatureLayout
-from dataset_tools.skeleton import skeleton_for
-from t2m.config import DataConfig
+from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors, pos_onehot
 
@@ -52,19 +51,26 @@ class Clip:
 
 
 def load_split(
-    dataset_dir: str | Path, split: str, config: DataConfig, limit: int | None = None
+    dataset_dir: str | Path,
+    split: str,
+    *,
+    spec: DatasetSpec | None = None,
+    limit: int | None = None,
 ) -> list[Clip]:
     """The usable clips of a split, sorted by name (deterministic), sub-clips included.
 
-    Raises ValueError when the folder or split is missing or no clip is usable.
+    ``spec`` (default: the folder's, from its ``Mean.npy``) gives the frame rate of the
+    captions' time ranges and the frame limits. Raises ValueError when the folder or split is
+    missing, a clip's features do not have the spec's dimension, or no clip is usable.
     """
     dataset_dir = humanml3d.require_dataset(dataset_dir)
+    spec = spec or spec_for_folder(dataset_dir)
+    fps, shortest, limit_frames = spec.fps, spec.min_frames, spec.length_limit
     names = sorted(set(humanml3d.read_split(dataset_dir, split)))
     if limit is not None:
         names = names[:limit]
     clips: list[Clip] = []
     missing = 0
-    fps = None
     for name in tqdm(names, desc=f"loading {split}", unit="clip", leave=False, mininterval=2.0):
         motion_path = humanml3d.features_path(dataset_dir, name)
         if not motion_path.is_file() or not humanml3d.texts_path(dataset_dir, name).is_file():
@@ -73,8 +79,10 @@ def load_split(
         motion = np.load(motion_path).astype(np.float32, copy=False)
         if motion.ndim != 2 or not np.isfinite(motion).all():
             raise ValueError(f"{motion_path}: expected finite (T, D) features")
-        if fps is None:
-            fps = skeleton_for(FeatureLayout.for_dim(motion.shape[1]).num_joints).fps
+        if motion.shape[1] != spec.feature_dim:
+            raise ValueError(
+                f"{motion_path}: {motion.shape[1]}-d features, {spec.name} has {spec.feature_dim}"
+            )
         whole: list[Caption] = []
         for caption in humanml3d.read_texts(dataset_dir, name):
             if caption.whole_clip:
@@ -82,9 +90,9 @@ def load_split(
                 continue
             start, end = caption.start, caption.end
             part = motion[int(start * fps) : int(end * fps)]
-            if config.min_frames <= len(part) < config.length_limit:
+            if shortest <= len(part) < limit_frames:
                 clips.append(Clip(f"{name}#{start:.1f}#{end:.1f}", part, [caption]))
-        if whole and config.min_frames <= len(motion) < config.length_limit:
+        if whole and shortest <= len(motion) < limit_frames:
             clips.append(Clip(name, motion, whole))
     if missing:
         logger.warning(
@@ -118,7 +126,8 @@ class MotionTextData:
         clips: from :func:`load_split` (raw features).
         normalizer: mean/std used for every motion.
         vectorizer: the vocabulary.
-        config: the data settings.
+        spec: the dataset's spec (snippet length, longest motion); default: the one of the
+            statistics' feature dimension.
     """
 
     def __init__(
@@ -126,14 +135,19 @@ class MotionTextData:
         clips: list[Clip],
         normalizer: Normalizer,
         vectorizer: WordVectors,
-        config: DataConfig,
+        spec: DatasetSpec | None = None,
     ):
         if clips and clips[0].motion.shape[1] != normalizer.dim:
             raise ValueError(
                 f"features have {clips[0].motion.shape[1]} dimensions but the statistics "
                 f"have {normalizer.dim}"
             )
-        self.config = config
+        self.spec = spec or spec_for_dim(normalizer.dim)
+        if self.spec.feature_dim != normalizer.dim:
+            raise ValueError(
+                f"{self.spec.name} has {self.spec.feature_dim}-d features, the statistics "
+                f"{normalizer.dim}"
+            )
         self.normalizer = normalizer
         self.vectorizer = vectorizer
         self.names = [clip.name for clip in clips]
@@ -203,7 +217,7 @@ class MotionTextData:
         random start, clipped to ``max_frames``; zero-padded to ``max_frames``.
         Returns the text batch plus ``motion`` (B, max_frames, D) and ``motion_lengths`` (B,).
         """
-        unit, max_frames = self.config.unit_length, self.config.max_frames
+        unit, max_frames = self.spec.snippet_length, self.spec.max_frames
         batch = self.text_batch(indices, rng)
         padded = np.zeros((len(indices), max_frames, self.feature_dim), dtype=np.float32)
         lengths = np.empty(len(indices), dtype=np.int64)
@@ -223,10 +237,11 @@ class MotionTextData:
     def length_batch(
         self, indices: np.ndarray, rng: np.random.Generator
     ) -> dict[str, torch.Tensor]:
-        """Caption + length class (frames // unit, capped at ``max_frames``): ``length_class`` (B,)."""
+        """Caption + length class (snippets: frames // snippet_length, frames capped at
+        ``max_frames``): ``length_class`` (B,)."""
         batch = self.text_batch(indices, rng)
-        frames = np.minimum(self.lengths[indices], self.config.max_frames)
-        batch["length_class"] = torch.from_numpy(frames // self.config.unit_length)
+        frames = np.minimum(self.lengths[indices], self.spec.max_frames)
+        batch["length_class"] = torch.from_numpy(frames // self.spec.snippet_length)
         return batch
 
     def fixed_crop_batch(

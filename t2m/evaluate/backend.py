@@ -26,7 +26,8 @@ class Backend(Protocol):
         ...
 
     def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
-        """Raw features, each (T_i, D) with T_i a multiple of 4 -> (N, E) embeddings."""
+        """Raw features, each (T_i, D) with T_i a multiple of the snippet length (4) -> (N, E)
+        embeddings."""
         ...
 
     def generate(
@@ -63,12 +64,18 @@ class CheckpointBackend:
         self.batch_size = batch_size
         self.evaluator = evaluator_stage.models["evaluator"]
         self.device = next(self.evaluator.parameters()).device
-        self.data_config = evaluator_stage.config.data
         if evaluator_stage.normalizer.dim != pipeline.normalizer.dim:
             raise ValueError(
                 f"the evaluator reads {evaluator_stage.normalizer.dim}-d features but the generator "
                 f"writes {pipeline.normalizer.dim}-d ones"
             )
+        if evaluator_stage.spec != pipeline.spec:
+            raise ValueError(
+                f"the evaluator was trained on {evaluator_stage.spec.name}, the generator on "
+                f"{pipeline.spec.name}"
+            )
+        self.spec = evaluator_stage.spec
+        """The dataset spec of the models (snippet length, longest motion, fps)."""
         # Replications reuse captions: encode each once per vocabulary.
         self._encoded: dict[tuple[str, tuple[str, ...]], Any] = {}
 
@@ -118,7 +125,7 @@ class CheckpointBackend:
     @torch.no_grad()
     def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
         normalizer = self.evaluator_stage.normalizer
-        unit = self.data_config.unit_length
+        unit = self.spec.snippet_length
         lengths = np.array([len(m) for m in motions], dtype=np.int64)
         if np.any(lengths % unit) or np.any(lengths < unit):
             raise ValueError(f"motion lengths must be positive multiples of {unit}")
@@ -126,7 +133,7 @@ class CheckpointBackend:
         # as the evaluator is trained: the second encoder convolution sees the padding's
         # activations, so a shorter padding would shift the last snippets' codes and make an
         # embedding depend on the batch it happens to be in.
-        frames = max(self.data_config.max_frames, int(lengths.max()))
+        frames = max(self.spec.max_frames, int(lengths.max()))
         out = []
         for chunk in _chunks(len(motions), self.batch_size):
             batch = motions[chunk]

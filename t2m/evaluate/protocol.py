@@ -42,6 +42,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools.command import UsageError, option
+from dataset_tools.skeleton import HUMANML3D, DatasetSpec
 from t2m.data.dataset import Caption, Clip
 from t2m.evaluate import metrics
 from t2m.evaluate.backend import Backend
@@ -208,16 +209,16 @@ def draw_items(
     clips: Sequence[Clip],
     num_rows: int,
     rng: np.random.Generator,
-    unit_length: int = 4,
-    max_frames: int = 196,
+    spec: DatasetSpec = HUMANML3D,
     candidates: np.ndarray | None = None,
 ) -> Draw:
     """Draw ``num_rows`` distinct items in random order, a caption and a unit crop for each.
 
     Items come from ``candidates`` (indices into ``clips``; default: all clips). The crop keeps
-    ``min(T, max_frames) // unit`` units, one fewer with probability 1/3 (the original
-    evaluation loader's rule), from a uniformly random start.
+    ``min(T, max_frames) // unit`` units (snippets of the dataset ``spec``), one fewer with
+    probability 1/3 (the original evaluation loader's rule), from a uniformly random start.
     """
+    unit_length, max_frames = spec.snippet_length, spec.max_frames
     candidates = np.arange(len(clips)) if candidates is None else np.asarray(candidates)
     if num_rows > len(candidates):
         raise ValueError(f"cannot draw {num_rows} items from {len(candidates)} clips")
@@ -350,11 +351,11 @@ def run_protocol(
     clips: Sequence[Clip],
     backend: Backend,
     config: EvalConfig,
-    unit_length: int = 4,
-    max_frames: int = 196,
+    spec: DatasetSpec = HUMANML3D,
     semantic: Scorer | None = None,
 ) -> ProtocolResult:
-    """Run ``config.replications`` replications of the protocol on ``clips`` (raw features).
+    """Run ``config.replications`` replications of the protocol on ``clips`` (raw features of the
+    dataset ``spec``: its snippet length and longest motion decide the crops).
 
     ``semantic`` (see :func:`find_scorer`) adds its scores of every row's motions. Returns the
     per-replication values; :func:`~t2m.evaluate.report.summarize` turns them into means and
@@ -393,9 +394,7 @@ def run_protocol(
         # A subset (max_items) is drawn once per replication, so that the reference, the real
         # row and the generated rows all describe the same clips.
         candidates = None if available == len(clips) else rng.permutation(len(clips))[:available]
-        new_draw = functools.partial(
-            draw_items, clips, num_items, rng, unit_length, max_frames, candidates
-        )
+        new_draw = functools.partial(draw_items, clips, num_items, rng, spec, candidates)
 
         reference_draw = new_draw()
         reference = metrics.gaussian_statistics(

@@ -15,7 +15,7 @@ from typing import Any
 import torch
 
 from dataset_tools.command import UsageError
-from t2m.config import DataConfig
+from dataset_tools.skeleton import spec_for_folder
 from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
 from t2m.evaluate.protocol import EvalConfig, find_scorer, run_protocol
@@ -72,12 +72,10 @@ def evaluate(
         except ValueError as error:  # unknown device, missing stage (naming its make target)
             raise UsageError(str(error)) from None
         logger.info("evaluator and generator on %s", backend.device)
-    data_config = getattr(backend, "data_config", None)
-    if data_config is None:
-        data_config = DataConfig()
-    # 2. data
+    # 2. data, read as the models' dataset (a backend without a spec: the folder's own)
     try:
-        clips = load_split(dataset_dir, config.split, data_config)
+        spec = getattr(backend, "spec", None) or spec_for_folder(dataset_dir)
+        clips = load_split(dataset_dir, config.split, spec=spec)
     except ValueError as error:  # not a dataset folder, unreadable clip, no usable clip
         raise UsageError(str(error)) from None
     semantic = find_scorer(dataset_dir)
@@ -86,8 +84,7 @@ def evaluate(
         clips,
         backend,
         config,
-        unit_length=data_config.unit_length,
-        max_frames=data_config.max_frames,
+        spec=spec,
         semantic=semantic,
     )
     # 4. report

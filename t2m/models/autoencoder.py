@@ -1,8 +1,12 @@
-"""Movement autoencoder: every 4 frames of features <-> one snippet code.
+"""Movement autoencoder: every snippet of 4 frames of features <-> one snippet code.
 
 Encoder (on the features without the 4 foot-contact dims): two strided Conv1d (kernel 4, stride 2,
 padding 1) with dropout and LeakyReLU 0.2, then a Linear. Decoder: two ConvTranspose1d back to the
 full feature size (contacts included), LeakyReLU after each, then a Linear.
+
+The two stride-2 layers fix the snippet length at :data:`SNIPPET_FRAMES` = 4 frames; a dataset
+spec (:class:`dataset_tools.skeleton.DatasetSpec`) with another snippet length is refused by
+:func:`check_snippet_length` rather than silently decoded at the wrong rate.
 """
 
 from __future__ import annotations
@@ -14,8 +18,19 @@ from torch import nn
 from t2m.config import AutoencoderConfig
 
 CONTACT_DIMS = 4
+SNIPPET_FRAMES = 4
+"""Frames per snippet code: the encoder's two stride-2 convolutions downsample by 2 x 2."""
 # The names are the ones ``AEStageConfig.reconstruction_loss`` accepts (t2m.config validates them).
 RECONSTRUCTION_LOSSES = {"l1": F.l1_loss, "smooth_l1": F.smooth_l1_loss}
+
+
+def check_snippet_length(snippet_length: int) -> None:
+    """ValueError (one line) unless a dataset's snippet length is the autoencoder's."""
+    if snippet_length != SNIPPET_FRAMES:
+        raise ValueError(
+            f"the movement autoencoder codes snippets of {SNIPPET_FRAMES} frames (two stride-2 "
+            f"convolutions); a dataset with {snippet_length}-frame snippets needs another one"
+        )
 
 
 class MovementEncoder(nn.Module):
@@ -70,9 +85,10 @@ class MovementAutoencoder(nn.Module):
 
     def encode(self, features: torch.Tensor) -> torch.Tensor:
         """(B, T, D) normalised features (contacts included, ignored) -> (B, T // 4, C)."""
-        if features.shape[1] % 4:
+        if features.shape[1] % SNIPPET_FRAMES:
             raise ValueError(
-                f"motion length must be a multiple of 4 frames, got {features.shape[1]}"
+                f"motion length must be a multiple of {SNIPPET_FRAMES} frames, "
+                f"got {features.shape[1]}"
             )
         return self.encoder(features[..., : self.feature_dim - CONTACT_DIMS])
 

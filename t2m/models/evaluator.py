@@ -15,7 +15,7 @@ from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
 from t2m.config import AutoencoderConfig, EvaluatorConfig
-from t2m.models.autoencoder import CONTACT_DIMS, MovementEncoder
+from t2m.models.autoencoder import CONTACT_DIMS, SNIPPET_FRAMES, MovementEncoder
 from t2m.models.text_encoder import ProjectedTextEncoder
 
 
@@ -90,11 +90,12 @@ class Evaluator(nn.Module):
     def embed_motion(self, features: torch.Tensor, motion_lengths: torch.Tensor) -> torch.Tensor:
         """Normalised features (B, T, D), zero-padded, and lengths in frames (B,) -> (B, E).
 
-        T must be a multiple of 4; each length is used in whole snippets (frames // 4).
+        T must be a multiple of 4 (``SNIPPET_FRAMES``); each length is used in whole snippets
+        (frames // 4).
         """
         with torch.no_grad():
             codes = self.encode_motion(features)
-        return self.motion(codes, motion_lengths // 4)
+        return self.motion(codes, motion_lengths // SNIPPET_FRAMES)
 
     def forward(
         self,

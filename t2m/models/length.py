@@ -1,7 +1,8 @@
-"""Text2length: a caption -> a distribution over motion lengths in units of 4 frames.
+"""Text2length: a caption -> a distribution over motion lengths in snippets.
 
 Text encoder (BiGRU) -> sentence feature (2H) -> [Linear -> LayerNorm -> LeakyReLU] per MLP size
--> Linear to ``num_classes``; class ``c`` means ``4 c`` frames.
+-> Linear to ``num_classes``; class ``c`` means ``c`` snippets, ``c * snippet_length`` frames of
+the dataset's spec (:class:`dataset_tools.skeleton.DatasetSpec`; 4 for HumanML3D and KIT-ML).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from dataset_tools.skeleton import HUMANML3D
 from t2m.config import LengthModelConfig
 from t2m.models.text_encoder import TextEncoder
 
@@ -46,13 +48,14 @@ def length_loss(logits: torch.Tensor, target_class: torch.Tensor) -> dict[str, t
 def sample_lengths(
     logits: torch.Tensor,
     generator: torch.Generator,
-    min_units: int = 10,
+    min_units: int = HUMANML3D.min_frames // HUMANML3D.snippet_length,
     retries: int = 2,
 ) -> torch.Tensor:
-    """Draw a length in units (B,) from softmax(logits (B, K)).
+    """Draw a length in snippets (B,) from softmax(logits (B, K)).
 
-    A draw under ``min_units`` is redrawn, at most ``retries`` times; if still short it is raised
-    to ``min_units`` (so every motion has at least 40 frames).
+    A draw under ``min_units`` (the spec's ``min_frames // snippet_length``) is redrawn, at most
+    ``retries`` times; if still short it is raised to ``min_units`` (so every motion has at
+    least the dataset's shortest length).
     """
     probs = torch.softmax(logits.float(), dim=-1)
     units = torch.multinomial(probs, 1, generator=generator).squeeze(-1)

@@ -10,6 +10,9 @@ A checkpoint is a dict::
     stage           the stage's name (first releases: "ae" | "length" | "t2m" | "eval")
     config          the resolved Config (dict) of the run that wrote it
     dims            the ModelSizes taken from the data (dict)
+    spec            the DatasetSpec of the data (dict: fps, snippet length, frame limits ...);
+                    checkpoints written before it was stored read as the spec of their feature
+                    dimension (263: HumanML3D)
     models          name -> state_dict (the stage's ``models``, see t2m.train.stages)
     optimizer       optimizer state_dict
     progress        epoch, epoch_step, step, best, and the stage's own counters (the curriculum)
@@ -32,6 +35,7 @@ from torch import nn
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import atomic_write, write_text_atomic
+from dataset_tools.skeleton import DatasetSpec, spec_for_dim
 from t2m.config import Config, from_dict
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors
@@ -86,6 +90,15 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     return checkpoint
 
 
+def checkpoint_spec(checkpoint: dict[str, Any]) -> DatasetSpec:
+    """The dataset spec a checkpoint was trained with; for one written before specs were
+    stored, the spec of its feature dimension (ValueError, one line, when none fits)."""
+    stored = checkpoint.get("spec")
+    if stored is not None:
+        return DatasetSpec.from_dict(stored)
+    return spec_for_dim(ModelSizes.from_dict(checkpoint["dims"]).feature_dim)
+
+
 def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
     if isinstance(a, dict) and isinstance(b, dict):
         out = []
@@ -137,6 +150,7 @@ def make_checkpoint(
     stage: str,
     config: Config,
     sizes: ModelSizes,
+    spec: DatasetSpec,
     models: dict[str, nn.Module],
     optimizer: torch.optim.Optimizer,
     progress: dict[str, Any],
@@ -145,11 +159,16 @@ def make_checkpoint(
     extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The checkpoint dict (tensors copied to CPU by torch.save's pickling as they are)."""
+    if spec.feature_dim != sizes.feature_dim:
+        raise ValueError(
+            f"{spec.name} has {spec.feature_dim}-d features, the models {sizes.feature_dim}"
+        )
     return {
         "format_version": FORMAT_VERSION,
         "stage": stage,
         "config": config.to_dict(),
         "dims": sizes.to_dict(),
+        "spec": spec.to_dict(),
         "models": {name: module.state_dict() for name, module in models.items()},
         "optimizer": optimizer.state_dict(),
         "progress": dict(progress),
@@ -176,6 +195,8 @@ class TrainedStage:
             give the word inputs the text encoders expect.
         progress: the stored counters: step, epoch, best validation value ...
         dims: the sizes taken from the data.
+        spec: the dataset spec of the data (frame rate, snippet length, frame limits, body);
+            default: the one of ``dims.feature_dim`` (for stages built without a checkpoint).
         initial_code: (C,) mean-pose code fed before the first snippet (generator only).
     """
 
@@ -189,3 +210,8 @@ class TrainedStage:
     initial_code: torch.Tensor | None = None
     path: Path | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    spec: DatasetSpec = None  # type: ignore[assignment]  # filled in by __post_init__
+
+    def __post_init__(self) -> None:
+        if self.spec is None:
+            self.spec = spec_for_dim(self.dims.feature_dim)

@@ -135,7 +135,7 @@ def train_generator(job: StageJob) -> Path:
     start = start_on_autoencoder(job)
     job, data, sizes = start.job, start.data, start.sizes
     config, runtime = job.config, job.runtime
-    section, unit = config.generator, config.data.unit_length
+    section, unit = config.generator, data.spec.snippet_length
     autoencoder = start.autoencoder.models["autoencoder"]
     # 2. models, optimizer (decoder at its own rate), resume
     seed_init(config.seed)

@@ -26,10 +26,12 @@ from tqdm import tqdm
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import write_json_atomic
-from t2m.config import Config, StageConfig, from_dict
+from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
+from t2m.config import Config, StageConfig, from_dict, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import TRAINABLE, WordVectors, build_trainable_vocabulary, load_vectorizer
+from t2m.models.autoencoder import check_snippet_length
 from t2m.streams import Stream, stream_rng
 from t2m.train.checkpoint import (
     ModelSizes,
@@ -81,12 +83,13 @@ class StageJob:
 
 @dataclass
 class StageData:
-    """Train and validation data of one stage."""
+    """Train and validation data of one stage, and the spec of their dataset."""
 
     train: MotionTextData
     val: MotionTextData
     vectorizer: WordVectors
     normalizer: Normalizer
+    spec: DatasetSpec
 
     def sizes(self, code_size: int = 0) -> ModelSizes:
         """The model sizes these data give (``code_size``: of the autoencoder built upon)."""
@@ -103,7 +106,7 @@ def vocabulary_for(config: Config, dataset_dir: Path) -> WordVectors:
     """The configured word vectors, or a trainable vocabulary of the training captions."""
     data = config.data
     if data.word_vectors == TRAINABLE:
-        clips = load_split(dataset_dir, "train", data)
+        clips = load_split(dataset_dir, "train")
         return build_trainable_vocabulary(
             (c.tokens for clip in clips for c in clip.captions),
             data.trainable_word_dim,
@@ -118,28 +121,33 @@ def load_stage_data(
     """Train/val splits of a HumanML3D-layout folder, normalised, with their vocabulary.
 
     ``normalizer`` defaults to the dataset's Mean/Std with the root/contact weighting.
-    The validation split falls back to ``test`` when ``val.txt`` is missing or empty of clips.
-    What is wrong with the folder (missing, no Mean/Std, no usable clip, features of another
-    size than the statistics) is a one-line :class:`UsageError`.
+    The dataset's spec (from its ``Mean.npy``) decides the frame limits; the config is checked
+    against it. The validation split falls back to ``test`` when ``val.txt`` is missing or empty
+    of clips. What is wrong with the folder (missing, no Mean/Std, no usable clip, features of
+    another size than the statistics, a config that does not fit the dataset) is a one-line
+    :class:`UsageError`.
     """
     dataset_dir = Path(dataset_dir)
     if not dataset_dir.is_dir():
         raise UsageError(f"dataset folder {dataset_dir} does not exist (run `make dataset` first)")
     try:
+        spec = spec_for_folder(dataset_dir)
+        check_snippet_length(spec.snippet_length)
+        validate_for_spec(config, spec)
         if normalizer is None:
             normalizer = Normalizer.from_dataset(dataset_dir, config.data.feature_bias)
         vectorizer = vocabulary_for(config, dataset_dir)
-        train_clips = load_split(dataset_dir, "train", config.data)
+        train_clips = load_split(dataset_dir, "train", spec=spec)
         try:
-            val_clips = load_split(dataset_dir, "val", config.data)
+            val_clips = load_split(dataset_dir, "val", spec=spec)
         except ValueError:
             logger.warning("%s: no usable val split, validating on test", dataset_dir)
-            val_clips = load_split(dataset_dir, "test", config.data)
-        train = MotionTextData(train_clips, normalizer, vectorizer, config.data)
-        val = MotionTextData(val_clips, normalizer, vectorizer, config.data)
+            val_clips = load_split(dataset_dir, "test", spec=spec)
+        train = MotionTextData(train_clips, normalizer, vectorizer, spec)
+        val = MotionTextData(val_clips, normalizer, vectorizer, spec)
     except ValueError as error:  # the folder's content, or the configured word vectors
         raise UsageError(str(error)) from None
-    return StageData(train, val, vectorizer, normalizer)
+    return StageData(train, val, vectorizer, normalizer, spec)
 
 
 @dataclass
@@ -188,7 +196,8 @@ class StageRun:
 
     Args:
         job: the stage, config, folders, runtime and resume flag.
-        sizes: sizes from the data (stored; checked on resume).
+        sizes: sizes from the data (stored; checked on resume). The dataset spec stored with
+            them is the one of their feature dimension.
         models: name -> module (unwrapped) saved in the checkpoint.
         optimizer: saved and restored with them.
         normalizer, vocabulary: stored for later stages and sampling.
@@ -214,6 +223,7 @@ class StageRun:
         self.dir = job.stage.folder(job.run_dir)
         self.runtime = runtime = job.runtime
         self.sizes = sizes
+        self.spec = spec_for_dim(sizes.feature_dim)
         self.models = models
         self.optimizer = optimizer
         self.normalizer = normalizer
@@ -272,6 +282,7 @@ class StageRun:
                 self.name,
                 self.config,
                 self.sizes,
+                self.spec,
                 {name: unwrap(module) for name, module in self.models.items()},
                 self.optimizer,
                 self._stored_progress(),

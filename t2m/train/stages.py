@@ -36,7 +36,7 @@ from t2m.models.length import LengthEstimator
 from t2m.models.temporal_vae import TemporalVAE
 from t2m.train import runtime as runtime_module
 from t2m.train.autoencoder import train_autoencoder
-from t2m.train.checkpoint import ModelSizes, TrainedStage, read_checkpoint
+from t2m.train.checkpoint import ModelSizes, TrainedStage, checkpoint_spec, read_checkpoint
 from t2m.train.evaluator import train_evaluator
 from t2m.train.generator import train_generator
 from t2m.train.length import train_length
@@ -187,6 +187,7 @@ def load_stage(
         vectorizer=vectorizer_from_info(vocabulary) if vocabulary else None,
         progress=checkpoint["progress"],
         dims=sizes,
+        spec=checkpoint_spec(checkpoint),
         initial_code=initial_code.to(device) if initial_code is not None else None,
         path=path,
         extra={k: v for k, v in extra.items() if k != "initial_code"},
