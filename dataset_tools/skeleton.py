@@ -311,6 +311,14 @@ def spec_for_dim(feature_dim: int) -> DatasetSpec:
     raise ValueError(f"no known dataset has {feature_dim}-d features (263: HumanML3D, 251: KIT-ML)")
 
 
+def spec_for_joints(num_joints: int) -> DatasetSpec:
+    """The known dataset whose skeleton has ``num_joints`` joints (22: HumanML3D, 21: KIT-ML)."""
+    for spec in DATASET_SPECS.values():
+        if spec.num_joints == num_joints:
+            return spec
+    raise ValueError(f"no known dataset has {num_joints} joints (22: HumanML3D, 21: KIT-ML)")
+
+
 def spec_for_folder(folder: str | Path) -> DatasetSpec:
     """The spec of a HumanML3D-layout dataset folder, identified by its ``Mean.npy``'s size."""
     from dataset_tools.humanml3d import MEAN_FILE

@@ -21,7 +21,7 @@ from dataset_tools.command import (
     option,
 )
 from dataset_tools.humanml3d import read_joints
-from dataset_tools.skeleton import SMPL
+from dataset_tools.skeleton import HUMANML3D, SMPL
 
 
 @dataclass
@@ -32,8 +32,9 @@ class ExportCommandConfig:
     """.npy joints (T, 22, 3) (metres, y-up) or HumanML3D features (T, 263)"""
     output: Path = field(metadata=option(positional=True))
     """.bvh file to write"""
-    fps: float = 20.0
-    """frames per second of the motion (the file's frame time is 1 / fps)"""
+    fps: float | None = None
+    """frames per second of the motion (the file's frame time is 1 / fps); default: HumanML3D's
+    20"""
     units: Literal["cm", "m"] = "cm"
     """length unit of the file's offsets and root positions"""
     template_rest_pose: bool = False
@@ -42,7 +43,7 @@ class ExportCommandConfig:
     def __post_init__(self) -> None:
         if self.output.suffix.lower() != ".bvh":
             raise UsageError(f"output must end in .bvh, got {self.output.name!r}")
-        if not self.fps > 0:
+        if self.fps is not None and not self.fps > 0:
             raise UsageError(f"--fps must be positive, got {self.fps}")
 
 
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     write_bvh(
         joints,
         config.output,
-        fps=config.fps,
+        fps=config.fps or HUMANML3D.fps,
         units=config.units,
         fit_rest_pose=not config.template_rest_pose,
     )

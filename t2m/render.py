@@ -19,6 +19,7 @@ from dataset_tools.command import (
     option,
 )
 from dataset_tools.humanml3d import read_joints
+from dataset_tools.skeleton import spec_for_joints
 from dataset_tools.viz import FORMATS, render_animation, render_keyframes
 
 SUFFIXES = tuple(f".{name}" for name in FORMATS) + (".png",)
@@ -35,15 +36,16 @@ class RenderCommandConfig:
     """file to write: .mp4 or .gif (an animation) or .png (a strip of key frames)"""
     caption: str = ""
     """title shown above the figure"""
-    fps: float = 20.0
-    """frames per second of the motion (and of the animation)"""
+    fps: float | None = None
+    """frames per second of the motion (and of the animation); default: the dataset's rate for
+    the joint count (20 for HumanML3D's 22 joints, 12.5 for KIT-ML's 21)"""
     keyframes: int = 6
     """panels of a PNG strip"""
 
     def __post_init__(self) -> None:
         if self.output.suffix.lower() not in SUFFIXES:
             raise UsageError(f"output must end in {', '.join(SUFFIXES)}, got {self.output.name!r}")
-        if not self.fps > 0:
+        if self.fps is not None and not self.fps > 0:
             raise UsageError(f"--fps must be positive, got {self.fps}")
         if self.keyframes < 1:
             raise UsageError(f"--keyframes must be at least 1, got {self.keyframes}")
@@ -62,10 +64,11 @@ def main(argv: list[str] | None = None) -> int:
     config = config_from_args(RenderCommandConfig, parser.parse_args(argv))
     configure_logging()
     joints = read_joints(config.input)
+    fps = config.fps or spec_for_joints(joints.shape[1]).fps
     if config.output.suffix.lower() == ".png":
-        render_keyframes(joints, config.output, config.caption, config.keyframes, config.fps)
+        render_keyframes(joints, config.output, config.caption, config.keyframes, fps)
     else:
-        render_animation(joints, config.output, config.caption, config.fps)
+        render_animation(joints, config.output, config.caption, fps)
     return 0
 
 

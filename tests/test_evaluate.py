@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from dataset_tools.command import field_docs
+from dataset_tools.skeleton import HUMANML3D
 from dataset_tools.synth.scoring import SemanticScorer, find_corpus_labels
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip
@@ -335,7 +336,7 @@ def _corpus_items(count: int):
 
 def test_semantic_scorer_recovers_corpus_labels_and_rejects_wrong_ones():
     labels, names, features, mirrored = _corpus_items(8)
-    scorer = SemanticScorer(labels)
+    scorer = SemanticScorer(labels, fps=HUMANML3D.fps)
     right = scorer(names, features)
     assert right["all"] >= 0.75 and right["segments"] >= 0.8
     assert set(right) >= {"all", "segments"} and any(k.startswith("action_") for k in right)

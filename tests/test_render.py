@@ -167,7 +167,8 @@ def test_cli_help_lists_the_documented_options_with_their_docstrings(capsys):
     for expected in (
         "input output",
         "--caption CAPTION title shown above the figure",
-        "--fps FPS frames per second of the motion (and of the animation) (default: 20.0)",
+        "--fps FPS frames per second of the motion (and of the animation); default: the "
+        "dataset's rate for the joint count (20 for HumanML3D's 22 joints, 12.5 for KIT-ML's 21)",
         "--keyframes KEYFRAMES panels of a PNG strip (default: 6)",
         "or .png (a strip of key frames)",
     ):
@@ -263,3 +264,16 @@ def test_contact_sheet_has_a_row_per_clip_and_is_deterministic(tmp_path):
         render_contact_sheet([], tmp_path / "d.png")
     with pytest.raises(ValueError, match="PNG"):
         render_contact_sheet(clips, tmp_path / "d.gif")
+
+
+@pytest.mark.parametrize("num_joints,frame_ms", [(22, 50), (21, 80)])
+def test_cli_animation_rate_follows_the_dataset_of_the_joint_count(tmp_path, num_joints, frame_ms):
+    from PIL import Image
+
+    from t2m.render import main
+
+    joints = np.zeros((4, num_joints, 3), np.float32)
+    joints[:, :, 1] = np.linspace(0.0, 1.7, num_joints)  # a vertical stick, visible
+    np.save(tmp_path / "joints.npy", joints)
+    assert main([str(tmp_path / "joints.npy"), str(tmp_path / "out.gif")]) == 0
+    assert Image.open(tmp_path / "out.gif").info["duration"] == frame_ms

@@ -21,6 +21,7 @@ import numpy as np
 
 from dataset_tools import humanml3d
 from dataset_tools.representation import FeatureLayout, recover_from_ric
+from dataset_tools.skeleton import spec_for_folder
 from dataset_tools.synth.corpus import GENERATOR
 from dataset_tools.synth.detectors import clip_matches, mirror_label
 
@@ -65,7 +66,7 @@ class SemanticScorer:
         fps: frame rate of the dataset's motions.
     """
 
-    def __init__(self, labels: dict[str, Any], fps: float = 20.0):
+    def __init__(self, labels: dict[str, Any], fps: float):
         self.clips = labels["clips"]
         self.fps = fps
 
@@ -115,4 +116,5 @@ def scorer_for(dataset_dir: str | Path) -> SemanticScorer | None:
     if path is None:
         return None
     logger.info("semantic accuracy from the corpus labels in %s", path)
-    return SemanticScorer(json.loads(path.read_text(encoding="utf-8")))
+    fps = spec_for_folder(dataset_dir).fps
+    return SemanticScorer(json.loads(path.read_text(encoding="utf-8")), fps=fps)

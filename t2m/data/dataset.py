@@ -27,6 +27,7 @@ from dataset_tools.humanml3d import SPLITS, Caption
 from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors, pos_onehot
+from t2m.streams import Stream, stream_rng
 
 logger = logging.getLogger(__name__)
 
@@ -35,7 +36,6 @@ __all__ = [
     "Caption",
     "Clip",
     "MotionTextData",
-    "batch_rng",
     "epoch_batches",
     "load_split",
 ]
@@ -112,7 +112,7 @@ def epoch_batches(
     Every process draws the same permutation and takes every ``world_size``-th item, so the
     processes of a DDP run see disjoint data and the same number of batches.
     """
-    order = np.random.default_rng([seed, epoch, 7]).permutation(num_items)
+    order = stream_rng(Stream.EPOCH_ORDER, seed, epoch).permutation(num_items)
     per_rank = num_items // world_size
     mine = order[rank::world_size][:per_rank]
     count = per_rank // batch_size
