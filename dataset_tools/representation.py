@@ -62,8 +62,15 @@ class FeatureLayout:
 
     def groups(self) -> list[tuple[str, slice]]:
         """(name, slice) of every group, in vector order; they tile [0, dim)."""
-        names = ("root_rot_velocity", "root_linear_velocity", "root_height", "ric", "rot6d",
-                 "local_velocity", "foot_contact")  # fmt: skip
+        names = (
+            "root_rot_velocity",
+            "root_linear_velocity",
+            "root_height",
+            "ric",
+            "rot6d",
+            "local_velocity",
+            "foot_contact",
+        )
         return [(name, getattr(self, name)) for name in names]
 
     @property
@@ -215,8 +222,11 @@ def recover_from_rot(
     """Joints (..., T, J, 3) by forward kinematics of the 6-D rotations with the target offsets."""
     features, layout = _check_features(features, skeleton.num_joints)
     facing, root = recover_root(features)
-    local = sixd_to_quat(features[..., layout.rot6d].astype(np.float64).reshape(
-        features.shape[:-1] + (skeleton.num_joints - 1, 6)))  # fmt: skip
+    local = sixd_to_quat(
+        features[..., layout.rot6d]
+        .astype(np.float64)
+        .reshape(features.shape[:-1] + (skeleton.num_joints - 1, 6))
+    )
     local = np.concatenate([facing[..., None, :], local], axis=-2)
     return forward_kinematics(
         local, root, skeleton.offsets if offsets is None else offsets, skeleton
@@ -234,7 +244,15 @@ def target_offsets_from_example(
 
 
 __all__ = [
-    "FACING_SMOOTH_SIGMA", "FeatureLayout", "canonicalize", "extract_features", "foot_contacts",
-    "process_motion", "recover_from_ric", "recover_from_rot", "recover_root", "skeleton_for",
+    "FACING_SMOOTH_SIGMA",
+    "FeatureLayout",
+    "canonicalize",
+    "extract_features",
+    "foot_contacts",
+    "process_motion",
+    "recover_from_ric",
+    "recover_from_rot",
+    "recover_root",
+    "skeleton_for",
     "target_offsets_from_example",
-]  # fmt: skip
+]

@@ -148,8 +148,16 @@ class _StickFigure:
         self.chains = []
         for chain in skeleton.chains:
             side = _chain_side(chain, skeleton)
-            (line,) = ax.plot([], [], [], color=colors[side], linewidth=config.line_width,
-                              solid_capstyle="round", marker="o", markersize=2.5)  # fmt: skip
+            (line,) = ax.plot(
+                [],
+                [],
+                [],
+                color=colors[side],
+                linewidth=config.line_width,
+                solid_capstyle="round",
+                marker="o",
+                markersize=2.5,
+            )
             self.chains.append((np.asarray(chain), line))
 
     def update(self, frame: int) -> None:
@@ -356,8 +364,7 @@ def render_keyframes(
     wrapped = _wrap(caption, config.caption_width * len(frames) // 2)
     if wrapped:
         fig.suptitle(wrapped, fontsize=10)
-    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.88 if caption else 1.0,
-                        wspace=0.0)  # fmt: skip
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.88 if caption else 1.0, wspace=0.0)
     with atomic_output(path) as tmp:
         canvas.print_png(str(tmp))
     return path

@@ -432,8 +432,10 @@ def _convert(value: Any, annotation: Any, key: str) -> Any:
         else:
             raise ValueError(f"{key}: expected a comma-separated list, got {value!r}")
         (item_type, _) = typing.get_args(annotation)
-        return tuple(_convert(item.strip() if isinstance(item, str) else item, item_type, key)
-                     for item in items)  # fmt: skip
+        return tuple(
+            _convert(item.strip() if isinstance(item, str) else item, item_type, key)
+            for item in items
+        )
     if origin in (typing.Union, types.UnionType):
         raise ValueError(f"{key}: unsupported config type {annotation}")
     raise ValueError(f"{key}: unsupported config type {annotation}")

@@ -97,9 +97,17 @@ def sample_prompts(run_dir: Path, out: Path, num_samples: int, render: str, seed
     from t2m.sample import Prompt, sample_to_folder
 
     pipe = TextToMotion.from_checkpoints(run_dir, device="auto")
-    sample_to_folder(pipe, [Prompt(text) for text in PROMPTS], out, num_samples=num_samples,
-                     seed=seed, render=render, bvh=True, overwrite=True,
-                     extra_info={"checkpoints": str(run_dir)})  # fmt: skip
+    sample_to_folder(
+        pipe,
+        [Prompt(text) for text in PROMPTS],
+        out,
+        num_samples=num_samples,
+        seed=seed,
+        render=render,
+        bvh=True,
+        overwrite=True,
+        extra_info={"checkpoints": str(run_dir)},
+    )
 
 
 def quick_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict:

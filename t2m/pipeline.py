@@ -95,8 +95,13 @@ def frames_for(frames: float, spec: DatasetSpec = HUMANML3D) -> int:
     rounded = math.floor(frames / unit + 0.5) * unit  # halves round up
     clamped = min(max(rounded, spec.min_frames), spec.max_frames)
     if clamped != rounded:
-        logger.warning("length %g frames is outside %d..%d; using %d frames", frames,
-                       spec.min_frames, spec.max_frames, clamped)  # fmt: skip
+        logger.warning(
+            "length %g frames is outside %d..%d; using %d frames",
+            frames,
+            spec.min_frames,
+            spec.max_frames,
+            clamped,
+        )
     return clamped
 
 
@@ -146,8 +151,10 @@ class TextToMotion:
         self.dtype = torch.bfloat16 if precision == "bf16" else torch.float32
         self.spec = spec or spec_for_dim(normalizer.dim)
         if self.spec.feature_dim != normalizer.dim:
-            raise ValueError(f"{self.spec.name} has {self.spec.feature_dim}-d features, the "
-                             f"statistics {normalizer.dim}")  # fmt: skip
+            raise ValueError(
+                f"{self.spec.name} has {self.spec.feature_dim}-d features, the "
+                f"statistics {normalizer.dim}"
+            )
         check_snippet_length(self.spec.snippet_length)
         self.normalizer = normalizer
         self.vectorizer = vectorizer
@@ -168,8 +175,10 @@ class TextToMotion:
         self.length_model = length_model.to(self.device).eval() if length_model else None
         self.length_vectorizer = length_vectorizer or vectorizer
         if self.length_vectorizer.fingerprint() != vectorizer.fingerprint():
-            raise ValueError("the text2length model and the text-to-motion model use different "
-                             "word vectors (retrain with `make train-len` on the same dataset)")  # fmt: skip
+            raise ValueError(
+                "the text2length model and the text-to-motion model use different "
+                "word vectors (retrain with `make train-len` on the same dataset)"
+            )
 
     # -- loading -----------------------------------------------------------------------------
 
@@ -212,8 +221,9 @@ class TextToMotion:
         t2m = load("generator")
         length = load("length") if need_length_model else None
         if t2m.vectorizer is None or t2m.initial_code is None:
-            raise ValueError(f"{t2m.path}: incomplete generator checkpoint (retrain with "
-                             f"{retrain['generator']})")  # fmt: skip
+            raise ValueError(
+                f"{t2m.path}: incomplete generator checkpoint (retrain with {retrain['generator']})"
+            )
         if length is not None:
             if length.vectorizer is None or (
                 length.vectorizer.fingerprint() != t2m.vectorizer.fingerprint()
@@ -223,8 +233,10 @@ class TextToMotion:
                     f"(retrain with {retrain['length']} on the same dataset)"
                 )
             if length.spec != t2m.spec:
-                raise ValueError(f"{length.path} was trained on {length.spec.name}, {t2m.path} "
-                                 f"on {t2m.spec.name} (retrain with {retrain['length']})")  # fmt: skip
+                raise ValueError(
+                    f"{length.path} was trained on {length.spec.name}, {t2m.path} "
+                    f"on {t2m.spec.name} (retrain with {retrain['length']})"
+                )
         return cls(
             vae=t2m.models["vae"],
             decoder=t2m.models["decoder"],
@@ -262,11 +274,16 @@ class TextToMotion:
                 logger.warning("unknown words in %r (ignored): %s", text, ", ".join(unknown))
             dropped = tuple(words[max_words:])
             if dropped:
-                logger.warning("prompt %r is longer than %d words; ignoring: %s", text, max_words,
-                               " ".join(dropped))  # fmt: skip
+                logger.warning(
+                    "prompt %r is longer than %d words; ignoring: %s",
+                    text,
+                    max_words,
+                    " ".join(dropped),
+                )
             tokens = [f"{word}/{pos}" for word, pos in pairs]
-            prepared.append(PreparedText(text, self.vectorizer.encode_tokens(tokens), unknown,
-                                         dropped))  # fmt: skip
+            prepared.append(
+                PreparedText(text, self.vectorizer.encode_tokens(tokens), unknown, dropped)
+            )
         return prepared
 
     def _text_batch(
@@ -291,8 +308,10 @@ class TextToMotion:
         """Draw lengths in frames from the text2length model: ``repeats`` draws per prompt,
         prompt-major (the model runs once per prompt, in batches of ``batch_size``)."""
         if self.length_model is None:
-            raise ValueError("no text2length model loaded: give lengths (--length / --seconds) "
-                             "or load the `length` stage (`make train-len`)")  # fmt: skip
+            raise ValueError(
+                "no text2length model loaded: give lengths (--length / --seconds) "
+                "or load the `length` stage (`make train-len`)"
+            )
         unit = self.spec.snippet_length
         # Both models share one vocabulary (checked on construction), so one encoding serves.
         encoded = [item.encoded for item in prepared]
@@ -376,8 +395,14 @@ class TextToMotion:
         frames = {item: fixed[item[0]] for item in items}
         unsized = [p for p in range(len(texts)) if fixed[p] is None]
         if unsized:
-            drawn = iter(self.sample_lengths([prepared[p] for p in unsized], generator,
-                                             repeats=num_samples, batch_size=batch_size))  # fmt: skip
+            drawn = iter(
+                self.sample_lengths(
+                    [prepared[p] for p in unsized],
+                    generator,
+                    repeats=num_samples,
+                    batch_size=batch_size,
+                )
+            )
             for p in unsized:
                 for r in range(num_samples):
                     frames[(p, r)] = next(drawn)
@@ -392,8 +417,9 @@ class TextToMotion:
             )
             for (p, r), feats in zip(batch, features):
                 joints = recover_from_ric(feats, self.spec.num_joints)
-                results[(p, r)] = GeneratedMotion(texts[p], p, r, joints.astype(np.float32),
-                                                  feats.astype(np.float32))  # fmt: skip
+                results[(p, r)] = GeneratedMotion(
+                    texts[p], p, r, joints.astype(np.float32), feats.astype(np.float32)
+                )
             bar.update(len(batch))
         bar.close()
         return [[results[(p, r)] for r in range(num_samples)] for p in range(len(texts))]

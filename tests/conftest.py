@@ -119,8 +119,11 @@ def build_tiny_dataset(out: Path, num_clips: int = 40, seed: int = 0) -> Path:
     np.save(out / "Mean.npy", stacked.mean(0).astype(np.float32))
     np.save(out / "Std.npy", std.astype(np.float32))
     order = list(names)
-    splits = {"train": order[: int(0.7 * num_clips)], "val": order[int(0.7 * num_clips) : int(0.85 * num_clips)],
-              "test": order[int(0.85 * num_clips) :]}  # fmt: skip
+    splits = {
+        "train": order[: int(0.7 * num_clips)],
+        "val": order[int(0.7 * num_clips) : int(0.85 * num_clips)],
+        "test": order[int(0.85 * num_clips) :],
+    }
     splits["train_val"] = splits["train"] + splits["val"]
     splits["all"] = order
     for split, members in splits.items():

@@ -129,8 +129,14 @@ def test_workers_give_the_same_dataset(tmp_path):
     one = build_dataset(BuildConfig("joints", source, tmp_path / "one", seed=3))
     two = build_dataset(BuildConfig("joints", source, tmp_path / "two", seed=3, workers=2))
     assert one["clips_out"] == two["clips_out"] == 8
-    for relative in ("Mean.npy", "Std.npy", "train.txt", "test.txt", "new_joint_vecs/Mclip03.npy",
-                     "texts/Mclip03.txt"):  # fmt: skip
+    for relative in (
+        "Mean.npy",
+        "Std.npy",
+        "train.txt",
+        "test.txt",
+        "new_joint_vecs/Mclip03.npy",
+        "texts/Mclip03.txt",
+    ):
         assert (tmp_path / "one" / relative).read_bytes() == (
             tmp_path / "two" / relative
         ).read_bytes()
@@ -174,8 +180,20 @@ def test_reference_layout_with_index(tmp_path):
         "./pose_data/CMU/01/missing_poses.npy,0,50,000004.npy\n"
     )
     out = tmp_path / "out"
-    code = main(["--source", "joints", "--input", str(tmp_path), "--index", str(index),
-                 "--texts", str(texts_dir), "--out", str(out)])  # fmt: skip
+    code = main(
+        [
+            "--source",
+            "joints",
+            "--input",
+            str(tmp_path),
+            "--index",
+            str(index),
+            "--texts",
+            str(texts_dir),
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
     report = json.loads((out / "build_report.json").read_text())
     assert [(s["name"], s["reason"]) for s in report["skipped"]] == [
@@ -232,8 +250,20 @@ def test_amass_build(tmp_path):
     for name in ("KIT_3_walk_poses", "KIT_3_odd_poses", "KIT_3_shape"):
         (texts_dir / f"{name}.txt").write_text("a person walks forward\n")
     out = tmp_path / "out"
-    code = main(["--source", "amass", "--input", str(tmp_path / "amass"), "--body-model", str(models),
-                 "--texts", str(texts_dir), "--out", str(out)])  # fmt: skip
+    code = main(
+        [
+            "--source",
+            "amass",
+            "--input",
+            str(tmp_path / "amass"),
+            "--body-model",
+            str(models),
+            "--texts",
+            str(texts_dir),
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
     check_layout(out, ["KIT_3_walk_poses", "KIT_3_odd_poses"])
     report = json.loads((out / "build_report.json").read_text())

@@ -38,8 +38,11 @@ def test_resample_any_rate_is_exact_on_linear_motion(src_fps):
     out = segment.resample(frames, src_fps, 20.0)
     expected_frames = int(np.floor((num_frames - 1) / src_fps * 20 + 1e-6)) + 1
     assert out.shape == (expected_frames, 2, 3)
-    np.testing.assert_allclose(out, (np.arange(expected_frames) / 20.0)[:, None, None] * velocity
-                               + np.zeros((1, 2, 3)), atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        out,
+        (np.arange(expected_frames) / 20.0)[:, None, None] * velocity + np.zeros((1, 2, 3)),
+        atol=1e-9,
+    )
 
 
 def test_resample_rejects_bad_rates():
@@ -118,8 +121,9 @@ def test_tagging_matches_full_pipeline():
     for caption, pairs in zip(captions, texts.tag_captions(captions)):
         expected = [
             (t.lemma_ if t.pos_ in ("NOUN", "VERB") and t.text != "left" else t.text, t.pos_)
-            for t in full(caption) if t.text.isalpha()
-        ]  # fmt: skip
+            for t in full(caption)
+            if t.text.isalpha()
+        ]
         assert pairs == expected
 
 

@@ -52,8 +52,9 @@ def _read_with_bvh_package(path: Path) -> tuple[np.ndarray, list[str], float, np
     mocap = bvh.Bvh(path.read_text())
     names = mocap.get_joints_names()
     offsets = np.array([mocap.joint_offset(name) for name in names], dtype=np.float64)
-    parents = [names.index(mocap.joint_parent(n).name) if mocap.joint_parent(n) else -1
-               for n in names]  # fmt: skip
+    parents = [
+        names.index(mocap.joint_parent(n).name) if mocap.joint_parent(n) else -1 for n in names
+    ]
     num_frames = mocap.nframes
     positions = np.zeros((num_frames, len(names), 3))
     global_rot = np.zeros((num_frames, len(names), 3, 3))
@@ -65,8 +66,9 @@ def _read_with_bvh_package(path: Path) -> tuple[np.ndarray, list[str], float, np
         angles = values[:, [channels.index(c) for c in rot_channels]]
         local = Rotation.from_euler(order.upper(), angles, degrees=True).as_matrix()
         if parents[j] < 0:
-            positions[:, j] = values[:, [channels.index(c) for c in
-                                         ("Xposition", "Yposition", "Zposition")]]  # fmt: skip
+            positions[:, j] = values[
+                :, [channels.index(c) for c in ("Xposition", "Yposition", "Zposition")]
+            ]
             positions[:, j] += offsets[j]
             global_rot[:, j] = local
         else:
@@ -84,8 +86,9 @@ def test_reference_clip_round_trips_through_own_fk():
     error = np.linalg.norm(motion.joints() - joints, axis=-1)
     assert error.max() < 0.002  # metres; the issue asks for 1 cm
     # Offsets carry the target bone lengths.
-    np.testing.assert_allclose(np.linalg.norm(motion.offsets, axis=-1), SMPL.bone_lengths,
-                               atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        np.linalg.norm(motion.offsets, axis=-1), SMPL.bone_lengths, atol=1e-9
+    )
 
 
 def test_third_party_parser_reads_the_file_and_reproduces_joints(tmp_path):
@@ -96,8 +99,9 @@ def test_third_party_parser_reads_the_file_and_reproduces_joints(tmp_path):
     assert names == list(SMPL.joint_names)  # every joint, by its SMPL name
     assert positions.shape == (60, 22, 3)
     assert frame_time == pytest.approx(0.05)
-    np.testing.assert_allclose(np.linalg.norm(offsets, axis=-1)[1:], SMPL.bone_lengths[1:] * 100,
-                               atol=1e-4)  # fmt: skip
+    np.testing.assert_allclose(
+        np.linalg.norm(offsets, axis=-1)[1:], SMPL.bone_lengths[1:] * 100, atol=1e-4
+    )
     assert np.linalg.norm(positions / 100 - joints, axis=-1).max() < 0.01
 
 
@@ -134,8 +138,9 @@ def test_metres_units_and_euler_channels_invert_exactly(tmp_path):
     assert np.linalg.norm(positions - joints, axis=-1).max() < 0.01
     euler = motion.euler_degrees()
     back = Rotation.from_euler("ZXY", euler.reshape(-1, 3), degrees=True).as_matrix()
-    np.testing.assert_allclose(back.reshape(motion.local_rotations.shape),
-                               motion.local_rotations, atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        back.reshape(motion.local_rotations.shape), motion.local_rotations, atol=1e-9
+    )
 
 
 def test_euler_curves_never_jump_by_whole_turns():
@@ -152,8 +157,9 @@ def test_euler_curves_never_jump_by_whole_turns():
 def test_rest_pose_gives_identity_rotations():
     pose = _pose({})
     motion = motion_from_joints(np.repeat(pose[None], 3, axis=0), fit_rest_pose=False)
-    np.testing.assert_allclose(motion.local_rotations, np.broadcast_to(np.eye(3), (3, 22, 3, 3)),
-                               atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(
+        motion.local_rotations, np.broadcast_to(np.eye(3), (3, 22, 3, 3)), atol=1e-9
+    )
     np.testing.assert_allclose(motion.euler_degrees(), 0.0, atol=1e-6)
 
 
@@ -209,10 +215,12 @@ def test_turning_the_body_changes_only_the_root_rotation():
     turned = joints @ turn.T
     original = motion_from_joints(joints)
     rotated = motion_from_joints(turned)
-    np.testing.assert_allclose(rotated.local_rotations[:, 1:], original.local_rotations[:, 1:],
-                               atol=1e-6)  # fmt: skip
-    np.testing.assert_allclose(rotated.local_rotations[:, 0],
-                               turn @ original.local_rotations[:, 0], atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        rotated.local_rotations[:, 1:], original.local_rotations[:, 1:], atol=1e-6
+    )
+    np.testing.assert_allclose(
+        rotated.local_rotations[:, 0], turn @ original.local_rotations[:, 0], atol=1e-6
+    )
 
 
 def test_same_input_same_bytes_and_atomic_write(tmp_path):

@@ -101,8 +101,14 @@ def test_length_estimator_and_sampling():
 
 def test_evaluator_shapes_frozen_encoder_and_contrastive_loss():
     torch.manual_seed(0)
-    evaluator = Evaluator(WORD_DIM, 263, AE, EvaluatorConfig(text=TextEncoderConfig(hidden_size=8),
-                                                              motion_hidden_size=12, embedding_size=6))  # fmt: skip
+    evaluator = Evaluator(
+        WORD_DIM,
+        263,
+        AE,
+        EvaluatorConfig(
+            text=TextEncoderConfig(hidden_size=8), motion_hidden_size=12, embedding_size=6
+        ),
+    )
     evaluator.train()
     assert not evaluator.movement_encoder.training
     assert not any(p.requires_grad for p in evaluator.movement_encoder.parameters())

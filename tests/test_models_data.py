@@ -79,8 +79,15 @@ def test_presets_round_trip_and_paper_sizes():
 
 
 def test_overrides_are_validated():
-    config = apply_overrides(tiny(), {"t2m.model.hidden_size": "64", "bf16": "true",
-                                      "length.model.mlp_sizes": "8,4", "t2m.lr": "3e-4"})  # fmt: skip
+    config = apply_overrides(
+        tiny(),
+        {
+            "t2m.model.hidden_size": "64",
+            "bf16": "true",
+            "length.model.mlp_sizes": "8,4",
+            "t2m.lr": "3e-4",
+        },
+    )
     assert config.generator.model.hidden_size == 64 and config.bf16 is True
     assert config.length.model.mlp_sizes == (8, 4) and config.generator.lr == 3e-4
     assert tiny().generator.model.hidden_size != 64  # presets are not mutated

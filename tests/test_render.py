@@ -101,8 +101,9 @@ def test_keyframe_strip_of_the_reference_clip(tmp_path):
     if not REFERENCE_JOINTS.exists():
         pytest.skip(f"real reference clip not found at {REFERENCE_JOINTS} (../shared is absent)")
     joints = np.load(REFERENCE_JOINTS)
-    path = render_keyframes(joints, tmp_path / "strip.png", caption="a tennis serve",
-                            num_keyframes=5)  # fmt: skip
+    path = render_keyframes(
+        joints, tmp_path / "strip.png", caption="a tennis serve", num_keyframes=5
+    )
     with Image.open(path) as strip:
         width, height = strip.size
         pixels = np.asarray(strip.convert("RGB"))

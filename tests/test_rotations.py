@@ -51,8 +51,10 @@ def test_qbetween_including_antiparallel():
     rng = np.random.default_rng(2)
     u, v = rng.normal(size=(2, 200, 3))
     rotated = R.qrot(R.qbetween(u, v), u)
-    assert np.allclose(rotated / np.linalg.norm(rotated, axis=-1, keepdims=True),
-                       v / np.linalg.norm(v, axis=-1, keepdims=True))  # fmt: skip
+    assert np.allclose(
+        rotated / np.linalg.norm(rotated, axis=-1, keepdims=True),
+        v / np.linalg.norm(v, axis=-1, keepdims=True),
+    )
     for direction in ([0, 1.0, 0], [1.0, 0, 0], [0.3, -0.2, 0.9]):
         d = np.array(direction)
         q = R.qbetween(d, -d)

@@ -27,14 +27,30 @@ def _run(capsys, *argv: str) -> tuple[int, str]:
 
 def test_cli_writes_the_output_contract(tiny_run, tmp_path, capsys):
     out = tmp_path / "out"
-    code, err = _run(capsys, "--text", "a person walks forward", "--num-samples", "2",
-                     "--length", "44", "--checkpoints", str(tiny_run), "--out", str(out),
-                     "--render", "gif", "--bvh", "--seed", "3")  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text",
+        "a person walks forward",
+        "--num-samples",
+        "2",
+        "--length",
+        "44",
+        "--checkpoints",
+        str(tiny_run),
+        "--out",
+        str(out),
+        "--render",
+        "gif",
+        "--bvh",
+        "--seed",
+        "3",
+    )
     assert code == 0, err
     expected = {"results.npy", "results.json"}
     for rep in range(2):
-        expected |= {f"sample00_rep{rep:02d}{suffix}" for suffix in
-                     (".npy", "_feats.npy", ".gif", ".bvh")}  # fmt: skip
+        expected |= {
+            f"sample00_rep{rep:02d}{suffix}" for suffix in (".npy", "_feats.npy", ".gif", ".bvh")
+        }
     assert {p.name for p in out.iterdir()} == expected
     joints = np.load(out / "sample00_rep01.npy")
     feats = np.load(out / "sample00_rep01_feats.npy")
@@ -57,8 +73,19 @@ def test_text_file_lengths_and_mdm_order(tiny_run, tmp_path, capsys):
     prompts = tmp_path / "prompts.txt"
     prompts.write_text("a person walks forward#48\n\nsomeone jumps up and down\n")
     out = tmp_path / "out"
-    code, err = _run(capsys, "--text-file", str(prompts), "--num-samples", "2", "--checkpoints",
-                     str(tiny_run), "--out", str(out), "--render", "none")  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text-file",
+        str(prompts),
+        "--num-samples",
+        "2",
+        "--checkpoints",
+        str(tiny_run),
+        "--out",
+        str(out),
+        "--render",
+        "none",
+    )
     assert code == 0, err
     summary = json.loads((out / "results.json").read_text())
     assert summary["lengths"][0] == [48, 48]
@@ -77,17 +104,33 @@ def test_text_file_lengths_and_mdm_order(tiny_run, tmp_path, capsys):
             assert len(joints) == length
             motion = results["motion"][index].transpose(2, 0, 1)
             np.testing.assert_array_equal(motion[:length], joints)
-            np.testing.assert_array_equal(motion[length:], np.broadcast_to(
-                joints[-1], motion[length:].shape))  # fmt: skip
+            np.testing.assert_array_equal(
+                motion[length:], np.broadcast_to(joints[-1], motion[length:].shape)
+            )
     assert results["text"] == ["a person walks forward", "someone jumps up and down"] * 2
 
 
 def test_same_seed_same_bytes_other_seed_other_motion(tiny_run, tmp_path, capsys):
     def run(name: str, seed: str) -> Path:
         out = tmp_path / name
-        code, err = _run(capsys, "--text", "someone jumps up and down", "--checkpoints",
-                         str(tiny_run), "--out", str(out), "--seed", seed, "--num-samples", "2",
-                         "--bvh", "--render", "mp4", "--length", "40")  # fmt: skip
+        code, err = _run(
+            capsys,
+            "--text",
+            "someone jumps up and down",
+            "--checkpoints",
+            str(tiny_run),
+            "--out",
+            str(out),
+            "--seed",
+            seed,
+            "--num-samples",
+            "2",
+            "--bvh",
+            "--render",
+            "mp4",
+            "--length",
+            "40",
+        )
         assert code == 0, err
         return out
 
@@ -95,8 +138,9 @@ def test_same_seed_same_bytes_other_seed_other_motion(tiny_run, tmp_path, capsys
     assert sorted(p.name for p in first.iterdir()) == sorted(p.name for p in second.iterdir())
     for path in first.iterdir():
         assert path.read_bytes() == (second / path.name).read_bytes(), path.name
-    assert not np.array_equal(np.load(first / "sample00_rep00.npy"),
-                              np.load(other / "sample00_rep00.npy"))  # fmt: skip
+    assert not np.array_equal(
+        np.load(first / "sample00_rep00.npy"), np.load(other / "sample00_rep00.npy")
+    )
 
 
 @pytest.mark.parametrize(
@@ -109,8 +153,18 @@ def test_same_seed_same_bytes_other_seed_other_motion(tiny_run, tmp_path, capsys
 )
 def test_bad_prompts_exit_2_and_write_nothing(tiny_run, tmp_path, capsys, argv, message):
     out = tmp_path / "out"
-    code, err = _run(capsys, *argv, "--checkpoints", str(tiny_run), "--out", str(out),
-                     "--render", "none", "--length", "40")  # fmt: skip
+    code, err = _run(
+        capsys,
+        *argv,
+        "--checkpoints",
+        str(tiny_run),
+        "--out",
+        str(out),
+        "--render",
+        "none",
+        "--length",
+        "40",
+    )
     assert code == 2
     assert message in err and err.count("\n") == 1
     assert not list(tmp_path.iterdir())
@@ -119,32 +173,73 @@ def test_bad_prompts_exit_2_and_write_nothing(tiny_run, tmp_path, capsys, argv, 
 def test_bad_text_file_suffix(tiny_run, tmp_path, capsys):
     prompts = tmp_path / "p.txt"
     prompts.write_text("a person walks#fast\n")
-    code, err = _run(capsys, "--text-file", str(prompts), "--checkpoints", str(tiny_run),
-                     "--out", str(tmp_path / "out"))  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text-file",
+        str(prompts),
+        "--checkpoints",
+        str(tiny_run),
+        "--out",
+        str(tmp_path / "out"),
+    )
     assert code == 2 and "p.txt:1" in err
     assert not (tmp_path / "out").exists()
 
 
 def test_missing_and_mismatched_checkpoints(tiny_run, tmp_path, capsys):
     out = tmp_path / "out"
-    code, err = _run(capsys, "--text", "a person walks", "--checkpoints", str(tmp_path / "none"),
-                     "--out", str(out))  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text",
+        "a person walks",
+        "--checkpoints",
+        str(tmp_path / "none"),
+        "--out",
+        str(out),
+    )
     assert code == 2 and "make train-" in err
     # A run without the text2length stage: fine with a fixed length, an error without one.
     partial = tmp_path / "partial"
     shutil.copytree(tiny_run / "generator", partial / "t2m")  # a run folder of the first releases
-    code, err = _run(capsys, "--text", "a person walks", "--checkpoints", str(partial), "--out",
-                     str(out), "--render", "none")  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text",
+        "a person walks",
+        "--checkpoints",
+        str(partial),
+        "--out",
+        str(out),
+        "--render",
+        "none",
+    )
     assert code == 2 and "make train-len" in err
-    code, err = _run(capsys, "--text", "a person walks", "--checkpoints", str(partial), "--out",
-                     str(out), "--render", "none", "--length", "40")  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text",
+        "a person walks",
+        "--checkpoints",
+        str(partial),
+        "--out",
+        str(out),
+        "--render",
+        "none",
+        "--length",
+        "40",
+    )
     assert code == 0, err
     # A stage folder holding another stage's checkpoint.
     wrong = tmp_path / "wrong"
     shutil.copytree(tiny_run / "length", wrong / "length")
     shutil.copytree(tiny_run / "autoencoder", wrong / "generator")
-    code, err = _run(capsys, "--text", "a person walks", "--checkpoints", str(wrong), "--out",
-                     str(tmp_path / "out2"))  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text",
+        "a person walks",
+        "--checkpoints",
+        str(wrong),
+        "--out",
+        str(tmp_path / "out2"),
+    )
     assert code == 2 and "'autoencoder'" in err and "make train-t2m" in err
     assert err.count("\n") == 1
     assert not (tmp_path / "out2").exists()
@@ -153,14 +248,31 @@ def test_missing_and_mismatched_checkpoints(tiny_run, tmp_path, capsys):
 def test_unwritable_or_occupied_out(tiny_run, tmp_path, capsys):
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
-    code, err = _run(capsys, "--text", "a person walks", "--checkpoints", str(tiny_run),
-                     "--out", str(blocker / "sub"))  # fmt: skip
+    code, err = _run(
+        capsys,
+        "--text",
+        "a person walks",
+        "--checkpoints",
+        str(tiny_run),
+        "--out",
+        str(blocker / "sub"),
+    )
     assert code == 2 and "cannot write" in err
     occupied = tmp_path / "occupied"
     occupied.mkdir()
     (occupied / "keep.txt").write_text("mine")
-    argv = ["--text", "a person walks", "--checkpoints", str(tiny_run), "--out", str(occupied),
-            "--render", "none", "--length", "40"]  # fmt: skip
+    argv = [
+        "--text",
+        "a person walks",
+        "--checkpoints",
+        str(tiny_run),
+        "--out",
+        str(occupied),
+        "--render",
+        "none",
+        "--length",
+        "40",
+    ]
     code, err = _run(capsys, *argv)
     assert code == 2 and "not empty" in err
     # --overwrite replaces only an earlier output (it deletes the folder), never other files.
@@ -197,8 +309,11 @@ def test_api_batches_prompts_and_samples(pipe):
     assert [len(row) for row in motions] == [2, 2, 2]
     for prompt, row in enumerate(motions):
         for rep, motion in enumerate(row):
-            assert (motion.prompt_index, motion.repetition, motion.text) == (prompt, rep,
-                                                                            texts[prompt])  # fmt: skip
+            assert (motion.prompt_index, motion.repetition, motion.text) == (
+                prompt,
+                rep,
+                texts[prompt],
+            )
             assert motion.joints.shape == (motion.num_frames, 22, 3)
             assert motion.features.shape == (motion.num_frames, 263)
     assert [m.num_frames for m in motions[0]] == [40, 40]

@@ -30,9 +30,13 @@ needs_mocap = pytest.mark.skipif(not MOCAP.is_dir(), reason=f"real mocap files a
 # each hand is 5 fingers of 3 joints.
 SMPLH_PARENTS = np.array(
     list(SMPL.parents)
-    + [p for wrist in (20, 21) for base in range(22 if wrist == 20 else 37, 37 if wrist == 20 else 52, 3)
-       for p in (wrist, base, base + 1)]
-)  # fmt: skip
+    + [
+        p
+        for wrist in (20, 21)
+        for base in range(22 if wrist == 20 else 37, 37 if wrist == 20 else 52, 3)
+        for p in (wrist, base, base + 1)
+    ]
+)
 
 
 def smplh_rest_joints_y_up() -> np.ndarray:
@@ -94,8 +98,14 @@ def make_amass_npz(
     poses[:, 3 * 17 + 2] = 1.2
     poses += rng.normal(0, 0.01, poses.shape)
     trans = np.stack([0.02 * time, -1.1 * time, np.zeros_like(time)], axis=-1)  # forward is -y
-    fields = dict(poses=poses, trans=trans, betas=rng.normal(0, 1, 16), gender=np.array("male"),
-                  mocap_framerate=np.array(fps), dmpls=np.zeros((num_frames, 8)))  # fmt: skip
+    fields = dict(
+        poses=poses,
+        trans=trans,
+        betas=rng.normal(0, 1, 16),
+        gender=np.array("male"),
+        mocap_framerate=np.array(fps),
+        dmpls=np.zeros((num_frames, 8)),
+    )
     fields.update(extra)
     fields = {key: value for key, value in fields.items() if value is not None}
     np.savez(path, **fields)
@@ -300,8 +310,11 @@ def test_smplh_fk_matches_a_per_frame_reference():
         np.testing.assert_allclose(joints[frame], expected + trans[frame], atol=1e-10)
     # Bone lengths are those of the rest pose in every frame.
     lengths = np.linalg.norm(joints[:, 1:] - joints[:, SMPLH_PARENTS[1:]], axis=-1)
-    np.testing.assert_allclose(lengths, np.broadcast_to(
-        np.linalg.norm(rest[1:] - rest[SMPLH_PARENTS[1:]], axis=-1), lengths.shape), atol=1e-10)  # fmt: skip
+    np.testing.assert_allclose(
+        lengths,
+        np.broadcast_to(np.linalg.norm(rest[1:] - rest[SMPLH_PARENTS[1:]], axis=-1), lengths.shape),
+        atol=1e-10,
+    )
 
 
 def test_load_amass_rest_pose_is_the_shaped_rest_joints_y_up(tmp_path):

@@ -143,8 +143,16 @@ def test_a_kit_run_stores_its_spec_and_samples_at_its_frame_rate(kit_dataset, tm
     from t2m.train.checkpoint import atomic_save, checkpoint_spec, read_checkpoint
 
     logging.getLogger("t2m").setLevel(logging.WARNING)
-    config = apply_overrides(tiny(), {"device": "cpu", "ae.epochs": "1", "length.epochs": "1",
-                                      "eval.epochs": "1", "t2m.end_snippets": "10"})  # fmt: skip
+    config = apply_overrides(
+        tiny(),
+        {
+            "device": "cpu",
+            "ae.epochs": "1",
+            "length.epochs": "1",
+            "eval.epochs": "1",
+            "t2m.end_snippets": "10",
+        },
+    )
     run_dir = tmp_path / "run"
     for stage in STAGE_NAMES:
         if stage != "evaluator":

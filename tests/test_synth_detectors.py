@@ -103,11 +103,21 @@ def test_labels_hold_on_a_random_corpus_and_its_mirror():
 
 # Per action: foot skating (m/s) and 95th-percentile root jerk (m/s^3) at 20 fps.
 _LIMITS = {
-    "walk": (0.1, 250), "run": (0.1, 600), "turn": (0.25, 150), "jump": (0.1, 450),
-    "hop": (0.15, 300), "kick": (0.15, 250), "punch": (0.05, 50), "squat": (0.1, 200),
-    "sit": (0.1, 100), "bow": (0.05, 50), "clap": (0.05, 50), "wave": (0.05, 50),
-    "raise": (0.05, 50), "stand": (0.02, 20),
-}  # fmt: skip
+    "walk": (0.1, 250),
+    "run": (0.1, 600),
+    "turn": (0.25, 150),
+    "jump": (0.1, 450),
+    "hop": (0.15, 300),
+    "kick": (0.15, 250),
+    "punch": (0.05, 50),
+    "squat": (0.1, 200),
+    "sit": (0.1, 100),
+    "bow": (0.05, 50),
+    "clap": (0.05, 50),
+    "wave": (0.05, 50),
+    "raise": (0.05, 50),
+    "stand": (0.02, 20),
+}
 
 
 @pytest.mark.parametrize("action", sorted(ACTIONS))

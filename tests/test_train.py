@@ -146,8 +146,11 @@ def test_trainable_vocabulary_stage(tiny_dataset, tiny_config, tmp_path):
     assert trained.vectorizer.trainable and "walk" in trained.vectorizer.index
     encoded = trained.vectorizer.encode_tokens(["walk/VERB", "zzzz/NOUN"])
     assert encoded.words.dtype.kind == "i" and encoded.words[2] == trained.vectorizer.index["unk"]
-    logits = trained.models["length"](torch.from_numpy(encoded.words)[None], torch.from_numpy(encoded.pos_onehot)[None],
-                                      torch.tensor([encoded.length]))  # fmt: skip
+    logits = trained.models["length"](
+        torch.from_numpy(encoded.words)[None],
+        torch.from_numpy(encoded.pos_onehot)[None],
+        torch.tensor([encoded.length]),
+    )
     assert logits.shape == (1, 50)
 
 
@@ -229,8 +232,13 @@ def _ddp_worker(
     from t2m.config import from_dict
     from t2m.train import stage as stage_module
 
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world_size),
-                      LOCAL_RANK=str(rank))  # fmt: skip
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1",
+        MASTER_PORT=str(port),
+        RANK=str(rank),
+        WORLD_SIZE=str(world_size),
+        LOCAL_RANK=str(rank),
+    )
     finish = stage_module.StageRun.finish
 
     def finish_and_dump(self):  # each process's own weights, to compare across processes
@@ -245,8 +253,13 @@ def test_ddp_two_cpu_processes(tiny_dataset, tiny_config, tmp_path):
     config = apply_overrides(
         tiny_config, {"autoencoder.batch_size": "8", "autoencoder.epochs": "1"}
     )
-    mp.start_processes(_ddp_worker, args=(2, _free_port(), str(tiny_dataset), str(tmp_path), config.to_dict()),
-                       nprocs=2, join=True, start_method="spawn")  # fmt: skip
+    mp.start_processes(
+        _ddp_worker,
+        args=(2, _free_port(), str(tiny_dataset), str(tmp_path), config.to_dict()),
+        nprocs=2,
+        join=True,
+        start_method="spawn",
+    )
     checkpoint = read_checkpoint(tmp_path / "autoencoder" / "latest.pt")
     clips = len(load_split(tiny_dataset, "train"))
     assert checkpoint["progress"]["step"] == (clips // 2) // 8  # each process takes half an epoch
@@ -339,8 +352,12 @@ def test_registry_names_sections_make_targets_and_old_names():
         assert all(find_stage(old) is record for old in record.old_names)
         assert set(record.needs) <= set(STAGE_NAMES[: STAGE_NAMES.index(stage)])
     assert [find_stage(n).name for n in ("ae", "len", "text2length", "t2m", "eval")] == [
-        "autoencoder", "length", "length", "generator", "evaluator"
-    ]  # fmt: skip
+        "autoencoder",
+        "length",
+        "length",
+        "generator",
+        "evaluator",
+    ]
 
 
 def test_old_section_names_in_overrides_and_files(tiny_config):
@@ -404,9 +421,13 @@ def test_epoch_order_is_the_named_stream():
 def test_curriculum_moves_on_after_patience_or_the_stage_limit(tiny_config):
     section = apply_overrides(
         tiny_config,
-        {"generator.end_snippets": "16", "generator.curriculum_step": "3",
-         "generator.patience": "2", "generator.max_stage_epochs": "3"},
-    ).generator  # fmt: skip
+        {
+            "generator.end_snippets": "16",
+            "generator.curriculum_step": "3",
+            "generator.patience": "2",
+            "generator.max_stage_epochs": "3",
+        },
+    ).generator
     curriculum = Curriculum(snippets=10)
     assert curriculum.record(1.0, section) and curriculum.record(0.5, section)
     assert not curriculum.record(0.7, section) and curriculum.snippets == 13  # the stage limit

@@ -54,13 +54,22 @@ BANDAI = JointMapping(
         "spine3": "Chest",
         "neck": "Neck",
         "head": "Head",
-        **_sided("L", "R", {
-            "hip": "UpperLeg_{side}", "knee": "LowerLeg_{side}", "ankle": "Foot_{side}",
-            "foot": "Toes_{side}", "collar": "Shoulder_{side}", "shoulder": "UpperArm_{side}",
-            "elbow": "LowerArm_{side}", "wrist": "Hand_{side}",
-        }),
+        **_sided(
+            "L",
+            "R",
+            {
+                "hip": "UpperLeg_{side}",
+                "knee": "LowerLeg_{side}",
+                "ankle": "Foot_{side}",
+                "foot": "Toes_{side}",
+                "collar": "Shoulder_{side}",
+                "shoulder": "UpperArm_{side}",
+                "elbow": "LowerArm_{side}",
+                "wrist": "Hand_{side}",
+            },
+        ),
     },
-)  # fmt: skip
+)
 
 # Reallusion Character Creator rig (CMU conversions): frame 0 is a T-pose added by the converter.
 CMU_CC = JointMapping(
@@ -72,15 +81,23 @@ CMU_CC = JointMapping(
         "spine3": "CC_Base_Spine02",
         "neck": "CC_Base_NeckTwist01",
         "head": "CC_Base_Head",
-        **_sided("L", "R", {
-            "hip": "CC_Base_{side}_Thigh", "knee": "CC_Base_{side}_Calf",
-            "ankle": "CC_Base_{side}_Foot", "foot": "CC_Base_{side}_ToeBase",
-            "collar": "CC_Base_{side}_Clavicle", "shoulder": "CC_Base_{side}_Upperarm",
-            "elbow": "CC_Base_{side}_Forearm", "wrist": "CC_Base_{side}_Hand",
-        }),
+        **_sided(
+            "L",
+            "R",
+            {
+                "hip": "CC_Base_{side}_Thigh",
+                "knee": "CC_Base_{side}_Calf",
+                "ankle": "CC_Base_{side}_Foot",
+                "foot": "CC_Base_{side}_ToeBase",
+                "collar": "CC_Base_{side}_Clavicle",
+                "shoulder": "CC_Base_{side}_Upperarm",
+                "elbow": "CC_Base_{side}_Forearm",
+                "wrist": "CC_Base_{side}_Hand",
+            },
+        ),
     },
     drop_first_frame=True,
-)  # fmt: skip
+)
 
 # Our own exports (dataset_tools.bvh.write_bvh) and any BVH whose joints carry the SMPL names.
 SMPL_NAMES = JointMapping(name="smpl", joints={name: name for name in SMPL_JOINT_NAMES})

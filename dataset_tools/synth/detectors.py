@@ -325,9 +325,11 @@ def label_matches(detected: dict, label: dict) -> bool:
         side = params["side"]
         count = params.get("count", d[f"punch_{side}"])
         return bool(
-            d[f"punch_{side}"] == count and d[f"punch_{_OTHER[side]}"] == 0 and count > 0
+            d[f"punch_{side}"] == count
+            and d[f"punch_{_OTHER[side]}"] == 0
+            and count > 0
             and not d[f"raise_{side}"]
-        )  # fmt: skip
+        )
     if action == "squat":
         count = params.get("count", d["dip_count"])
         return bool(
@@ -344,10 +346,13 @@ def label_matches(detected: dict, label: dict) -> bool:
         return bool(d["clap_count"] == count and count > 0)
     if action == "stand":
         return bool(
-            d["path_speed_mps"] < 0.15 and abs(d["yaw_change_deg"]) < 20 and d["airborne_count"] == 0
-            and d["pelvis_min_ratio"] > 0.95 and d["limb_activity_mps"] < 0.15
+            d["path_speed_mps"] < 0.15
+            and abs(d["yaw_change_deg"]) < 20
+            and d["airborne_count"] == 0
+            and d["pelvis_min_ratio"] > 0.95
+            and d["limb_activity_mps"] < 0.15
             and d["trunk_max_deg"] < 20
-        )  # fmt: skip
+        )
     raise ValueError(f"unknown action {action!r}")
 
 

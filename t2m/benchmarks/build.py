@@ -81,8 +81,14 @@ def run(quick: bool = False) -> dict:
             results[f"workers{workers}_dataset_clips_per_s"] = 2 * num_clips / seconds
             if workers == 1:
                 timings = report["timings"]
-                for step in ("worker_load_s", "worker_features_s", "worker_write_s", "captions_s",
-                             "stats_s", "splits_s"):  # fmt: skip
+                for step in (
+                    "worker_load_s",
+                    "worker_features_s",
+                    "worker_write_s",
+                    "captions_s",
+                    "stats_s",
+                    "splits_s",
+                ):
                     results[f"ms_per_clip_{step[:-2]}"] = 1000 * timings.get(step, 0.0) / num_clips
         # Resuming a finished build only checks files.
         clock = time.perf_counter()

@@ -90,10 +90,12 @@ def run(quick: bool = False) -> dict:
             results[f"sample.int8_batch1_best_ms_{default_threads}_threads"] = round(
                 seconds * 1e3, 1
             )
-            seconds, _ = _best_of(1, lambda: pipe.generate([PROMPT] * BATCH, lengths=FRAMES,
-                                                           seed=0, batch_size=BATCH))  # fmt: skip
+            seconds, _ = _best_of(
+                1, lambda: pipe.generate([PROMPT] * BATCH, lengths=FRAMES, seed=0, batch_size=BATCH)
+            )
             results[f"sample.int8_batch32_motions_per_s_{default_threads}_threads"] = round(
-                BATCH / seconds, 1)  # fmt: skip
+                BATCH / seconds, 1
+            )
     finally:
         torch.set_num_threads(default_threads)
     return results
@@ -110,15 +112,22 @@ def _measure(quick: bool) -> dict:
     for precision in PRECISIONS:
         pipe, modules = _paper_pipeline(precision, modules)
         pipe.generate(PROMPT, lengths=FRAMES, seed=0)  # warm-up (spaCy, word vectors, kernels)
-        latencies = [_timed(lambda seed=seed, pipe=pipe: pipe.generate(
-            PROMPT, lengths=FRAMES, seed=seed)) for seed in range(repeats)]  # fmt: skip
+        latencies = [
+            _timed(lambda seed=seed, pipe=pipe: pipe.generate(PROMPT, lengths=FRAMES, seed=seed))
+            for seed in range(repeats)
+        ]
         wall, cpu = zip(*latencies)
         results[f"sample.{precision}_batch1_median_ms"] = round(statistics.median(wall) * 1e3, 1)
         results[f"sample.{precision}_batch1_best_ms"] = round(min(wall) * 1e3, 1)
         results[f"sample.{precision}_batch1_cpu_ms"] = round(statistics.median(cpu) * 1e3, 1)
-        batches = [_timed(lambda pipe=pipe: pipe.generate(
-            [PROMPT] * BATCH, lengths=FRAMES, seed=0, batch_size=BATCH))
-            for _ in range(1 if quick else 2)]  # fmt: skip
+        batches = [
+            _timed(
+                lambda pipe=pipe: pipe.generate(
+                    [PROMPT] * BATCH, lengths=FRAMES, seed=0, batch_size=BATCH
+                )
+            )
+            for _ in range(1 if quick else 2)
+        ]
         wall, cpu = zip(*batches)
         results[f"sample.{precision}_batch32_motions_per_s"] = round(BATCH / min(wall), 1)
         results[f"sample.{precision}_batch32_motions_per_cpu_s"] = round(BATCH / min(cpu), 1)
@@ -129,11 +138,13 @@ def _measure(quick: bool) -> dict:
             other = pipe.generate(PROMPT, lengths=FRAMES, seed=124)[0][0].joints
             spread = np.linalg.norm(other - reference, axis=-1)
             results["sample.fp32_seed_to_seed_random_weights_mean_mm"] = round(
-                float(spread.mean()) * 1e3, 2)  # fmt: skip
+                float(spread.mean()) * 1e3, 2
+            )
         else:
             difference = np.linalg.norm(final - reference, axis=-1)
             results[f"sample.{precision}_vs_fp32_random_weights_mean_mm"] = round(
-                float(difference.mean()) * 1e3, 2)  # fmt: skip
+                float(difference.mean()) * 1e3, 2
+            )
     # Files: rendering and BVH export of one 196-frame motion.
     from dataset_tools.bvh import write_bvh
     from dataset_tools.viz import RenderConfig, render_animation
@@ -143,8 +154,12 @@ def _measure(quick: bool) -> dict:
         seconds, _ = _best_of(1 if quick else 3, lambda: write_bvh(joints, Path(tmp) / "a.bvh"))
         results["sample.bvh_export_ms_per_motion"] = round(seconds * 1e3, 1)
         frames = 40 if quick else FRAMES
-        seconds, _ = _best_of(1, lambda: render_animation(joints[:frames], Path(tmp) / "a.mp4",
-                                                          "a caption", config=RenderConfig()))  # fmt: skip
+        seconds, _ = _best_of(
+            1,
+            lambda: render_animation(
+                joints[:frames], Path(tmp) / "a.mp4", "a caption", config=RenderConfig()
+            ),
+        )
         results["sample.render_mp4_ms_per_frame"] = round(seconds * 1e3 / frames, 2)
     return results
 

@@ -91,8 +91,11 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
         ae_opt.step()
 
     seconds = _time(ae_step, steps * 3, device_)
-    results.update(ae_step_s=round(seconds, 4), ae_steps_per_s=round(1 / seconds, 2),
-                   ae_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+    results.update(
+        ae_step_s=round(seconds, 4),
+        ae_steps_per_s=round(1 / seconds, 2),
+        ae_peak_memory_mb=round(_peak_memory_mb(device_), 1),
+    )
 
     # -- stage 2: text2length, batch 64
     estimator = LengthEstimator(WORD_DIM, config.length.model).to(device_)
@@ -106,15 +109,22 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
         len_opt.step()
 
     seconds = _time(length_step, steps * 3, device_)
-    results.update(length_step_s=round(seconds, 4), length_steps_per_s=round(1 / seconds, 2),
-                   length_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+    results.update(
+        length_step_s=round(seconds, 4),
+        length_steps_per_s=round(1 / seconds, 2),
+        length_peak_memory_mb=round(_peak_memory_mb(device_), 1),
+    )
 
     # -- stage 3: temporal VAE, batch 32, 49 snippets (196 frames)
     batch, snippets = config.generator.batch_size, config.generator.end_snippets
     code_size = config.autoencoder.model.code_size
     vae = TemporalVAE(WORD_DIM, code_size, config.generator.model).to(device_)
-    t2m_opt = torch.optim.Adam([{"params": vae.parameters(), "lr": config.generator.lr},
-                                {"params": ae.decoder.parameters(), "lr": config.generator.decoder_lr}])  # fmt: skip
+    t2m_opt = torch.optim.Adam(
+        [
+            {"params": vae.parameters(), "lr": config.generator.lr},
+            {"params": ae.decoder.parameters(), "lr": config.generator.decoder_lr},
+        ]
+    )
     words, pos, lengths = _text(batch, generator, device_)
     motion = torch.randn(batch, snippets * 4, FEATURE_DIM, generator=generator).to(device_)
     ae.encoder.eval().requires_grad_(False)
@@ -124,8 +134,11 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
 
     def t2m_step(teacher_forcing: bool, bf16: bool) -> Callable[[], None]:
         def step() -> None:
-            autocast = (torch.autocast(device_type=device_.type, dtype=torch.bfloat16) if bf16
-                        else contextlib.nullcontext())  # fmt: skip
+            autocast = (
+                torch.autocast(device_type=device_.type, dtype=torch.bfloat16)
+                if bf16
+                else contextlib.nullcontext()
+            )
             with autocast:
                 with torch.no_grad():
                     codes = ae.encode(motion)
@@ -143,9 +156,13 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     forced = _time(t2m_step(True, False), steps, device_)
     free = _time(t2m_step(False, False), steps, device_, warmup=not quick)
     mixed = 0.4 * forced + 0.6 * free
-    results.update(t2m_step_teacher_forced_s=round(forced, 3), t2m_step_free_running_s=round(free, 3),
-                   t2m_step_s=round(mixed, 3), t2m_steps_per_s=round(1 / mixed, 3),
-                   t2m_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+    results.update(
+        t2m_step_teacher_forced_s=round(forced, 3),
+        t2m_step_free_running_s=round(free, 3),
+        t2m_step_s=round(mixed, 3),
+        t2m_steps_per_s=round(1 / mixed, 3),
+        t2m_peak_memory_mb=round(_peak_memory_mb(device_), 1),
+    )
     forced_bf16 = _time(t2m_step(True, True), steps, device_)
     free_bf16 = _time(t2m_step(False, True), steps, device_, warmup=not quick)
     results.update(t2m_step_bf16_s=round(0.4 * forced_bf16 + 0.6 * free_bf16, 3))
@@ -180,8 +197,11 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
         eval_opt.step()
 
     seconds = _time(eval_step, steps * 3, device_)
-    results.update(eval_step_s=round(seconds, 4), eval_steps_per_s=round(1 / seconds, 2),
-                   eval_peak_memory_mb=round(_peak_memory_mb(device_), 1))  # fmt: skip
+    results.update(
+        eval_step_s=round(seconds, 4),
+        eval_steps_per_s=round(1 / seconds, 2),
+        eval_peak_memory_mb=round(_peak_memory_mb(device_), 1),
+    )
     return results
 
 

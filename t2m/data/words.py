@@ -36,7 +36,7 @@ TRAINABLE = "trainable"
 POS_CATEGORIES: tuple[str, ...] = (
     "VERB", "NOUN", "DET", "ADP", "NUM", "AUX", "PRON", "ADJ", "ADV",
     "LOCATION", "BODY_PART", "OBJECT", "ACTION", "DESCRIPTOR", "OTHER",
-)  # fmt: skip
+)
 POS_INDEX: dict[str, int] = {name: index for index, name in enumerate(POS_CATEGORIES)}
 NUM_POS = len(POS_CATEGORIES)
 

@@ -39,8 +39,14 @@ class AutoencoderObjective(nn.Module):
 
     def forward(self, motion: torch.Tensor) -> dict[str, torch.Tensor]:
         reconstruction, codes = self.autoencoder(motion)
-        return autoencoder_loss(reconstruction, motion, codes, self.sparsity_weight,
-                                self.smoothness_weight, self.reconstruction_loss)  # fmt: skip
+        return autoencoder_loss(
+            reconstruction,
+            motion,
+            codes,
+            self.sparsity_weight,
+            self.smoothness_weight,
+            self.reconstruction_loss,
+        )
 
 
 def train_autoencoder(job: StageJob) -> Path:
@@ -54,8 +60,9 @@ def train_autoencoder(job: StageJob) -> Path:
     seed_init(config.seed)
     models = job.stage.build(config, sizes)
     autoencoder = models["autoencoder"].to(runtime.device)
-    objective = AutoencoderObjective(autoencoder, section.sparsity_weight,
-                                     section.smoothness_weight, section.reconstruction_loss)  # fmt: skip
+    objective = AutoencoderObjective(
+        autoencoder, section.sparsity_weight, section.smoothness_weight, section.reconstruction_loss
+    )
     optimizer = torch.optim.Adam(autoencoder.parameters(), lr=section.lr)
     run = StageRun(job, sizes, models, optimizer, data.normalizer, vocabulary=None)
     trainable = runtime.wrap(objective)

@@ -57,8 +57,11 @@ class GeneratorObjective(nn.Module):
         self.decoder = decoder
         self.register_buffer("initial_code", initial_code)
         section = config.generator
-        self.weights = {"kl_weight": section.kl_weight, "code_weight": section.code_weight,
-                        "feature_weight": section.feature_weight}  # fmt: skip
+        self.weights = {
+            "kl_weight": section.kl_weight,
+            "code_weight": section.code_weight,
+            "feature_weight": section.feature_weight,
+        }
 
     def train(self, mode: bool = True) -> GeneratorObjective:
         super().train(mode)
@@ -77,8 +80,15 @@ class GeneratorObjective(nn.Module):
         word_features, sentence, word_mask = self.vae.encode_text(
             batch["words"], batch["pos"], batch["text_lengths"]
         )
-        outputs = self.vae(word_features, sentence, word_mask, target_codes, self.initial_code,
-                           teacher_forcing, noise)  # fmt: skip
+        outputs = self.vae(
+            word_features,
+            sentence,
+            word_mask,
+            target_codes,
+            self.initial_code,
+            teacher_forcing,
+            noise,
+        )
         decoded = self.decoder(outputs["codes"])
         losses = temporal_vae_loss(outputs, target_codes, decoded, motion, **self.weights)
         losses["reconstruction"] = losses["features"] + losses["codes"]
@@ -145,13 +155,22 @@ def train_generator(job: StageJob) -> Path:
     decoder.load_state_dict(autoencoder.decoder.state_dict())
     initial_code = mean_pose_code(autoencoder.encoder, sizes.feature_dim, runtime.device)
     objective = GeneratorObjective(vae, autoencoder.encoder, decoder, initial_code, config)
-    optimizer = torch.optim.Adam([
-        {"params": vae.parameters(), "lr": section.lr},
-        {"params": decoder.parameters(), "lr": section.decoder_lr},
-    ])  # fmt: skip
-    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info(),
-                   extra={"initial_code": initial_code.cpu()},
-                   counters=Curriculum(section.start_snippets))  # fmt: skip
+    optimizer = torch.optim.Adam(
+        [
+            {"params": vae.parameters(), "lr": section.lr},
+            {"params": decoder.parameters(), "lr": section.decoder_lr},
+        ]
+    )
+    run = StageRun(
+        job,
+        sizes,
+        models,
+        optimizer,
+        data.normalizer,
+        data.vectorizer.info(),
+        extra={"initial_code": initial_code.cpu()},
+        counters=Curriculum(section.start_snippets),
+    )
     curriculum: Curriculum = run.counters
     trainable = runtime.wrap(objective)
     trainable.train()
@@ -179,13 +198,21 @@ def train_generator(job: StageJob) -> Path:
         items = data.train.indices_at_least(frames)
         batches = [items[b] for b in run.epoch_batches(len(items))]
         if not batches:
-            logger.warning("generator: fewer than %d training clips of %d frames; curriculum ends",
-                           section.batch_size, frames)  # fmt: skip
+            logger.warning(
+                "generator: fewer than %d training clips of %d frames; curriculum ends",
+                section.batch_size,
+                frames,
+            )
             curriculum.done = True
             break
         description = f"generator epoch {run.progress.epoch + 1} ({frames} frames)"
-        if not run.train_epoch(batches, description, losses_on(data.train, snippets, True),
-                               trainable_parameters, log_extra={"snippets": snippets}):  # fmt: skip
+        if not run.train_epoch(
+            batches,
+            description,
+            losses_on(data.train, snippets, True),
+            trainable_parameters,
+            log_extra={"snippets": snippets},
+        ):
             break
         # 4. end of epoch: validate on the clips long enough, then move along the curriculum;
         # best.pt = the best model at the longest length reached so far

@@ -37,15 +37,23 @@ class Logbook:
         if resume_step is None:
             self.path.unlink(missing_ok=True)
         elif self.path.is_file():
-            kept = [line for line in self.path.read_text().splitlines() if line.strip()
-                    and json.loads(line).get("step", 0) <= resume_step]  # fmt: skip
+            kept = [
+                line
+                for line in self.path.read_text().splitlines()
+                if line.strip() and json.loads(line).get("step", 0) <= resume_step
+            ]
             write_bytes_atomic(self.path, "".join(line + "\n" for line in kept).encode())
 
     def write(self, split: str, step: int, epoch: int, values: dict[str, Any]) -> None:
         if not self.enabled:
             return
-        record = {"stage": self.stage, "split": split, "step": step, "epoch": epoch,
-                  "elapsed_s": round(time.time() - self.start, 2)}  # fmt: skip
+        record = {
+            "stage": self.stage,
+            "split": split,
+            "step": step,
+            "epoch": epoch,
+            "elapsed_s": round(time.time() - self.start, 2),
+        }
         for key, value in values.items():
             value = float(value) if not isinstance(value, (str, int)) else value
             record[key] = None if isinstance(value, float) and not math.isfinite(value) else value
@@ -77,8 +85,14 @@ class Logbook:
         import matplotlib.pyplot as plt
 
         skip = {"stage", "split", "step", "epoch", "elapsed_s", "lr"}
-        names = sorted({k for r in records for k, v in r.items() if k not in skip
-                        and isinstance(v, (int, float))})  # fmt: skip
+        names = sorted(
+            {
+                k
+                for r in records
+                for k, v in r.items()
+                if k not in skip and isinstance(v, (int, float))
+            }
+        )
         if not names:
             return
         columns = min(3, len(names))
@@ -86,8 +100,11 @@ class Logbook:
         figure, axes = plt.subplots(rows, columns, figsize=(4.5 * columns, 3 * rows), squeeze=False)
         for axis, name in zip(axes.flat, names):
             for split, style in (("train", "-"), ("val", "o-")):
-                points = [(r["step"], r[name]) for r in records
-                          if r["split"] == split and isinstance(r.get(name), (int, float))]  # fmt: skip
+                points = [
+                    (r["step"], r[name])
+                    for r in records
+                    if r["split"] == split and isinstance(r.get(name), (int, float))
+                ]
                 if points:
                     xs, ys = zip(*points)
                     axis.plot(xs, ys, style, label=split, markersize=3)

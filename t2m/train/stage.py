@@ -300,8 +300,14 @@ class StageRun:
     def epoch_batches(self, num_items: int) -> list[np.ndarray]:
         """This process's shuffled batches of the current epoch (indices into ``num_items``)."""
         runtime = self.runtime
-        return epoch_batches(num_items, self.section.batch_size, self.config.seed,
-                             self.progress.epoch, runtime.rank, runtime.world_size)  # fmt: skip
+        return epoch_batches(
+            num_items,
+            self.section.batch_size,
+            self.config.seed,
+            self.progress.epoch,
+            runtime.rank,
+            runtime.world_size,
+        )
 
     def train_epoch(
         self,
@@ -321,8 +327,13 @@ class StageRun:
         """
         section, runtime, progress = self.section, self.runtime, self.progress
         seed, epoch = self.config.seed, progress.epoch
-        bar = tqdm(total=len(batches), initial=progress.epoch_step, desc=description,
-                   disable=not runtime.is_main, leave=False)  # fmt: skip
+        bar = tqdm(
+            total=len(batches),
+            initial=progress.epoch_step,
+            desc=description,
+            disable=not runtime.is_main,
+            leave=False,
+        )
         for index in range(progress.epoch_step, len(batches)):
             if self.reached_max_steps():
                 break
