@@ -39,14 +39,14 @@ class _StepWeightGradient(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, weight, bias, tape, shape):  # noqa: D102
+    def forward(ctx, weight, bias, tape, shape):
         ctx.tape = tape
         ctx.has_bias = bias is not None
         ctx.dtypes = (weight.dtype, bias.dtype if bias is not None else None)
         return torch.zeros(shape, dtype=weight.dtype, device=weight.device)
 
     @staticmethod
-    def backward(ctx, grad):  # noqa: D102
+    def backward(ctx, grad):
         inputs = torch.stack(ctx.tape)  # (S, B, I)
         grad = grad.reshape(-1, grad.shape[-1])  # (S*B, O)
         grad_weight = (grad.t() @ inputs.reshape(-1, inputs.shape[-1]).to(grad.dtype)).to(
