@@ -10,7 +10,9 @@ given the permissions an ordinary ``open(path, "w")`` would: ``0o666`` less the 
 from __future__ import annotations
 
 import contextlib
+import io
 import json
+import pickle
 import os
 import tempfile
 from collections.abc import Callable, Iterator
@@ -105,3 +107,28 @@ def load_npy(path: str | os.PathLike) -> np.ndarray:
     if not np.all(np.isfinite(array)):
         raise UsageError(f"{path} contains NaN or infinite values")
     return array
+
+
+class _PlainUnpickler(pickle.Unpickler):
+    """An unpickler that refuses every global: only plain containers and scalars come back."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        raise pickle.UnpicklingError(f"refusing to load the global {module}.{name}")
+
+
+def read_plain_pickle(path: str | os.PathLike) -> Any:
+    """The content of a pickle that holds only plain data (lists, dicts, tuples, str, numbers,
+    bool, None), such as the original T2M release's vocabulary files; nothing in the file can run.
+
+    Raises UsageError (one line naming the file) for a missing file or a pickle that needs any
+    class or function (which is how pickle payloads run code) or is malformed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"no such file: {path}")
+    try:
+        return _PlainUnpickler(io.BytesIO(path.read_bytes())).load()
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, IndexError) as error:
+        raise UsageError(
+            f"{path}: not a plain-data pickle, refused without running it ({error})"
+        ) from None

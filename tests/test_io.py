@@ -83,3 +83,31 @@ def test_load_npy_reads_numbers_and_refuses_everything_else(tmp_path):
         with pytest.raises(UsageError, match=message) as caught:
             load_npy(path)
         assert "\n" not in str(caught.value)
+
+
+def test_read_plain_pickle_reads_data_and_never_runs_code(tmp_path):
+    import pickle
+
+    from dataset_tools.command import UsageError
+    from dataset_tools.io import read_plain_pickle
+
+    words = ["sos", "eos", "unk", "walk"]
+    (tmp_path / "words.pkl").write_bytes(pickle.dumps(words))
+    (tmp_path / "idx.pkl").write_bytes(pickle.dumps({w: i for i, w in enumerate(words)}, 2))
+    assert read_plain_pickle(tmp_path / "words.pkl") == words
+    assert read_plain_pickle(tmp_path / "idx.pkl")["walk"] == 3
+
+    marker = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (open, (str(marker), "w"))
+
+    (tmp_path / "evil.pkl").write_bytes(pickle.dumps(Payload()))
+    (tmp_path / "torn.pkl").write_bytes(pickle.dumps(words)[:-3])
+    for name, message in (("evil", "refusing to load the global"), ("torn", "not a plain")):
+        with pytest.raises(UsageError, match=message):
+            read_plain_pickle(tmp_path / f"{name}.pkl")
+    assert not marker.exists()
+    with pytest.raises(UsageError, match="no such file"):
+        read_plain_pickle(tmp_path / "missing.pkl")
