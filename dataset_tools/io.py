@@ -12,8 +12,8 @@ from __future__ import annotations
 import contextlib
 import io
 import json
-import pickle
 import os
+import pickle
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
