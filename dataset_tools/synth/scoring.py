@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from dataset_tools import humanml3d
+from dataset_tools.build import DATASET_FPS
 from dataset_tools.representation import FeatureLayout, recover_from_ric
-from dataset_tools.skeleton import spec_for_folder
 from dataset_tools.synth.corpus import GENERATOR
 from dataset_tools.synth.detectors import clip_matches, mirror_label
 
@@ -116,5 +116,5 @@ def scorer_for(dataset_dir: str | Path) -> SemanticScorer | None:
     if path is None:
         return None
     logger.info("semantic accuracy from the corpus labels in %s", path)
-    fps = spec_for_folder(dataset_dir).fps
-    return SemanticScorer(json.loads(path.read_text(encoding="utf-8")), fps=fps)
+    # The builder writes every dataset at HumanML3D's rate (dataset_tools.build.DATASET_FPS).
+    return SemanticScorer(json.loads(path.read_text(encoding="utf-8")), fps=DATASET_FPS)
