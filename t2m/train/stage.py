@@ -233,13 +233,20 @@ class StageRun:
         self.counters = counters
         latest = self.dir / "latest.pt"
         if job.resume:
-            checkpoint = read_checkpoint(latest)
+            checkpoint = read_checkpoint(latest)  # never runs code from the file
             names = (self.name, *job.stage.old_names)
-            check_compatible(checkpoint, names, self.config, sizes, vocabulary, str(latest))
-            for name, module in models.items():
-                module.load_state_dict(checkpoint["models"][name])
-            optimizer.load_state_dict(checkpoint["optimizer"])
-            self._restore(checkpoint["progress"])
+            try:
+                check_compatible(checkpoint, names, self.config, sizes, vocabulary, str(latest))
+                for name, module in models.items():
+                    module.load_state_dict(checkpoint["models"][name])
+                optimizer.load_state_dict(checkpoint["optimizer"])
+                self._restore(checkpoint["progress"])
+            except UsageError:
+                raise
+            except (ValueError, TypeError, KeyError, RuntimeError) as error:
+                reason = f"missing {error}" if isinstance(error, KeyError) else str(error)
+                reason = " ".join(reason.split())[:300]
+                raise UsageError(f"{latest}: cannot resume from it ({reason})") from None
             logger.info(
                 "%s: resumed at step %d (epoch %d)", self.name, self.step, self.progress.epoch
             )
