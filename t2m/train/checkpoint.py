@@ -30,6 +30,8 @@ from __future__ import annotations
 import dataclasses
 import pickle
 import re
+import struct
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -122,27 +124,48 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
     if not path.is_file():
         raise UsageError(f"no checkpoint at {path}")
     try:
-        with torch.serialization.safe_globals(_FORMAT_1_GLOBALS):
+        with torch.serialization.safe_globals(_FORMAT_1_GLOBALS), warnings.catch_warnings():
+            # garbage read as a pickle stream makes torch warn of odd protocols: it is refused
+            warnings.filterwarnings("ignore", "Detected pickle protocol")
             checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
+        asked = _asked_for(error)
+        if asked is None:  # not a payload: a broken pickle stream
+            raise UsageError(f"{path}: unreadable checkpoint ({_reason(error)})") from None
         raise UsageError(
-            f"{path}: refused without running it: it needs arbitrary unpickling "
-            f"({_refusal_reason(error)}); load only checkpoints written by t2m"
+            f"{path}: refused without running it: it needs arbitrary unpickling ({asked}); "
+            "load only checkpoints written by t2m"
         ) from None
-    except (RuntimeError, EOFError, OSError, ValueError, TypeError, KeyError) as error:
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise UsageError(f"{path}: unreadable checkpoint ({reason})") from None
+    except (
+        RuntimeError,
+        EOFError,
+        OSError,
+        ValueError,
+        LookupError,
+        TypeError,
+        struct.error,
+    ) as error:
+        raise UsageError(f"{path}: unreadable checkpoint ({_reason(error)})") from None
     _check_layout(checkpoint, path)
     return checkpoint
 
 
-def _refusal_reason(error: pickle.UnpicklingError) -> str:
-    """The one line of torch's weights-only refusal that says what the file asked for."""
+def _asked_for(error: pickle.UnpicklingError) -> str | None:
+    """What a file refused by torch's weights-only unpickler asked for (a global, a call, an
+    object), or None when the refusal is of malformed data rather than of code."""
     found = re.search(r"GLOBAL (\S+)", str(error))
     if found:
-        return f"it names {found.group(1)}"
-    found = re.search(r"WeightsUnpickler error: *\n*(.+)", str(error))
-    return found.group(1).strip() if found else "not plain data"
+        return f"it asks for {found.group(1)}"
+    reason = _reason(error)
+    code = ("call reduce for", "Can only build", "Can only create new object", "blocked")
+    return reason if any(words in reason for words in code) else None
+
+
+def _reason(error: BaseException) -> str:
+    """The line of ``error`` that says what is wrong (torch wraps it in advice)."""
+    text = str(error).rsplit("WeightsUnpickler error:", 1)[-1]
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[0] if lines else type(error).__name__
 
 
 def _check_layout(checkpoint: Any, path: Path) -> None:
