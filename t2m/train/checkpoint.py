@@ -168,6 +168,13 @@ def _reason(error: BaseException) -> str:
     return lines[0] if lines else type(error).__name__
 
 
+def content_error(path: Path, problem: str, error: Exception) -> UsageError:
+    """The one-line UsageError for a checkpoint whose content does not fit what reads it
+    (``problem``: e.g. "unusable generator checkpoint"), from the error that showed it."""
+    reason = f"missing {error}" if isinstance(error, KeyError) else " ".join(str(error).split())
+    return UsageError(f"{path}: {problem} ({reason[:300]})")
+
+
 def _check_layout(checkpoint: Any, path: Path) -> None:
     """UsageError (one line) unless ``checkpoint`` has the entries and types of our format."""
     if not isinstance(checkpoint, dict) or "format_version" not in checkpoint:

@@ -38,6 +38,7 @@ from t2m.train.checkpoint import (
     TrainedStage,
     atomic_save,
     check_compatible,
+    content_error,
     make_checkpoint,
     read_checkpoint,
     write_config,
@@ -244,9 +245,7 @@ class StageRun:
             except UsageError:
                 raise
             except (ValueError, TypeError, KeyError, RuntimeError) as error:
-                reason = f"missing {error}" if isinstance(error, KeyError) else str(error)
-                reason = " ".join(reason.split())[:300]
-                raise UsageError(f"{latest}: cannot resume from it ({reason})") from None
+                raise content_error(latest, "cannot resume from it", error) from None
             logger.info(
                 "%s: resumed at step %d (epoch %d)", self.name, self.step, self.progress.epoch
             )

@@ -36,7 +36,13 @@ from t2m.models.length import LengthEstimator
 from t2m.models.temporal_vae import TemporalVAE
 from t2m.train import runtime as runtime_module
 from t2m.train.autoencoder import train_autoencoder
-from t2m.train.checkpoint import ModelSizes, TrainedStage, checkpoint_spec, read_checkpoint
+from t2m.train.checkpoint import (
+    ModelSizes,
+    TrainedStage,
+    checkpoint_spec,
+    content_error,
+    read_checkpoint,
+)
 from t2m.train.evaluator import train_evaluator
 from t2m.train.generator import train_generator
 from t2m.train.length import train_length
@@ -177,8 +183,7 @@ def load_stage(
         raise
     except (ValueError, TypeError, KeyError, RuntimeError) as error:
         # read_checkpoint checked the layout; this is content that does not fit it
-        reason = f"missing {error}" if isinstance(error, KeyError) else " ".join(str(error).split())
-        raise UsageError(f"{path}: unusable {record.name} checkpoint ({reason[:300]})") from None
+        raise content_error(path, f"unusable {record.name} checkpoint", error) from None
 
 
 def _rebuild(record: Stage, checkpoint: dict, path: Path, device: torch.device) -> TrainedStage:

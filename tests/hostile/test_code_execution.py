@@ -198,6 +198,19 @@ def test_resume_refuses_a_poisoned_latest(run, marker, tiny_dataset, capsys):
     assert not marker.exists() and path.read_bytes() == poisoned
 
 
+def test_resume_from_weights_that_do_not_fit_is_one_line(run, tiny_dataset, capsys):
+    from t2m.train.__main__ import main
+
+    path = run / "autoencoder" / "latest.pt"
+    checkpoint = read_checkpoint(path)
+    weights = checkpoint["models"]["autoencoder"]
+    weights[next(iter(weights))] = torch.zeros(3)
+    torch.save(checkpoint, path)
+    argv = ["autoencoder", "--preset", "tiny", "--device", "cpu", "--resume"]
+    assert main([*argv, "--dataset", str(tiny_dataset), "--checkpoints", str(run)]) == 2
+    _one_line_error(capsys.readouterr().err, str(path), "cannot resume from it", "size mismatch")
+
+
 def test_a_poisoned_prerequisite_is_refused(run, marker, tiny_dataset, capsys):
     from t2m.train.__main__ import main
 
