@@ -1,10 +1,17 @@
 # The user's verbs; README.md says what each one does and writes.
+#
+# The values a user gives (TEXT, the paths, ARGS ...) reach the commands as data, never as code:
+# - make does not expand them: a value given on the command line or in the environment is used
+#   as written ($(call given,NAME)), so $(shell ...) in it is text;
+# - the shell does not interpret them: each is passed as one single-quoted word
+#   ($(call arg,NAME)), so quotes, backticks, $(...), ; | & and globs in it are text.
+# ARGS holds extra options: make splits it into words at blanks and quotes each word; quotes
+# inside ARGS are not interpreted (an option value with blanks needs the python command itself).
 SHELL := /bin/bash
+
+# Defaults (each can be given as NAME=VALUE on the command line).
 PYTHON ?= python3
 VENV ?= .venv
-PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed
-
 # Dataset: no arguments = the procedural demo corpus into data/demo.
 SOURCE ?= synth
 INPUT ?=
@@ -14,12 +21,34 @@ SEED ?= 0
 WORKERS ?= 2
 ARGS ?=
 DEMO_SOURCE ?= data/demo_src
-
 # Training, sampling, evaluation.
 PRESET ?= demo
 DATASET ?= data/demo
-CHECKPOINTS ?= checkpoints/$(PRESET)
+CHECKPOINTS ?= checkpoints/$(call given,PRESET)
 TEXT ?= a person walks forward and then waves with the right hand
+
+USER_VARIABLES := PYTHON VENV SOURCE INPUT OUT CLIPS SEED WORKERS ARGS DEMO_SOURCE PRESET \
+	DATASET CHECKPOINTS TEXT
+# Not exported into the commands' environment: make would expand them to export them.
+unexport $(USER_VARIABLES)
+
+# $(call given,NAME): NAME's value as the user wrote it; this file's defaults are expanded.
+given = $(if $(filter file default,$(origin $(1))),$($(1)),$(value $(1)))
+define newline
+
+
+endef
+# $(call quote,VALUE): VALUE as one single-quoted bash word (each ' written as '\'', each
+# newline as $'\n', since make would cut the command line there).
+quote = '$(subst $(newline),'$$'\n'',$(subst ','\'',$(1)))'
+# $(call arg,NAME): the given value of NAME as one shell word.
+arg = $(call quote,$(call given,$(1)))
+# The words of ARGS, each quoted.
+args = $(foreach word,$(call given,ARGS),$(call quote,$(word)))
+
+VENV_DIR := $(call given,VENV)
+STAMP := $(VENV_DIR)/.installed
+py = $(call quote,$(VENV_DIR)/bin/python)
 
 .PHONY: install test lint dataset contact-sheet train-ae train-len train-t2m train-eval train \
 	sample eval demo bench
@@ -27,52 +56,55 @@ TEXT ?= a person walks forward and then waves with the right hand
 install: $(STAMP)
 
 $(STAMP): setup.cfg pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
-	touch $(STAMP)
+	test -x $(py) || $(call arg,PYTHON) -m venv $(call arg,VENV)
+	$(py) -m pip install -q --upgrade pip
+	$(py) -m pip install -q -e '.[test]'
+	touch $(call quote,$(STAMP))
 
 test: install
-	$(PY) -m pytest -q tests
+	$(py) -m pytest -q tests
 
 lint: install
-	$(VENV)/bin/ruff check .
-	$(VENV)/bin/ruff format --check .
+	$(call quote,$(VENV_DIR)/bin/ruff) check .
+	$(call quote,$(VENV_DIR)/bin/ruff) format --check .
 
 dataset: install
-ifeq ($(SOURCE),synth)
-	test -f $(DEMO_SOURCE)/source.json || $(PY) -m dataset_tools synth --out $(DEMO_SOURCE) --clips $(CLIPS) --seed $(SEED) --workers $(WORKERS)
-	$(PY) -m dataset_tools build --source joints --input $(DEMO_SOURCE) --out $(OUT) --seed $(SEED) --workers $(WORKERS) $(ARGS)
+ifeq ($(call given,SOURCE),synth)
+	test -f $(call quote,$(call given,DEMO_SOURCE)/source.json) || $(py) -m dataset_tools synth --out $(call arg,DEMO_SOURCE) --clips $(call arg,CLIPS) --seed $(call arg,SEED) --workers $(call arg,WORKERS)
+	$(py) -m dataset_tools build --source joints --input $(call arg,DEMO_SOURCE) --out $(call arg,OUT) --seed $(call arg,SEED) --workers $(call arg,WORKERS) $(args)
 else
-	@test -n "$(INPUT)" || { echo "make dataset SOURCE=$(SOURCE) needs INPUT=DIR (the source files)"; exit 2; }
-	$(PY) -m dataset_tools build --source $(SOURCE) --input $(INPUT) --out $(OUT) --workers $(WORKERS) $(ARGS)
+	$(if $(call given,INPUT),,$(error make dataset SOURCE=$(call given,SOURCE) needs INPUT=DIR (the source files)))
+	$(py) -m dataset_tools build --source $(call arg,SOURCE) --input $(call arg,INPUT) --out $(call arg,OUT) --workers $(call arg,WORKERS) $(args)
 endif
 
 contact-sheet: install
-	$(PY) -m dataset_tools contact-sheet --input $(DEMO_SOURCE) --out $(DEMO_SOURCE)/contact_sheet.png --clips 12 --seed $(SEED)
+	$(py) -m dataset_tools contact-sheet --input $(call arg,DEMO_SOURCE) --out $(call quote,$(call given,DEMO_SOURCE)/contact_sheet.png) --clips 12 --seed $(call arg,SEED)
+
+# What every training target passes.
+stage_options = --preset $(call arg,PRESET) --dataset $(call arg,DATASET) --checkpoints $(call arg,CHECKPOINTS) $(args)
 
 train-ae: install
-	$(PY) -m t2m.train autoencoder --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(py) -m t2m.train autoencoder $(stage_options)
 
 train-len: install
-	$(PY) -m t2m.train length --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(py) -m t2m.train length $(stage_options)
 
 train-t2m: install
-	$(PY) -m t2m.train generator --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(py) -m t2m.train generator $(stage_options)
 
 train-eval: install
-	$(PY) -m t2m.train evaluator --preset $(PRESET) --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(py) -m t2m.train evaluator $(stage_options)
 
 train: train-ae train-len train-t2m train-eval
 
 sample: install
-	$(PY) -m t2m.sample --checkpoints $(CHECKPOINTS) --text "$(TEXT)" $(ARGS)
+	$(py) -m t2m.sample --checkpoints $(call arg,CHECKPOINTS) --text $(call arg,TEXT) $(args)
 
 eval: install
-	$(PY) -m t2m.evaluate --dataset $(DATASET) --checkpoints $(CHECKPOINTS) $(ARGS)
+	$(py) -m t2m.evaluate --dataset $(call arg,DATASET) --checkpoints $(call arg,CHECKPOINTS) $(args)
 
 demo: install
-	$(PY) -m t2m.demo $(ARGS)
+	$(py) -m t2m.demo $(args)
 
 bench: install
-	$(PY) -m t2m.bench $(ARGS)
+	$(py) -m t2m.bench $(args)

@@ -506,7 +506,7 @@ def compute_stats(out_dir: Path, names: Sequence[str]) -> tuple[np.ndarray, np.n
     stats = FeatureStats(layout.dim)
     skipped = []
     for name in tqdm(names, desc="stats", unit="clip", leave=False, disable=len(names) < 1000):
-        features = np.load(humanml3d.features_path(out_dir, name))
+        features = np.load(humanml3d.features_path(out_dir, name), allow_pickle=False)
         try:
             stats.add(features)
         except ValueError as error:
@@ -531,7 +531,9 @@ def build_dataset(config: BuildConfig) -> dict:
     texts.load_nlp()  # fail now, not after the motion work, when no English model is installed
     target_offsets = None
     if config.target_skeleton is not None:
-        target_offsets = target_offsets_from_example(np.load(config.target_skeleton))
+        target_offsets = target_offsets_from_example(
+            np.load(config.target_skeleton, allow_pickle=False)
+        )
     humanml3d.make_folders(config.out_dir)
     clock = time.perf_counter()
     tasks = list_tasks(config)
@@ -636,7 +638,9 @@ def _report(
     """The content of ``build_report.json``."""
     frames = 0
     for task in finished:
-        features = np.load(humanml3d.features_path(config.out_dir, task.name), mmap_mode="r")
+        features = np.load(
+            humanml3d.features_path(config.out_dir, task.name), mmap_mode="r", allow_pickle=False
+        )
         frames += 2 * len(features)
     seconds_in = sum(r.source_frames / r.source_fps for r in built if r.source_fps > 0)
     timings["total_s"] = time.perf_counter() - started

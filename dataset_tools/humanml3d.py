@@ -210,9 +210,10 @@ def write_splits(
 
 
 def read_mean_std(folder: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """``Mean.npy`` and ``Std.npy`` of a dataset folder, each (D,) as stored."""
+    """``Mean.npy`` and ``Std.npy`` of a dataset folder, each (D,) as stored; UsageError (one
+    line naming the file) for a missing or malformed one (pickles are never loaded)."""
     folder = Path(folder)
-    return np.load(folder / MEAN_FILE), np.load(folder / STD_FILE)
+    return load_npy(folder / MEAN_FILE), load_npy(folder / STD_FILE)
 
 
 def write_mean_std(folder: str | Path, mean: np.ndarray, std: np.ndarray) -> None:

@@ -119,7 +119,7 @@ def _load_for_sheet(
         lines = text_path.read_text(encoding="utf-8").splitlines() if text_path.exists() else []
         if lines and lines[0].strip():
             caption = f"{path.stem}: {humanml3d.parse_caption_line(lines[0], str(text_path)).text}"
-        clips.append((to_y_up(np.load(path), up), caption))
+        clips.append((to_y_up(np.load(path, allow_pickle=False), up), caption))
     return clips, fps
 
 

@@ -132,7 +132,7 @@ def load_clip(corpus: str | Path, name: str) -> tuple[np.ndarray, list[str], dic
     import json
 
     corpus = Path(corpus)
-    joints = z_up_to_y_up(np.load(corpus / "joints" / f"{name}.npy"))
+    joints = z_up_to_y_up(np.load(corpus / "joints" / f"{name}.npy", allow_pickle=False))
     texts = (corpus / "texts" / f"{name}.txt").read_text(encoding="utf-8").splitlines()
     labels = json.loads((corpus / LABELS_FILE).read_text(encoding="utf-8"))
     return joints, texts, labels["clips"][name]

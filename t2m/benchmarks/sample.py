@@ -169,7 +169,7 @@ def _walking_joints() -> np.ndarray:
     shared = Path(__file__).resolve().parents[2].parent / "shared"
     clip = humanml3d.joints_path(shared / "reference" / "humanml3d", "012314")
     if clip.exists():
-        joints = np.load(clip)
+        joints = np.load(clip, allow_pickle=False)
         return np.concatenate([joints, joints[::-1]])[:FRAMES]
     from dataset_tools.skeleton import SMPL
 

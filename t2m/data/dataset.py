@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from dataset_tools import humanml3d
 from dataset_tools.humanml3d import SPLITS, Caption
+from dataset_tools.io import load_npy
 from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors, pos_onehot
@@ -76,7 +77,7 @@ def load_split(
         if not motion_path.is_file() or not humanml3d.texts_path(dataset_dir, name).is_file():
             missing += 1
             continue
-        motion = np.load(motion_path).astype(np.float32, copy=False)
+        motion = load_npy(motion_path).astype(np.float32, copy=False)
         if motion.ndim != 2 or not np.isfinite(motion).all():
             raise ValueError(f"{motion_path}: expected finite (T, D) features")
         if motion.shape[1] != spec.feature_dim:

@@ -22,7 +22,8 @@ ArrayT = TypeVar("ArrayT", np.ndarray, torch.Tensor)
 
 @dataclass
 class Normalizer:
-    """Per-dimension mean and (weighted) std, shape (D,) each, float32."""
+    """Per-dimension mean and (weighted) std, shape (D,) each, float32 (given as arrays or
+    tensors)."""
 
     mean: np.ndarray
     std: np.ndarray
@@ -45,11 +46,9 @@ class Normalizer:
     @classmethod
     def from_dataset(cls, dataset_dir: str | Path, feature_bias: float = 5.0) -> Normalizer:
         """Read the feature statistics of a HumanML3D-layout folder
-        (:func:`dataset_tools.humanml3d.read_mean_std`) and up-weight them."""
-        try:
-            mean, std = read_mean_std(dataset_dir)
-        except FileNotFoundError as error:
-            raise ValueError(f"{dataset_dir}: missing {Path(error.filename).name}") from None
+        (:func:`dataset_tools.humanml3d.read_mean_std`: a missing or malformed file is a
+        one-line UsageError naming it) and up-weight them."""
+        mean, std = read_mean_std(dataset_dir)
         return cls.weighted(mean, std, feature_bias)
 
     @classmethod
@@ -75,5 +74,10 @@ class Normalizer:
             return torch.as_tensor(array, dtype=reference.dtype, device=reference.device)
         return array.astype(reference.dtype, copy=False)
 
-    def state(self) -> dict[str, np.ndarray]:
-        return {"mean": self.mean.copy(), "std": self.std.copy()}
+    def state(self) -> dict[str, torch.Tensor]:
+        """What a checkpoint stores: ``mean`` and ``std`` as (D,) float32 tensors (so that it
+        loads with ``torch.load(..., weights_only=True)``); ``Normalizer(**state)`` rebuilds it."""
+        return {
+            "mean": torch.from_numpy(self.mean.copy()),
+            "std": torch.from_numpy(self.std.copy()),
+        }

@@ -162,16 +162,17 @@ class WordVectors:
         return digest.hexdigest()[:16]
 
     def info(self) -> dict[str, Any]:
-        """What a checkpoint stores to rebuild (and check) this vocabulary."""
+        """What a checkpoint stores to rebuild (and check) this vocabulary: plain types only
+        (str, int, a list of str), so that the checkpoint loads with ``weights_only=True``."""
         info: dict[str, Any] = {
-            "source": self.source,
-            "dim": self.dim,
-            "size": self.size,
-            "max_tokens": self.max_tokens,
+            "source": str(self.source),
+            "dim": int(self.dim),
+            "size": int(self.size),
+            "max_tokens": int(self.max_tokens),
             "fingerprint": self.fingerprint(),
         }
         if self.trainable:
-            info["words"] = self.words
+            info["words"] = [str(word) for word in self.words]
         return info
 
     def token_ids(self, tokens: Sequence[str]) -> tuple[np.ndarray, np.ndarray, int]:
@@ -225,7 +226,7 @@ def _load_builtin() -> tuple[list[str], np.ndarray]:
         ) from None
     import pandas as pd
 
-    vectors = np.load(os.path.join(ROOT, "glove_6B_50d_emb.npy"), mmap_mode="r")
+    vectors = np.load(os.path.join(ROOT, "glove_6B_50d_emb.npy"), mmap_mode="r", allow_pickle=False)
     words = pd.read_parquet(os.path.join(ROOT, "glove_6B_index.parquet"))["index"].tolist()
     if len(words) != len(vectors):
         raise ValueError(f"{BUILTIN_GLOVE}: {len(words)} words but {len(vectors)} vectors")
@@ -304,8 +305,17 @@ def build_trainable_vocabulary(
 
 
 def vectorizer_from_info(info: dict[str, Any]) -> WordVectors:
-    """Rebuild the vocabulary described by a checkpoint's ``info``; ValueError when it differs."""
+    """Rebuild the vocabulary described by a checkpoint's ``info`` (:meth:`WordVectors.info`);
+    ValueError (one line) when ``info`` is malformed or the vocabulary differs."""
+    expected = {"source": str, "dim": int, "size": int, "max_tokens": int, "fingerprint": str}
+    if info.get("source") == TRAINABLE:
+        expected["words"] = list
+    for key, kind in expected.items():
+        if not isinstance(info.get(key), kind):
+            raise ValueError(f"vocabulary info: {key!r} is missing or not a {kind.__name__}")
     if info["source"] == TRAINABLE:
+        if not all(isinstance(word, str) for word in info["words"]):
+            raise ValueError("vocabulary info: the trainable words are not all strings")
         vectorizer = WordVectors(
             info["words"], None, TRAINABLE, info["max_tokens"], dim=info["dim"]
         )

@@ -4,9 +4,11 @@ A run folder (``--checkpoints DIR``) holds one folder per stage, ``autoencoder/ 
 generator/ evaluator/`` (runs of the first releases: ``ae/ length/ t2m/ eval/``, still read),
 each with ``latest.pt``, ``best.pt``, ``config.json``, ``metrics.jsonl`` and ``curves.png``.
 
-A checkpoint is a dict::
+A checkpoint is a dict of tensors and plain Python types only (dict, list, str, int, float,
+bool, None), so that it loads with ``torch.load(..., weights_only=True)``: loading never runs
+code from the file (:func:`read_checkpoint` refuses one that would need it)::
 
-    format_version  int
+    format_version  int (2; 1: the first releases, which stored the statistics as numpy arrays)
     stage           the stage's name (first releases: "ae" | "length" | "t2m" | "eval")
     config          the resolved Config (dict) of the run that wrote it
     dims            the ModelSizes taken from the data (dict)
@@ -16,8 +18,8 @@ A checkpoint is a dict::
     models          name -> state_dict (the stage's ``models``, see t2m.train.stages)
     optimizer       optimizer state_dict
     progress        epoch, epoch_step, step, best, and the stage's own counters (the curriculum)
-    normalizer      {"mean", "std"} (D,) float32 arrays, the root/contact-weighted statistics
-    vocabulary      WordVectors.info() (None for the autoencoder)
+    normalizer      {"mean", "std"} (D,) float32 tensors, the root/contact-weighted statistics
+    vocabulary      WordVectors.info(), plain types (None for the autoencoder)
     extra           stage extras (generator: the mean-pose ``initial_code`` (C,))
 
 :func:`t2m.train.stages.load_stage` rebuilds the models of a stage from the stored config.
@@ -26,10 +28,15 @@ A checkpoint is a dict::
 from __future__ import annotations
 
 import dataclasses
+import pickle
+import re
+import struct
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -40,7 +47,36 @@ from t2m.config import Config, from_dict
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+
+# What format-1 checkpoints need besides tensors: numpy's reconstruction of a float32 array (the
+# normalisation statistics), allowed by name. Nothing here can run code; an array's contents
+# pass through the same restricted unpickler. Both module names of ``_reconstruct`` are listed
+# because a file written under numpy 1 names ``numpy.core``, one written under numpy 2
+# ``numpy._core``.
+_RECONSTRUCT = np.empty(0, np.float32).__reduce__()[0]
+_FORMAT_1_GLOBALS = [
+    np.ndarray,
+    np.dtype,
+    type(np.dtype(np.float32)),
+    (_RECONSTRUCT, "numpy.core.multiarray._reconstruct"),
+    (_RECONSTRUCT, "numpy._core.multiarray._reconstruct"),
+]
+
+# The entries every checkpoint has, with their types (``spec``, absent from the earliest ones, is
+# read by checkpoint_spec).
+_LAYOUT: dict[str, type | tuple[type, ...]] = {
+    "stage": str,
+    "config": dict,
+    "dims": dict,
+    "models": dict,
+    "optimizer": dict,
+    "progress": dict,
+    "normalizer": dict,
+    "vocabulary": (dict, type(None)),
+    "extra": dict,
+}
 
 
 @dataclass(frozen=True)
@@ -78,16 +114,85 @@ def write_config(stage_dir: Path, config: Config) -> None:
 
 
 def read_checkpoint(path: Path) -> dict[str, Any]:
-    """Load a checkpoint dict on CPU; UsageError (a ValueError) when missing or not ours."""
+    """Load a checkpoint dict on CPU without running any code from the file.
+
+    ``torch.load(..., weights_only=True)``: only tensors and plain types (and, for format 1,
+    float32 numpy arrays) are unpickled. Raises UsageError (a ValueError, one line naming the
+    file) when it is missing, unreadable, would need arbitrary unpickling (a pickle payload is
+    refused before it can run), or is not a t2m checkpoint of a readable format.
+    """
     if not path.is_file():
         raise UsageError(f"no checkpoint at {path}")
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except (RuntimeError, EOFError, OSError) as error:
-        raise UsageError(f"{path}: unreadable checkpoint ({error})") from None
-    if not isinstance(checkpoint, dict) or checkpoint.get("format_version") != FORMAT_VERSION:
-        raise UsageError(f"{path}: not a t2m checkpoint of format {FORMAT_VERSION}")
+        with torch.serialization.safe_globals(_FORMAT_1_GLOBALS), warnings.catch_warnings():
+            # garbage read as a pickle stream makes torch warn of odd protocols: it is refused
+            warnings.filterwarnings("ignore", "Detected pickle protocol")
+            checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as error:
+        asked = _asked_for(error)
+        if asked is None:  # not a payload: a broken pickle stream
+            raise UsageError(f"{path}: unreadable checkpoint ({_reason(error)})") from None
+        raise UsageError(
+            f"{path}: refused without running it: it needs arbitrary unpickling ({asked}); "
+            "load only checkpoints written by t2m"
+        ) from None
+    except (
+        RuntimeError,
+        EOFError,
+        OSError,
+        ValueError,
+        LookupError,
+        TypeError,
+        struct.error,
+    ) as error:
+        raise UsageError(f"{path}: unreadable checkpoint ({_reason(error)})") from None
+    _check_layout(checkpoint, path)
     return checkpoint
+
+
+def _asked_for(error: pickle.UnpicklingError) -> str | None:
+    """What a file refused by torch's weights-only unpickler asked for (a global, a call, an
+    object), or None when the refusal is of malformed data rather than of code."""
+    found = re.search(r"GLOBAL (\S+)", str(error))
+    if found:
+        return f"it asks for {found.group(1)}"
+    reason = _reason(error)
+    code = ("call reduce for", "Can only build", "Can only create new object", "blocked")
+    return reason if any(words in reason for words in code) else None
+
+
+def _reason(error: BaseException) -> str:
+    """The line of ``error`` that says what is wrong (torch wraps it in advice)."""
+    text = str(error).rsplit("WeightsUnpickler error:", 1)[-1]
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[0] if lines else type(error).__name__
+
+
+def content_error(path: Path, problem: str, error: Exception) -> UsageError:
+    """The one-line UsageError for a checkpoint whose content does not fit what reads it
+    (``problem``: e.g. "unusable generator checkpoint"), from the error that showed it."""
+    reason = f"missing {error}" if isinstance(error, KeyError) else " ".join(str(error).split())
+    return UsageError(f"{path}: {problem} ({reason[:300]})")
+
+
+def _check_layout(checkpoint: Any, path: Path) -> None:
+    """UsageError (one line) unless ``checkpoint`` has the entries and types of our format."""
+    if not isinstance(checkpoint, dict) or "format_version" not in checkpoint:
+        raise UsageError(f"{path}: not a t2m checkpoint")
+    version = checkpoint["format_version"]
+    if version not in READABLE_VERSIONS:
+        raise UsageError(
+            f"{path}: checkpoint format {version!r}; this version of t2m reads formats "
+            f"{', '.join(map(str, READABLE_VERSIONS))}"
+        )
+    for key, kind in _LAYOUT.items():
+        if not isinstance(checkpoint.get(key), kind):
+            raise UsageError(f"{path}: malformed t2m checkpoint ({key!r} is missing or mistyped)")
+    normalizer = checkpoint["normalizer"]
+    if set(normalizer) != {"mean", "std"}:
+        raise UsageError(f"{path}: malformed t2m checkpoint (normalizer {sorted(normalizer)})")
+    if not all(isinstance(weights, dict) for weights in checkpoint["models"].values()):
+        raise UsageError(f"{path}: malformed t2m checkpoint (models are not state dicts)")
 
 
 def checkpoint_spec(checkpoint: dict[str, Any]) -> DatasetSpec:
@@ -158,7 +263,8 @@ def make_checkpoint(
     vocabulary: dict[str, Any] | None,
     extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The checkpoint dict (tensors copied to CPU by torch.save's pickling as they are)."""
+    """The checkpoint dict: tensors and plain types only (tensors are copied to CPU by
+    torch.save's pickling as they are)."""
     if spec.feature_dim != sizes.feature_dim:
         raise ValueError(
             f"{spec.name} has {spec.feature_dim}-d features, the models {sizes.feature_dim}"

@@ -38,6 +38,7 @@ from t2m.train.checkpoint import (
     TrainedStage,
     atomic_save,
     check_compatible,
+    content_error,
     make_checkpoint,
     read_checkpoint,
     write_config,
@@ -233,13 +234,18 @@ class StageRun:
         self.counters = counters
         latest = self.dir / "latest.pt"
         if job.resume:
-            checkpoint = read_checkpoint(latest)
+            checkpoint = read_checkpoint(latest)  # never runs code from the file
             names = (self.name, *job.stage.old_names)
-            check_compatible(checkpoint, names, self.config, sizes, vocabulary, str(latest))
-            for name, module in models.items():
-                module.load_state_dict(checkpoint["models"][name])
-            optimizer.load_state_dict(checkpoint["optimizer"])
-            self._restore(checkpoint["progress"])
+            try:
+                check_compatible(checkpoint, names, self.config, sizes, vocabulary, str(latest))
+                for name, module in models.items():
+                    module.load_state_dict(checkpoint["models"][name])
+                optimizer.load_state_dict(checkpoint["optimizer"])
+                self._restore(checkpoint["progress"])
+            except UsageError:
+                raise
+            except (ValueError, TypeError, KeyError, RuntimeError) as error:
+                raise content_error(latest, "cannot resume from it", error) from None
             logger.info(
                 "%s: resumed at step %d (epoch %d)", self.name, self.step, self.progress.epoch
             )

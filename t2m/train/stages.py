@@ -36,7 +36,13 @@ from t2m.models.length import LengthEstimator
 from t2m.models.temporal_vae import TemporalVAE
 from t2m.train import runtime as runtime_module
 from t2m.train.autoencoder import train_autoencoder
-from t2m.train.checkpoint import ModelSizes, TrainedStage, checkpoint_spec, read_checkpoint
+from t2m.train.checkpoint import (
+    ModelSizes,
+    TrainedStage,
+    checkpoint_spec,
+    content_error,
+    read_checkpoint,
+)
 from t2m.train.evaluator import train_evaluator
 from t2m.train.generator import train_generator
 from t2m.train.length import train_length
@@ -154,7 +160,9 @@ def load_stage(
     """Rebuild a trained stage from its ``<which>.pt``, models in eval mode on ``device``.
 
     ``stage``: a stage name or an old one (``"ae"`` is the autoencoder). Raises UsageError (a
-    ValueError: one line, naming the make target to run) when the stage is not trained. Example::
+    ValueError: one line) naming the make target to run when the stage is not trained, or naming
+    the file when its checkpoint is refused (:func:`~t2m.train.checkpoint.read_checkpoint`
+    never runs code from it) or does not fit its stored config. Example::
 
         generator = load_stage("checkpoints/demo", "generator")
         text = generator.vectorizer.encode_text("a person walks forward")[0]
@@ -168,17 +176,29 @@ def load_stage(
         raise record.not_trained(run_dir)
     checkpoint = read_checkpoint(path)
     if checkpoint["stage"] not in (record.name, *record.old_names):
-        raise ValueError(f"{path} is a {checkpoint['stage']!r} checkpoint, not {record.name!r}")
+        raise UsageError(f"{path} is a {checkpoint['stage']!r} checkpoint, not {record.name!r}")
+    try:
+        return _rebuild(record, checkpoint, path, torch.device(device))
+    except torch.OutOfMemoryError:
+        raise
+    except (ValueError, TypeError, KeyError, RuntimeError) as error:
+        # read_checkpoint checked the layout; this is content that does not fit it
+        raise content_error(path, f"unusable {record.name} checkpoint", error) from None
+
+
+def _rebuild(record: Stage, checkpoint: dict, path: Path, device: torch.device) -> TrainedStage:
+    """The stage's models and data of a checkpoint read by :func:`read_checkpoint`."""
     config = from_dict(checkpoint["config"])
     sizes = ModelSizes.from_dict(checkpoint["dims"])
     models = record.build(config, sizes)
-    device = torch.device(device)
     for name, module in models.items():
         module.load_state_dict(checkpoint["models"][name])
         module.to(device).eval()
-    vocabulary = checkpoint.get("vocabulary")
-    extra = checkpoint.get("extra", {})
+    vocabulary = checkpoint["vocabulary"]
+    extra = checkpoint["extra"]
     initial_code = extra.get("initial_code")
+    if initial_code is not None and not isinstance(initial_code, torch.Tensor):
+        raise ValueError(f"initial_code is a {type(initial_code).__name__}, not a tensor")
     return TrainedStage(
         stage=record.name,
         config=config,
