@@ -188,3 +188,16 @@ def test_refusals_are_one_line(tmp_path):
     with pytest.raises(UsageError, match="refused") as error:
         load_release(copy)
     assert "\n" not in str(error.value)
+
+
+def test_sample_command_from_the_release_folder(tmp_path):
+    from t2m.sample import main
+
+    out = tmp_path / "out"
+    args = ["--checkpoints", str(REFERENCE), "--text", "a person kicks", "--num-samples", "2"]
+    assert main([*args, "--render", "none", "--bvh", "--out", str(out)]) == 0
+    joints = np.load(out / "sample00_rep01.npy")
+    assert joints.ndim == 3 and joints.shape[1:] == (22, 3) and 40 <= len(joints) <= 196
+    assert (out / "sample00_rep00.bvh").is_file()
+    info = np.load(out / "results.npy", allow_pickle=True).item()
+    assert info["num_samples"] == 2
