@@ -200,4 +200,4 @@ def test_sample_command_from_the_release_folder(tmp_path):
     assert joints.ndim == 3 and joints.shape[1:] == (22, 3) and 40 <= len(joints) <= 196
     assert (out / "sample00_rep00.bvh").is_file()
     info = np.load(out / "results.npy", allow_pickle=True).item()
-    assert info["num_samples"] == 2
+    assert info["num_repetitions"] == 2 and info["motion"].shape[:3] == (2, 22, 3)
