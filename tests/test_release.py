@@ -15,9 +15,7 @@ import torch
 from t2m.release import find_release, is_release_folder, load_release, load_release_evaluator
 from t2m.release.layout import read_opt
 
-from conftest import SHARED
-
-REFERENCE = SHARED / "reference" / "t2m-original"
+REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "t2m-original"
 TOLERANCE = 1e-5
 
 pytestmark = pytest.mark.skipif(not REFERENCE.is_dir(), reason="reference release not present")
@@ -75,7 +73,7 @@ def test_the_release_vocabulary_encodes_the_tokens_as_the_release(release, expec
 
 
 def test_normalisation_is_meta_as_stored_the_dataset_std_over_25(release):
-    std = np.load(SHARED / "reference" / "humanml3d" / "Std.npy")
+    std = np.load(REFERENCE.parent / "humanml3d" / "Std.npy")
     ratio = std / release.normalizer.std
     root_and_contacts = np.r_[0:4, 259:263]
     np.testing.assert_allclose(ratio[root_and_contacts], 25.0, rtol=0.02)
@@ -201,3 +199,81 @@ def test_sample_command_from_the_release_folder(tmp_path):
     assert (out / "sample00_rep00.bvh").is_file()
     info = np.load(out / "results.npy", allow_pickle=True).item()
     assert info["num_repetitions"] == 2 and info["motion"].shape[:3] == (2, 22, 3)
+
+
+@pytest.fixture(scope="module")
+def exported(tiny_run, tmp_path_factory):
+    from t2m.release.export import main
+
+    out = tmp_path_factory.mktemp("exported")
+    assert main(["--checkpoints", str(tiny_run), "--out", str(out)]) == 0
+    return out
+
+
+def test_export_writes_the_release_layout_with_its_keys(exported):
+    dataset = exported / "checkpoints" / "t2m"
+    for ours, theirs in (
+        ("Comp_v6_KLD01/model/latest.tar", "Comp_v6_KLD01/model/latest.tar"),
+        ("length_est_bigru/model/latest.tar", "length_est_bigru/model/latest.tar"),
+        ("text_mot_match/model/finest.tar", "text_mot_match/model/finest.tar"),
+    ):
+        mine = torch.load(dataset / ours, map_location="cpu", weights_only=True)
+        reference = torch.load(
+            REFERENCE / "checkpoints" / "t2m" / theirs, map_location="cpu", weights_only=True
+        )
+        assert set(mine) == set(reference)
+        for entry, state in reference.items():
+            if isinstance(state, dict) and "param_groups" not in state:
+                # the tiny length MLP has two hidden layers, the release's three
+                head = ("output.",) if entry == "estimator" else ()
+                kept = {k for k in state if not k.startswith(head)}
+                assert {k for k in mine[entry] if not k.startswith(head)} == kept, entry
+    assert np.load(dataset / "Comp_v6_KLD01" / "meta" / "std.npy").shape == (263,)
+    assert read_opt(dataset / "text_mot_match" / "opt.txt")["dataset_name"] == "t2m"
+    assert is_release_folder(exported)
+
+
+@torch.no_grad()
+def test_export_round_trip_gives_identical_outputs(tiny_run, exported):
+    from t2m.train.stages import load_stage
+
+    generator, length = load_stage(tiny_run, "generator"), load_stage(tiny_run, "length")
+    evaluator = load_stage(tiny_run, "evaluator").models["evaluator"]
+    back = load_release(exported)
+    back_evaluator = load_release_evaluator(exported).evaluator
+    assert torch.equal(back.initial_code, generator.initial_code)
+    np.testing.assert_array_equal(back.normalizer.std, generator.normalizer.std)
+    assert back.vectorizer.words == generator.vectorizer.words
+    assert not back.vae.config.text.flip_backward_words  # recorded in opt.txt
+    encoded = generator.vectorizer.encode_tokens("a/DET person/NOUN walk/VERB forward/ADV".split())
+    words = torch.from_numpy(np.stack([encoded.words] * 2))
+    pos = torch.from_numpy(np.stack([encoded.pos_onehot] * 2))
+    lengths = torch.tensor([encoded.length, encoded.length - 1])
+    vae = generator.models["vae"]
+    noise = torch.randn(2, 12, vae.config.latent_size, generator=torch.Generator().manual_seed(0))
+    codes = []
+    for model in (vae, back.vae):
+        features, sentence, mask = model.encode_text(words, pos, lengths)
+        steps = torch.tensor([12, 10])
+        codes.append(
+            model.generate(features, sentence, mask, steps, back.initial_code, noise=noise)
+        )
+    assert torch.equal(codes[0], codes[1])
+    assert torch.equal(generator.models["decoder"](codes[0]), back.decoder(codes[1]))
+    assert torch.equal(
+        length.models["length"](words, pos, lengths), back.length_model(words, pos, lengths)
+    )
+    motion = torch.randn(2, 40, 263, generator=torch.Generator().manual_seed(1))
+    frames = torch.tensor([40, 32])
+    assert torch.equal(
+        evaluator.embed_motion(motion, frames), back_evaluator.embed_motion(motion, frames)
+    )
+    assert torch.equal(
+        evaluator.embed_text(words, pos, lengths), back_evaluator.embed_text(words, pos, lengths)
+    )
+
+
+def test_export_refuses_to_overwrite(tiny_run, exported):
+    from t2m.release.export import main
+
+    assert main(["--checkpoints", str(tiny_run), "--out", str(exported)]) == 2

@@ -26,6 +26,9 @@ EVALUATOR_FOLDER = "text_mot_match"
 GENERATOR_FILE = Path("model") / "latest.tar"
 LENGTH_FILE = Path(LENGTH_FOLDER) / "model" / "latest.tar"
 EVALUATOR_FILE = Path(EVALUATOR_FOLDER) / "model" / "finest.tar"
+FLIP_OPTION = "flip_backward_words"
+"""Our key in an exported generator's ``opt.txt``: False for a generator of ours trained without
+the release's flip (the original code ignores the key, and flips); absent in the release: True."""
 OPT_BANNER = "------------ Options -------------"
 OPT_END = "-------------- End ----------------"
 

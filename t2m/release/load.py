@@ -47,7 +47,7 @@ from t2m.release.keys import (
     LENGTH_KEYS,
     release_to_ours,
 )
-from t2m.release.layout import ReleaseLayout, find_release, read_opt
+from t2m.release.layout import FLIP_OPTION, ReleaseLayout, find_release, read_opt
 
 logger = logging.getLogger(__name__)
 
@@ -140,13 +140,19 @@ def read_vocabulary(layout: ReleaseLayout, glove_dir: str | Path | None) -> Word
     return read_glove_folder(folder)
 
 
-def _check_unit_length(model_dir: Path) -> None:
+def read_generator_options(model_dir: Path) -> bool:
+    """Check the generator's ``opt.txt`` (snippet length) and return whether its text encoder
+    flips the backward word features (the release's always do; an export of ours says)."""
     opt_file = model_dir / "opt.txt"
-    if opt_file.is_file():
-        unit = read_opt(opt_file).get("unit_length", str(SNIPPET_FRAMES))
-        if not unit.isdigit():
-            raise UsageError(f"{opt_file}: unit_length {unit!r} is not a number")
-        check_snippet_length(int(unit))
+    options = read_opt(opt_file) if opt_file.is_file() else {}
+    unit = options.get("unit_length", str(SNIPPET_FRAMES))
+    if not unit.isdigit():
+        raise UsageError(f"{opt_file}: unit_length {unit!r} is not a number")
+    check_snippet_length(int(unit))
+    flip = options.get(FLIP_OPTION, "True")
+    if flip not in ("True", "False"):
+        raise UsageError(f"{opt_file}: {FLIP_OPTION} must be True or False, got {flip!r}")
+    return flip == "True"
 
 
 def _load(module: torch.nn.Module, weights: Weights, where: Path) -> None:
@@ -168,9 +174,10 @@ def _text_config(weights: Weights, prefix: str, flip: bool = False) -> TextEncod
 
 
 def build_generator(
-    path: Path, models: dict[str, Weights]
+    path: Path, models: dict[str, Weights], flip: bool = True
 ) -> tuple[TemporalVAE, MovementDecoder, MovementEncoder]:
-    """Our modules holding the release generator's weights (``release_to_ours`` output)."""
+    """Our modules holding the release generator's weights (``release_to_ours`` output);
+    ``flip``: the text encoder flips the backward word features (the release's does)."""
     vae_w, encoder_w, decoder_w = models["vae"], models["encoder"], models["decoder"]
     hidden = vae_w["generator.input.weight"].shape[0]
     for block in ("prior", "posterior"):
@@ -185,7 +192,7 @@ def build_generator(
         raise UsageError(f"{path}: time-encoding tables of different lengths {sorted(rows)}")
     code_size = encoder_w["out.weight"].shape[0]
     config = TemporalVAEConfig(
-        text=_text_config(vae_w, "text_encoder.", flip=True),
+        text=_text_config(vae_w, "text_encoder.", flip=flip),
         hidden_size=hidden,
         latent_size=vae_w["prior_gaussian.mean.weight"].shape[0],
         attention_size=vae_w["query.weight"].shape[0],
@@ -279,13 +286,12 @@ def load_release(
     """
     layout = find_release(folder)
     path = layout.generator_file
-    _check_unit_length(layout.require_generator())
+    flip = read_generator_options(layout.require_generator())
     entries = read_release_checkpoint(
         path, tuple(dict.fromkeys(r[0].split(".")[0] for r in GENERATOR_KEYS))
     )
-    vae, decoder, encoder = build_generator(
-        path, release_to_ours(entries, GENERATOR_KEYS, str(path))
-    )
+    weights = release_to_ours(entries, GENERATOR_KEYS, str(path))
+    vae, decoder, encoder = build_generator(path, weights, flip)
     spec = spec_for_dim(decoder.out.out_features)
     normalizer = read_normalizer(layout)
     if normalizer.dim != spec.feature_dim:
