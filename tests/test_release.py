@@ -277,3 +277,15 @@ def test_export_refuses_to_overwrite(tiny_run, exported):
     from t2m.release.export import main
 
     assert main(["--checkpoints", str(tiny_run), "--out", str(exported)]) == 2
+
+
+def test_the_release_glove_folder_as_word_vectors_for_our_training():
+    from t2m.data.words import MOTION_WORDS, load_vectorizer, vectorizer_from_info
+
+    vectors = load_vectorizer(str(REFERENCE / "glove"))
+    assert (vectors.size, vectors.dim) == (4199, 300) and vectors.words[:3] == ["sos", "eos", "unk"]
+    again = vectorizer_from_info(vectors.info())  # what a checkpoint stores rebuilds it
+    assert again.fingerprint() == vectors.fingerprint()
+    # the release's motion-word lists, not ours: "head" keeps its tag there
+    head = vectors.encode_tokens(["head/NOUN"]).pos_onehot[1].argmax()
+    assert "head" in MOTION_WORDS["BODY_PART"] and head == 1  # NOUN
