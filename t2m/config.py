@@ -81,6 +81,10 @@ class TextEncoderConfig:
 
     hidden_size: int = 512
     """GRU hidden size per direction; word and sentence features are twice this."""
+    flip_backward_words: bool = False
+    """Reverse the backward GRU's word features within each caption's length, as the original
+    T2M release does before attention (word i then carries the backward state of word L-1-i).
+    Set by the release loader (:mod:`t2m.release`); our models keep them aligned word by word."""
 
 
 @dataclass
@@ -252,12 +256,19 @@ class Preset:
 
 def paper() -> Config:
     """The sizes and optimisation settings of Guo et al. (CVPR 2022)."""
-    return Config(preset="paper")
+    cfg = Config(preset="paper")
+    # The release's training scripts divide the same std array by feat_bias = 5 once per
+    # dataset they build (train and validation): its models saw root and contact std / 25.
+    cfg.data.feature_bias = 25.0
+    return cfg
 
 
 PAPER_NOTES = """Sizes and optimisation settings of Guo et al. (CVPR 2022). Epoch counts are ours: an
 autoencoder epoch is one random 24-frame window per clip, and the generator's curriculum
-advances on validation patience, so step counts differ from the original scripts'."""
+advances on validation patience, so step counts differ from the original scripts'.
+Normalisation as the release trained: root and foot-contact std divided by 25 (feature_bias);
+the original scripts meant 5 but divide the shared std array once per dataset they build, and
+the release's meta/std.npy holds the dataset std / 25 on those dimensions."""
 
 
 def demo() -> Config:

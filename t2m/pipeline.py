@@ -190,16 +190,33 @@ class TextToMotion:
         precision: str = "fp32",
         need_length_model: bool = True,
         which: str = "best",
+        glove_dir: str | Path | None = None,
     ) -> TextToMotion:
-        """Load the ``generator`` (and ``length``) stages of a run folder.
+        """Load the ``generator`` (and ``length``) stages of a run folder, or the original T2M
+        release's models from any folder of its layout (:func:`t2m.release.load_release`;
+        ``glove_dir``: its GloVe subset, default ``glove/`` beside its ``checkpoints/``).
 
         Raises ValueError, one line naming the make target that trains a missing stage, when a
         stage is missing, unreadable or does not belong with the other.
         """
+        from t2m.release import is_release_folder, load_release
         from t2m.train.runtime import resolve_device
         from t2m.train.stages import find_stage, load_stage
 
         run_dir = Path(run_dir)
+        if is_release_folder(run_dir):
+            release = load_release(run_dir, glove_dir, resolve_device(device), need_length_model)
+            return cls(
+                vae=release.vae,
+                decoder=release.decoder,
+                normalizer=release.normalizer,
+                vectorizer=release.vectorizer,
+                initial_code=release.initial_code,
+                spec=release.spec,
+                length_model=release.length_model,
+                device=resolve_device(device),
+                precision=precision,
+            )
         if not run_dir.is_dir():
             raise ValueError(
                 f"no checkpoint folder {run_dir} (train one with `make train-ae train-len "

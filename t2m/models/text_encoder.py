@@ -5,8 +5,9 @@ vocabulary is trainable, the encoder owns the ``nn.Embedding`` and takes integer
 vectors. Outputs word features (B, L, 2H), zero past each caption's length, and a sentence
 feature (B, 2H): the last forward and first backward hidden states.
 
-Unlike the original, the backward half of the word features is not re-flipped per caption: the
-padded GRU output is already aligned word by word.
+The padded GRU output is aligned word by word. The original T2M release reverses the backward
+half within each caption's length before its attention reads it; ``flip_backward_words`` in the
+config does the same, so the release's weights run as trained (:mod:`t2m.release`).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ class TextEncoder(nn.Module):
     def __init__(self, word_dim: int, config: TextEncoderConfig, vocab_size: int = 0):
         super().__init__()
         self.hidden_size = config.hidden_size
+        self.flip_backward_words = config.flip_backward_words
         self.embedding = nn.Embedding(vocab_size, word_dim) if vocab_size > 0 else None
         self.pos_embedding = nn.Linear(NUM_POS, word_dim)
         self.input_projection = nn.Linear(word_dim, config.hidden_size)
@@ -63,8 +65,19 @@ class TextEncoder(nn.Module):
         packed = pack_padded_sequence(inputs, lengths.cpu(), batch_first=True, enforce_sorted=False)
         outputs, last = self.gru(packed, hidden)
         word_features, _ = pad_packed_sequence(outputs, batch_first=True, total_length=max_len)
+        if self.flip_backward_words:
+            word_features = self._flip_backward(word_features, lengths.to(word_features.device))
         sentence = torch.cat([last[0], last[1]], dim=-1)  # (B, 2H)
         return word_features, sentence
+
+    def _flip_backward(self, word_features: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+        """(B, L, 2H): the backward half's word i becomes word length-1-i (padding stays)."""
+        positions = torch.arange(word_features.shape[1], device=word_features.device)[None, :]
+        lengths = lengths[:, None]
+        source = torch.where(positions < lengths, lengths - 1 - positions, positions)  # (B, L)
+        forward, backward = word_features.split(self.hidden_size, dim=-1)
+        index = source[..., None].expand(-1, -1, self.hidden_size)
+        return torch.cat([forward, backward.gather(1, index)], dim=-1)
 
 
 class ProjectedTextEncoder(nn.Module):

@@ -1,0 +1,347 @@
+"""Write our checkpoints in the original T2M release's layout: ``python -m t2m.release.export``.
+
+    python -m t2m.release.export --checkpoints checkpoints/paper --out exported/
+
+writes ``exported/checkpoints/<t2m|kit>/<name>/{model/latest.tar, meta/, opt.txt}``,
+``length_est_bigru/``, ``text_mot_match/`` (each stage the run has) and ``exported/glove/`` (the
+vocabulary in the release's format), with the release's keys and shapes (one table,
+:mod:`t2m.release.keys`), so that the original code and the evaluator wrappers of later papers
+load them strictly, and :func:`t2m.release.load_release` reads them back to identical outputs.
+The optimiser entries (``opt_*``) are fresh Adam states: the files serve inference and
+evaluation, not resuming the original's training.
+
+Our generators do not flip the backward word features unless trained with
+``--generator.model.text.flip_backward_words=true``; ``opt.txt`` records it for our loader, but
+the original code flips whatever it says: train with the flip for a generator that the original
+code runs as we do. The release's GloVe format has no room for our motion-word lists, so a
+vocabulary other than the release's own is read back with the release's lists (a few words such
+as "head" or "arms" then get their spaCy tag instead of a motion category).
+
+The original code fixes some sizes instead of reading them (300-d words; length estimator hidden
+512 with an MLP of 512, 256, 128 to 50 classes; evaluator text hidden 512, motion hidden 1024,
+embedding 512): a model of other sizes is exported, with a warning that only our loader reads it.
+"""
+
+from __future__ import annotations
+
+import logging
+import pickle
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    configure_logging,
+    option,
+)
+from dataset_tools.io import atomic_write, save_npy_atomic, write_text_atomic
+from dataset_tools.skeleton import HUMANML3D, KIT_ML
+from t2m.data.normalization import Normalizer
+from t2m.data.words import GLOVE_FOLDER_FILES, WordVectors
+from t2m.models.temporal_vae import sinusoidal_table
+from t2m.release.keys import (
+    EVALUATOR_KEYS,
+    GENERATOR_KEYS,
+    LENGTH_KEYS,
+    TABLE_ENTRIES,
+    TABLE_KEY,
+    ours_to_release,
+)
+from t2m.release.layout import (
+    EVALUATOR_FOLDER,
+    FLIP_OPTION,
+    GENERATOR_FILE,
+    LENGTH_FOLDER,
+    format_opt,
+)
+
+logger = logging.getLogger(__name__)
+
+RELEASE_DATASETS = {
+    HUMANML3D.name: ("t2m", "Comp_v6_KLD01"),
+    KIT_ML.name: ("kit", "Comp_v6_KLD005"),
+}
+"""Our dataset spec -> (the release's dataset folder, its generator's name)."""
+TABLE_ROWS = 300
+"""Rows of the sinusoidal table the release stores with each recurrent block."""
+ORIGINAL_FIXED_SIZES = {
+    "word vectors": 300,
+    "length estimator text hidden": 512,
+    "length estimator MLP": (512, 256, 128),
+    "length classes": 50,
+    "evaluator text hidden": 512,
+    "evaluator motion hidden": 1024,
+    "evaluator embedding": 512,
+}
+"""Sizes the original code (and the evaluator wrappers copied from it) sets instead of reading."""
+
+
+@dataclass
+class ExportConfig:
+    """``python -m t2m.release.export``: a run folder -> the T2M release layout."""
+
+    checkpoints: Path = field(metadata=option(metavar="DIR"))
+    """our run folder (its generator, length and evaluator stages, those it has)"""
+    out: Path = field(metadata=option(metavar="DIR"))
+    """folder to write checkpoints/ and glove/ into (must not hold a checkpoints/ already)"""
+    name: str | None = None
+    """the generator's folder name (default: Comp_v6_KLD01 for HumanML3D, Comp_v6_KLD005 for
+    KIT-ML, as the release names them)"""
+    which: Literal["best", "latest"] = "best"
+    """which checkpoint of each stage"""
+
+
+def _adam_state(num_parameters: int) -> dict[str, Any]:
+    """A fresh Adam state for a module of ``num_parameters`` tensors (what ``opt_*`` hold)."""
+    parameters = [torch.zeros(1, requires_grad=True) for _ in range(num_parameters)]
+    return torch.optim.Adam(parameters, lr=1e-4).state_dict()
+
+
+def _with_optimisers(
+    entries: dict[str, dict[str, torch.Tensor]], optimised: dict[str, str]
+) -> dict[str, Any]:
+    """Release entries + ``opt_<name>`` for each optimised entry (``optimised``: opt name ->
+    entry)."""
+    out: dict[str, Any] = dict(entries)
+    for opt_name, entry in optimised.items():
+        count = sum(1 for key in entries[entry] if key != TABLE_KEY)
+        out[opt_name] = _adam_state(count)
+    return out
+
+
+def _save(path: Path, checkpoint: dict[str, Any]) -> None:
+    atomic_write(path, lambda handle: torch.save(checkpoint, handle))
+
+
+def _state(module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {key: value.detach().cpu().float() for key, value in module.state_dict().items()}
+
+
+def generator_checkpoint(stage, encoder: torch.nn.Module) -> dict[str, Any]:
+    """The release's ``model/latest.tar`` of a generator stage (+ the autoencoder's encoder)."""
+    models = {
+        "vae": _state(stage.models["vae"]),
+        "decoder": _state(stage.models["decoder"]),
+        "encoder": _state(encoder),
+    }
+    entries = ours_to_release(models, GENERATOR_KEYS)
+    hidden = stage.models["vae"].config.hidden_size
+    for entry in TABLE_ENTRIES:
+        entries[entry][TABLE_KEY] = sinusoidal_table(TABLE_ROWS, hidden)
+    progress = stage.progress
+    checkpoint = _with_optimisers(
+        entries,
+        {
+            "opt_mov_dec": "mov_dec",
+            "opt_text_enc": "text_enc",
+            "opt_seq_pri": "seq_pri",
+            "opt_att_layer": "att_layer",
+            "opt_seq_post": "seq_post",
+            "opt_seq_dec": "seq_dec",
+        },
+    )
+    checkpoint.update(
+        ep=int(progress.get("epoch", 0)),
+        total_it=int(progress.get("step", 0)),
+        sub_ep=0,
+        sl_len=int(stage.config.generator.end_snippets),
+    )
+    return checkpoint
+
+
+def length_checkpoint(stage) -> dict[str, Any]:
+    """The release's ``length_est_bigru/model/latest.tar`` of a length stage."""
+    entries = ours_to_release({"length": _state(stage.models["length"])}, LENGTH_KEYS)
+    checkpoint = _with_optimisers(entries, {"opt_estimator": "estimator"})
+    checkpoint.update(
+        epoch=int(stage.progress.get("epoch", 0)), niter=int(stage.progress.get("step", 0))
+    )
+    return checkpoint
+
+
+def evaluator_checkpoint(stage) -> dict[str, Any]:
+    """The release's ``text_mot_match/model/finest.tar`` of an evaluator stage."""
+    entries = ours_to_release({"evaluator": _state(stage.models["evaluator"])}, EVALUATOR_KEYS)
+    checkpoint = _with_optimisers(
+        entries, {"opt_text_encoder": "text_encoder", "opt_motion_encoder": "motion_encoder"}
+    )
+    checkpoint.update(
+        epoch=int(stage.progress.get("epoch", 0)), iter=int(stage.progress.get("step", 0))
+    )
+    return checkpoint
+
+
+def release_options(stages: dict[str, Any], name: str, dataset: str) -> dict[str, Any]:
+    """The ``opt.txt`` entries the original's option reader and model builders use."""
+    config = next(iter(stages.values())).config
+    dims = next(iter(stages.values())).dims
+    generator, evaluator = config.generator.model, config.evaluator.model
+    return {
+        "checkpoints_dir": "./checkpoints",
+        "dataset_name": dataset,
+        "name": name,
+        "text_enc_mod": "bigru",
+        "dim_word": dims.word_dim,
+        "dim_pos_ohot": 15,
+        "dim_text_hidden": generator.text.hidden_size,
+        "dim_att_vec": generator.attention_size,
+        "dim_z": generator.latent_size,
+        "dim_pri_hidden": generator.hidden_size,
+        "dim_pos_hidden": generator.hidden_size,
+        "dim_dec_hidden": generator.hidden_size,
+        "dim_movement_enc_hidden": config.autoencoder.model.hidden_size,
+        "dim_movement_dec_hidden": config.autoencoder.model.hidden_size,
+        "dim_movement_latent": config.autoencoder.model.code_size,
+        "dim_pose": dims.feature_dim,
+        "unit_length": 4,
+        "max_text_len": config.data.max_text_tokens,
+        "n_layers_pri": 1,
+        "n_layers_pos": 1,
+        "n_layers_dec": 1,
+        "feat_bias": config.data.feature_bias,
+        "dim_coemb_hidden": evaluator.embedding_size,
+        "dim_motion_hidden": evaluator.motion_hidden_size,
+        "dim_len_hidden": config.length.model.text.hidden_size,
+        "num_classes": config.length.model.num_classes,
+        "lambda_kld": config.generator.kl_weight,
+        FLIP_OPTION: generator.text.flip_backward_words,
+    }
+
+
+def _size_warnings(stages: dict[str, Any]) -> list[str]:
+    stage = next(iter(stages.values()))
+    ours: dict[str, Any] = {"word vectors": stage.dims.word_dim}
+    if "length" in stages:
+        model = stages["length"].config.length.model
+        ours.update(
+            {
+                "length estimator text hidden": model.text.hidden_size,
+                "length estimator MLP": tuple(model.mlp_sizes),
+                "length classes": model.num_classes,
+            }
+        )
+    if "evaluator" in stages:
+        model = stages["evaluator"].config.evaluator.model
+        ours.update(
+            {
+                "evaluator text hidden": model.text.hidden_size,
+                "evaluator motion hidden": model.motion_hidden_size,
+                "evaluator embedding": model.embedding_size,
+            }
+        )
+    return [
+        f"{key} {value} (the original code fixes {ORIGINAL_FIXED_SIZES[key]})"
+        for key, value in ours.items()
+        if value != ORIGINAL_FIXED_SIZES[key]
+    ]
+
+
+def write_vocabulary(vectorizer: WordVectors, folder: Path) -> None:
+    """The vocabulary as the release's GloVe folder: vectors (N, Dw), the words, word -> row."""
+    data, words_file, index_file = (folder / name for name in GLOVE_FOLDER_FILES)
+    save_npy_atomic(data, np.asarray(vectorizer.vectors, dtype=np.float32))
+    words = list(vectorizer.words)
+    atomic_write(words_file, lambda handle: pickle.dump(words, handle, protocol=4))
+    index = {word: row for row, word in enumerate(words)}
+    atomic_write(index_file, lambda handle: pickle.dump(index, handle, protocol=4))
+
+
+def export_release(
+    run_dir: str | Path, out: str | Path, name: str | None = None, which: str = "best"
+) -> Path:
+    """Write the run's generator, length and evaluator stages (those it has), ``meta/`` and the
+    vocabulary in the release layout under ``out``; returns the dataset folder
+    (``out/checkpoints/<t2m|kit>``). UsageError (one line) for what the layout cannot hold."""
+    from t2m.train.stages import load_stage
+
+    run_dir, out = Path(run_dir), Path(out)
+    if (out / "checkpoints").exists() or (out / "glove").exists():
+        raise UsageError(f"{out} already holds checkpoints/ or glove/: choose an empty --out")
+    # 1. the stages this run has
+    stages = {}
+    for stage in ("generator", "length", "evaluator"):
+        try:
+            stages[stage] = load_stage(run_dir, stage, "cpu", which)
+        except UsageError:
+            logger.info("no %s stage in %s: not exported", stage, run_dir)
+    if not stages:
+        raise UsageError(f"{run_dir}: no generator, length or evaluator stage to export")
+    first = next(iter(stages.values()))
+    vectorizer = first.vectorizer
+    if vectorizer is None or vectorizer.trainable:
+        raise UsageError(
+            "the release format reads pre-trained word vectors; this run learned its own "
+            "(retrain with --data.word_vectors=<a GloVe file or the release's glove/>)"
+        )
+    if first.spec.name not in RELEASE_DATASETS:
+        raise UsageError(f"the release layout holds HumanML3D or KIT-ML, not {first.spec.name}")
+    dataset, default_name = RELEASE_DATASETS[first.spec.name]
+    name = name or default_name
+    if name in (LENGTH_FOLDER, EVALUATOR_FOLDER) or not name or "/" in name:
+        raise UsageError(f"--name {name!r} is not a generator folder name")
+    for warning in _size_warnings(stages):
+        logger.warning("the original code cannot load this export: %s", warning)
+    # 2. the checkpoints, each beside its opt.txt
+    dataset_dir = out / "checkpoints" / dataset
+    options = release_options(stages, name, dataset)
+    generator_dir = dataset_dir / name
+    files: dict[Path, dict[str, Any]] = {}
+    if "generator" in stages:
+        autoencoder = load_stage(run_dir, "autoencoder", "cpu", which).models["autoencoder"]
+        files[generator_dir / GENERATOR_FILE] = generator_checkpoint(
+            stages["generator"], autoencoder.encoder
+        )
+    if "length" in stages:
+        files[dataset_dir / LENGTH_FOLDER / "model" / "latest.tar"] = length_checkpoint(
+            stages["length"]
+        )
+    if "evaluator" in stages:
+        files[dataset_dir / EVALUATOR_FOLDER / "model" / "finest.tar"] = evaluator_checkpoint(
+            stages["evaluator"]
+        )
+    for path, checkpoint in files.items():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _save(path, checkpoint)
+        folder = path.parent.parent
+        write_text_atomic(folder / "opt.txt", format_opt({**options, "name": folder.name}))
+    # 3. the normalisation every model of the release reads (meta/ of the generator's folder)
+    normalizer: Normalizer = first.normalizer
+    (generator_dir / "meta").mkdir(parents=True, exist_ok=True)
+    save_npy_atomic(generator_dir / "meta" / "mean.npy", normalizer.mean.astype(np.float64))
+    save_npy_atomic(generator_dir / "meta" / "std.npy", normalizer.std.astype(np.float64))
+    if not (generator_dir / "opt.txt").is_file():
+        write_text_atomic(generator_dir / "opt.txt", format_opt(options))
+    # 4. the vocabulary
+    (out / "glove").mkdir(parents=True, exist_ok=True)
+    write_vocabulary(vectorizer, out / "glove")
+    logger.info("wrote %s (%s) and %s", dataset_dir, ", ".join(stages), out / "glove")
+    return dataset_dir
+
+
+@command
+def main(argv: list[str] | None = None) -> int:
+    parser = CommandParser(
+        prog="python -m t2m.release.export",
+        description="Write a run's generator, length estimator, evaluator, normalisation and "
+        "vocabulary in the original T2M release's layout.",
+    )
+    add_config_options(parser, ExportConfig)
+    config = config_from_args(
+        ExportConfig, parser.parse_args(sys.argv[1:] if argv is None else argv)
+    )
+    configure_logging()
+    export_release(config.checkpoints, config.out, config.name, config.which)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

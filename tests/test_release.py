@@ -1,0 +1,291 @@
+"""The original T2M release as input: every array the original code computed on the reference
+release (``../shared/reference/t2m-original``: random weights at small sizes, written by the
+original implementation) is reproduced within 1e-5 by our models loaded through
+:mod:`t2m.release`; sampling runs from the command line; export round-trips."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from t2m.release import find_release, is_release_folder, load_release, load_release_evaluator
+from t2m.release.layout import read_opt
+
+REFERENCE = Path(__file__).resolve().parents[2] / "shared" / "reference" / "t2m-original"
+TOLERANCE = 1e-5
+
+pytestmark = pytest.mark.skipif(not REFERENCE.is_dir(), reason="reference release not present")
+
+
+@pytest.fixture(scope="module")
+def expected():
+    return dict(np.load(REFERENCE / "expected.npz"))
+
+
+@pytest.fixture(scope="module")
+def release():
+    return load_release(REFERENCE)
+
+
+@pytest.fixture(scope="module")
+def text_inputs(expected):
+    return (
+        torch.from_numpy(expected["word_emb"]),
+        torch.from_numpy(expected["pos_ohot"]),
+        torch.from_numpy(expected["cap_lens"]),
+    )
+
+
+def close(actual: torch.Tensor, wanted: np.ndarray) -> None:
+    np.testing.assert_allclose(actual.detach().numpy(), wanted, atol=TOLERANCE, rtol=0)
+
+
+def test_every_folder_of_the_release_names_it():
+    dataset = REFERENCE / "checkpoints" / "t2m"
+    for path in (REFERENCE, REFERENCE / "checkpoints", dataset, dataset / "Comp_v6_KLD01"):
+        assert is_release_folder(path)
+        layout = find_release(path)
+        assert layout.generator_dir == dataset / "Comp_v6_KLD01"
+        assert layout.default_glove_dir == REFERENCE / "glove"
+    assert find_release(dataset / "text_mot_match").generator_dir == dataset / "Comp_v6_KLD01"
+    assert not is_release_folder(REFERENCE / "glove")
+    assert read_opt(dataset / "Comp_v6_KLD01" / "opt.txt")["dim_movement_latent"] == "40"
+
+
+def test_sizes_and_options_come_from_the_files(release):
+    config = release.vae.config
+    assert (config.hidden_size, config.latent_size, config.attention_size) == (64, 16, 32)
+    assert config.text.hidden_size == 32 and config.text.flip_backward_words
+    assert release.spec.feature_dim == 263 and release.vectorizer.size == 4199
+    assert release.length_model.config.mlp_sizes == (512, 256, 128)
+
+
+def test_the_release_vocabulary_encodes_the_tokens_as_the_release(release, expected):
+    for i, tokens in enumerate(expected["tokens"]):
+        encoded = release.vectorizer.encode_tokens(str(tokens).split(" "))
+        assert encoded.length == expected["cap_lens"][i]
+        np.testing.assert_array_equal(encoded.words, expected["word_emb"][i])
+        np.testing.assert_array_equal(encoded.pos_onehot, expected["pos_ohot"][i])
+
+
+def test_normalisation_is_meta_as_stored_the_dataset_std_over_25(release):
+    std = np.load(REFERENCE.parent / "humanml3d" / "Std.npy")
+    ratio = std / release.normalizer.std
+    root_and_contacts = np.r_[0:4, 259:263]
+    np.testing.assert_allclose(ratio[root_and_contacts], 25.0, rtol=0.02)
+    np.testing.assert_allclose(np.delete(ratio, root_and_contacts), 1.0, rtol=0.01)
+
+
+@torch.no_grad()
+def test_text_encoder_and_length_estimator(release, expected, text_inputs):
+    words, sentence = release.vae.text_encoder(*text_inputs)
+    longest = int(text_inputs[2].max())
+    close(words[:, :longest], expected["text_word_hids"])
+    close(sentence, expected["text_sentence"])
+    close(release.length_model(*text_inputs), expected["length_logits"])
+
+
+@torch.no_grad()
+def test_movement_encoder_and_decoder(release, expected):
+    motions = torch.from_numpy(expected["motions"])
+    codes = release.encoder(motions[..., :-4])
+    close(codes, expected["mov_enc_codes"])
+    close(release.decoder(codes), expected["mov_dec_features"])
+
+
+@torch.no_grad()
+def test_evaluator_embeddings_as_the_release_feeds_it(expected, text_inputs):
+    loaded = load_release_evaluator(REFERENCE / "checkpoints" / "t2m" / "text_mot_match")
+    m_lens = torch.from_numpy(expected["m_lens"])
+    assert (m_lens.diff() <= 0).all()  # the release returns length-sorted order; here it is one
+    close(loaded.evaluator.embed_text(*text_inputs), expected["eval_text_embedding"])
+    motion = loaded.evaluator.embed_motion(torch.from_numpy(expected["motions"]), m_lens)
+    close(motion, expected["eval_motion_embedding"])
+    assert len(loaded.sha256) == 64
+
+
+def _generation_inputs(release, expected, text_inputs):
+    vae = release.vae
+    words, sentence, mask = vae.encode_text(*text_inputs)
+    steps = [int(expected[f"gen{b}_length"]) // 4 for b in range(4)]
+    noise = torch.zeros(4, max(steps), vae.config.latent_size)
+    for b, count in enumerate(steps):
+        noise[b, :count] = torch.from_numpy(expected[f"gen{b}_eps"])
+    return words, sentence, mask, torch.tensor(steps), noise
+
+
+@torch.no_grad()
+def test_generation_given_the_recorded_noise_batched_as_at_batch_one(
+    release, expected, text_inputs
+):
+    """The release generated each caption alone; one batch of all four gives the same."""
+    vae = release.vae
+    words, sentence, mask, steps, noise = _generation_inputs(release, expected, text_inputs)
+    codes = vae.generate(words, sentence, mask, steps, release.initial_code, noise=noise)
+    _, outputs = vae.rollout(
+        vae.initial_state(sentence, release.initial_code),
+        vae.word_context(words, mask),
+        vae.time_codes(steps, int(steps.max())),
+        noise,
+    )
+    for b in range(4):
+        count, words_b = int(steps[b]), int(text_inputs[2][b])
+        close(codes[b, :count], expected[f"gen{b}_codes"])
+        close(outputs.prior_mean[b, :count], expected[f"gen{b}_prior_mu"])
+        close(outputs.prior_logvar[b, :count], expected[f"gen{b}_prior_logvar"])
+        close(outputs.attention_weights[b, :count, :words_b], expected[f"gen{b}_attention"])
+        assert not outputs.attention_weights[b, :, words_b:].any()  # padding masked
+        close(release.decoder(codes[b : b + 1, :count])[0], expected[f"gen{b}_features"])
+
+
+@torch.no_grad()
+def test_teacher_forced_training_pass(release, expected, text_inputs):
+    vae = release.vae
+    words, sentence, mask = vae.encode_text(*(x[:1] for x in text_inputs))
+    frames = int(expected["m_lens"][0])
+    targets = release.encoder(torch.from_numpy(expected["motions"][:1, :frames, :-4]))
+    noise = torch.from_numpy(expected["tf_eps_post"])[None]
+    for fast in (True, False):
+        out = vae(words, sentence, mask, targets, release.initial_code, True, noise, fast=fast)
+        close(out["posterior_mean"][0], expected["tf_post_mu"])
+        close(out["posterior_logvar"][0], expected["tf_post_logvar"])
+        close(out["prior_mean"][0], expected["tf_prior_mu"])
+        close(out["prior_logvar"][0], expected["tf_prior_logvar"])
+        close(out["codes"][0], expected["tf_codes"])
+
+
+def test_without_the_flip_the_word_features_differ(release, expected, text_inputs):
+    """The flip option is what makes the release's word features: off, they differ."""
+    encoder = release.vae.text_encoder
+    encoder.flip_backward_words = False
+    try:
+        with torch.no_grad():
+            words, _ = encoder(*text_inputs)
+    finally:
+        encoder.flip_backward_words = True
+    longest = int(text_inputs[2].max())
+    assert np.abs(words[:, :longest].numpy() - expected["text_word_hids"]).max() > 1e-3
+
+
+def test_refusals_are_one_line(tmp_path):
+    from dataset_tools.command import UsageError
+
+    copy = tmp_path / "release"
+    shutil.copytree(REFERENCE / "checkpoints", copy / "checkpoints")
+    with pytest.raises(UsageError, match="--glove"):
+        load_release(copy)
+    with pytest.raises(UsageError, match="not a T2M release"):
+        load_release(tmp_path)
+    shutil.copytree(REFERENCE / "glove", copy / "glove")
+    tar = copy / "checkpoints" / "t2m" / "Comp_v6_KLD01" / "model" / "latest.tar"
+    torch.save({"text_enc": Path("payload")}, tar)  # a pickled object, not plain weights
+    with pytest.raises(UsageError, match="refused") as error:
+        load_release(copy)
+    assert "\n" not in str(error.value)
+
+
+def test_sample_command_from_the_release_folder(tmp_path):
+    from t2m.sample import main
+
+    out = tmp_path / "out"
+    args = ["--checkpoints", str(REFERENCE), "--text", "a person kicks", "--num-samples", "2"]
+    assert main([*args, "--render", "none", "--bvh", "--out", str(out)]) == 0
+    joints = np.load(out / "sample00_rep01.npy")
+    assert joints.ndim == 3 and joints.shape[1:] == (22, 3) and 40 <= len(joints) <= 196
+    assert (out / "sample00_rep00.bvh").is_file()
+    info = np.load(out / "results.npy", allow_pickle=True).item()
+    assert info["num_repetitions"] == 2 and info["motion"].shape[:3] == (2, 22, 3)
+
+
+@pytest.fixture(scope="module")
+def exported(tiny_run, tmp_path_factory):
+    from t2m.release.export import main
+
+    out = tmp_path_factory.mktemp("exported")
+    assert main(["--checkpoints", str(tiny_run), "--out", str(out)]) == 0
+    return out
+
+
+def test_export_writes_the_release_layout_with_its_keys(exported):
+    dataset = exported / "checkpoints" / "t2m"
+    for ours, theirs in (
+        ("Comp_v6_KLD01/model/latest.tar", "Comp_v6_KLD01/model/latest.tar"),
+        ("length_est_bigru/model/latest.tar", "length_est_bigru/model/latest.tar"),
+        ("text_mot_match/model/finest.tar", "text_mot_match/model/finest.tar"),
+    ):
+        mine = torch.load(dataset / ours, map_location="cpu", weights_only=True)
+        reference = torch.load(
+            REFERENCE / "checkpoints" / "t2m" / theirs, map_location="cpu", weights_only=True
+        )
+        assert set(mine) == set(reference)
+        for entry, state in reference.items():
+            if isinstance(state, dict) and "param_groups" not in state:
+                # the tiny length MLP has two hidden layers, the release's three
+                head = ("output.",) if entry == "estimator" else ()
+                kept = {k for k in state if not k.startswith(head)}
+                assert {k for k in mine[entry] if not k.startswith(head)} == kept, entry
+    assert np.load(dataset / "Comp_v6_KLD01" / "meta" / "std.npy").shape == (263,)
+    assert read_opt(dataset / "text_mot_match" / "opt.txt")["dataset_name"] == "t2m"
+    assert is_release_folder(exported)
+
+
+@torch.no_grad()
+def test_export_round_trip_gives_identical_outputs(tiny_run, exported):
+    from t2m.train.stages import load_stage
+
+    generator, length = load_stage(tiny_run, "generator"), load_stage(tiny_run, "length")
+    evaluator = load_stage(tiny_run, "evaluator").models["evaluator"]
+    back = load_release(exported)
+    back_evaluator = load_release_evaluator(exported).evaluator
+    assert torch.equal(back.initial_code, generator.initial_code)
+    np.testing.assert_array_equal(back.normalizer.std, generator.normalizer.std)
+    assert back.vectorizer.words == generator.vectorizer.words
+    assert not back.vae.config.text.flip_backward_words  # recorded in opt.txt
+    encoded = generator.vectorizer.encode_tokens("a/DET person/NOUN walk/VERB forward/ADV".split())
+    words = torch.from_numpy(np.stack([encoded.words] * 2))
+    pos = torch.from_numpy(np.stack([encoded.pos_onehot] * 2))
+    lengths = torch.tensor([encoded.length, encoded.length - 1])
+    vae = generator.models["vae"]
+    noise = torch.randn(2, 12, vae.config.latent_size, generator=torch.Generator().manual_seed(0))
+    codes = []
+    for model in (vae, back.vae):
+        features, sentence, mask = model.encode_text(words, pos, lengths)
+        steps = torch.tensor([12, 10])
+        codes.append(
+            model.generate(features, sentence, mask, steps, back.initial_code, noise=noise)
+        )
+    assert torch.equal(codes[0], codes[1])
+    assert torch.equal(generator.models["decoder"](codes[0]), back.decoder(codes[1]))
+    assert torch.equal(
+        length.models["length"](words, pos, lengths), back.length_model(words, pos, lengths)
+    )
+    motion = torch.randn(2, 40, 263, generator=torch.Generator().manual_seed(1))
+    frames = torch.tensor([40, 32])
+    assert torch.equal(
+        evaluator.embed_motion(motion, frames), back_evaluator.embed_motion(motion, frames)
+    )
+    assert torch.equal(
+        evaluator.embed_text(words, pos, lengths), back_evaluator.embed_text(words, pos, lengths)
+    )
+
+
+def test_export_refuses_to_overwrite(tiny_run, exported):
+    from t2m.release.export import main
+
+    assert main(["--checkpoints", str(tiny_run), "--out", str(exported)]) == 2
+
+
+def test_the_release_glove_folder_as_word_vectors_for_our_training():
+    from t2m.data.words import MOTION_WORDS, load_vectorizer, vectorizer_from_info
+
+    vectors = load_vectorizer(str(REFERENCE / "glove"))
+    assert (vectors.size, vectors.dim) == (4199, 300) and vectors.words[:3] == ["sos", "eos", "unk"]
+    again = vectorizer_from_info(vectors.info())  # what a checkpoint stores rebuilds it
+    assert again.fingerprint() == vectors.fingerprint()
+    # the release's motion-word lists, not ours: "head" keeps its tag there
+    head = vectors.encode_tokens(["head/NOUN"]).pos_onehot[1].argmax()
+    assert "head" in MOTION_WORDS["BODY_PART"] and head == 1  # NOUN
