@@ -100,7 +100,7 @@ class BuildConfig:
     seed: int = 0
     """seed for crops and splits"""
     spacy_pos: bool = False
-    """tag captions with spaCy 3's own POS (possessives his/their/whose PRON) instead of the
+    """tag captions with spaCy 3's own POS (possessives such as his/their PRON) instead of the
     published HumanML3D texts' (DET)"""
 
     def validate(self) -> None:
