@@ -99,6 +99,9 @@ class BuildConfig:
     """rebuild clips already finished"""
     seed: int = 0
     """seed for crops and splits"""
+    spacy_pos: bool = False
+    """tag captions with spaCy 3's own POS (possessives such as his/their PRON) instead of the
+    published HumanML3D texts' (DET)"""
 
     def validate(self) -> None:
         """Raise UsageError, naming the option, for a configuration that cannot work (cheap:
@@ -374,14 +377,17 @@ def _process_star(arguments: tuple[ClipTask, _WorkerContext]) -> ClipResult:
 # ----------------------------------------------------------------------------- captions
 
 
-def write_captions(out_dir: Path, results: Sequence[ClipResult]) -> None:
-    """Tag the captions of finished clips (and their mirrors) in one spaCy pass and write texts/."""
+def write_captions(out_dir: Path, results: Sequence[ClipResult], spacy_pos: bool = False) -> None:
+    """Tag the captions of finished clips (and their mirrors) in one spaCy pass and write texts/
+    (``spacy_pos``: see :func:`dataset_tools.texts.tag_captions`)."""
     jobs: list[tuple[str, list[Caption]]] = []
     for result in results:
         jobs.append((result.name, result.captions))
         mirrored = [replace(c, text=mirror_caption(c.text)) for c in result.captions]
         jobs.append((mirror_name(result.name), mirrored))
-    tagged = texts.tag_captions([caption.text for _, captions in jobs for caption in captions])
+    tagged = texts.tag_captions(
+        [caption.text for _, captions in jobs for caption in captions], spacy_pos=spacy_pos
+    )
     position = 0
     for name, captions in jobs:
         lines = []
@@ -561,7 +567,7 @@ def build_dataset(config: BuildConfig) -> dict:
 
     def flush() -> None:
         caption_clock = time.perf_counter()
-        write_captions(config.out_dir, pending)
+        write_captions(config.out_dir, pending, config.spacy_pos)
         timings["captions_s"] += time.perf_counter() - caption_clock
         pending.clear()
 

@@ -12,8 +12,9 @@ This module is the one place that knows the layout; ``dataset_tools.build`` writ
     labels.json                 ground-truth labels of a procedural corpus (ours, optional)
 
 The mirror of clip ``name`` (x negated, left and right swapped) is the clip ``"M" + name``.
-A caption line's ``from``/``to`` are seconds into the clip; ``0.0#0.0`` (or NaN, which the
-original release has in places) means the whole clip.
+A caption line's ``from``/``to`` are seconds into the clip; ``0.0#0.0`` means the whole clip (in a
+text line, so does NaN, as the original release's reader has it). Caption files may start with a
+UTF-8 byte-order mark.
 """
 
 from __future__ import annotations
@@ -140,9 +141,10 @@ def format_caption_line(caption: Caption, pairs: Iterable[tuple[str, str]] | Non
 def parse_caption_line(line: str, where: str = "caption", tagged: bool = False) -> Caption:
     """Parse ``caption``, ``caption#start#end`` or a text line ``caption#tokens#start#end``.
 
-    With ``tagged`` only the last form (a ``texts/`` line) is accepted. NaN times (as in parts
-    of the original release) mean the whole clip. Raises ValueError naming ``where`` for an
-    empty caption, a wrong number of fields or non-numeric times.
+    With ``tagged`` only the last form (a ``texts/`` line) is accepted. Raises ValueError naming
+    ``where`` (file and line) for an empty caption, a wrong number of fields, times that are not
+    numbers or are infinite, and NaN times except in a text line: there NaN reads as 0.0, as the
+    original release's reader has it (its ``nan#nan`` is the whole clip).
     """
     fields = [field.strip() for field in line.strip().split("#")]
     if tagged and len(fields) != 4:
@@ -155,13 +157,33 @@ def parse_caption_line(line: str, where: str = "caption", tagged: bool = False) 
     if len(fields) not in (3, 4):
         raise ValueError(f"{where}: expected 'caption', 'caption#start#end' or a HumanML3D line")
     try:
-        start, end = float(fields[-2] or 0.0), float(fields[-1] or 0.0)
+        times = [float(fields[-2] or 0.0), float(fields[-1] or 0.0)]
     except ValueError:
         raise ValueError(f"{where}: start/end must be numbers in seconds") from None
-    if math.isnan(start) or math.isnan(end):
-        start, end = 0.0, 0.0
-    tokens = tuple(fields[1].split()) if len(fields) == 4 else ()
-    return Caption(text, tokens, start, end)
+    text_line = len(fields) == 4
+    for index, value in enumerate(times):
+        if math.isnan(value) and text_line:
+            times[index] = 0.0
+        elif not math.isfinite(value):
+            raise ValueError(
+                f"{where}: start/end must be finite numbers of seconds (0#0: the whole clip), "
+                f"got {fields[-2]!r}#{fields[-1]!r}"
+            )
+    tokens = tuple(fields[1].split()) if text_line else ()
+    return Caption(text, tokens, times[0], times[1])
+
+
+def read_caption_lines(path: str | Path) -> list[tuple[int, str]]:
+    """The non-blank lines of a UTF-8 caption file with their line numbers (from 1); a leading
+    byte-order mark is dropped. Raises ValueError naming the file when it is not UTF-8."""
+    path = Path(path)
+    try:
+        content = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: caption file is not UTF-8") from None
+    return [
+        (number, line) for number, line in enumerate(content.splitlines(), start=1) if line.strip()
+    ]
 
 
 def read_texts(folder: str | Path, name: str) -> list[Caption]:
@@ -169,8 +191,7 @@ def read_texts(folder: str | Path, name: str) -> list[Caption]:
     path = texts_path(folder, name)
     return [
         parse_caption_line(line, f"{path}:{number}", tagged=True)
-        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1)
-        if line.strip()
+        for number, line in read_caption_lines(path)
     ]
 
 

