@@ -560,8 +560,12 @@ def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
         mirrored = mirror_joints(joints)[:, :22]
         outputs = {}
         for name, clip in ((task.name, joints[:, :22]), (mirror_name(task.name), mirrored)):
-            features, recovered = process_motion(clip, SMPL, context.target_offsets)
-            features, recovered = features.astype(np.float32), recovered.astype(np.float32)
+            try:
+                features, recovered = process_motion(clip, SMPL, context.target_offsets)
+            except ValueError as error:  # degenerate motion, refused by process_motion
+                raise ClipError(str(error)) from None
+            with np.errstate(over="ignore", invalid="ignore"):
+                features, recovered = features.astype(np.float32), recovered.astype(np.float32)
             if not (np.isfinite(features).all() and np.isfinite(recovered).all()):
                 raise ClipError("features came out non-finite (coordinates too large?)")
             outputs[name] = (features, recovered)
