@@ -232,7 +232,7 @@ def load_npy(path: str | os.PathLike, finite: bool = True) -> np.ndarray:
             if not start:
                 raise UsageError(f"cannot read {path}: the file is empty")
             if start.startswith(_ZIP_MAGIC):
-                raise UsageError(f"cannot read {path}: it is an .npz archive, not a .npy array")
+                raise UsageError(f"cannot read {path}: not a .npy file (an .npz archive)")
             if start != _NPY_MAGIC:
                 raise UsageError(f"cannot read {path}: not a .npy file (no numpy header)")
             file.seek(0)
