@@ -8,15 +8,32 @@ last, so a clip whose ``texts/`` files exist is finished and a re-run skips it. 
 splits and ``build_report.json`` (file names: :mod:`dataset_tools.humanml3d`). A clip whose data
 is unusable (:class:`~dataset_tools.sources.ClipError`, or an unreadable file) is reported with its
 reason and skipped; any other error stops the build.
+
+What keeps a dataset folder safe:
+- every option, input and output path is checked before any work (:meth:`BuildConfig.validate`);
+- ``build_options.json``, written before the first clip, records the options that shape a clip
+  (:func:`content_options`); a re-run with other options, or into a non-empty folder that no
+  build wrote, is refused (``--force`` rebuilds every clip of an earlier build with the new ones);
+- one build at a time writes into a folder (a lock on the folder), and temporary files that a
+  killed build left are removed when the next one starts;
+- clip names that would collide on disk (equal up to case, or equal to another clip's mirror
+  name ``M<name>``) or cannot be stored (hidden, control characters, too long) are refused and
+  reported, so no clip overwrites another or appears in two splits (:func:`refuse_unsafe_names`);
+- a worker process that dies (the out-of-memory killer) stops the build with one line; the
+  clips finished so far stay and a re-run resumes.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
+import json
 import logging
-import multiprocessing
 import os
 import platform
 import time
+import unicodedata
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -36,11 +53,19 @@ from dataset_tools.command import (
     option,
 )
 from dataset_tools.humanml3d import Caption, mirror_name
-from dataset_tools.io import save_npy_atomic, write_json_atomic, write_text_atomic
+from dataset_tools.io import (
+    check_output_folder,
+    load_npy,
+    remove_partial_files,
+    save_npy_atomic,
+    write_bytes_atomic,
+    write_json_atomic,
+)
 from dataset_tools.mirror import mirror_caption, mirror_joints
+from dataset_tools.parallel import imap_unordered
 from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
 from dataset_tools.skeleton import HUMANML3D, SMPL
-from dataset_tools.sources import ClipError, ClipTask, Motion
+from dataset_tools.sources import ClipError, ClipTask, Motion, fps_problem
 from dataset_tools.stats import FeatureStats, mean_and_pooled_std
 
 logger = logging.getLogger(__name__)
@@ -51,6 +76,12 @@ SPLIT_FRACTIONS = (0.80, 0.05, 0.15)
 # Captions are tagged and written in chunks of this many clips: one spaCy pass per chunk is
 # fast, and a crash loses at most one chunk of finished motions' texts (re-done on resume).
 CAPTION_CHUNK = 512
+# build_options.json: the options a dataset folder's clips were built with.
+OPTIONS_FILE = "build_options.json"
+OPTIONS_FORMAT = 1
+# The longest file name most file systems take; a clip's longest is its mirror's temporary file.
+MAX_FILE_NAME_BYTES = 255
+_TEMPORARY_NAME_OVERHEAD = len("..abcdefgh.partial.npy")
 
 
 @dataclass
@@ -105,19 +136,27 @@ class BuildConfig:
 
     def validate(self) -> None:
         """Raise UsageError, naming the option, for a configuration that cannot work (cheap:
-        values and the named files; what depends on the source, such as a missing --fps or
-        --body-model, is checked when the build reads its source options)."""
+        values, the named files and the output folder; what depends on the source, such as a
+        missing --fps or --body-model, is checked when the build reads its source options)."""
         if self.source not in SOURCES:
             raise UsageError(f"unknown --source {self.source!r} (choose from {', '.join(SOURCES)})")
-        if self.workers < 1:
-            raise UsageError(f"--workers must be at least 1, got {self.workers}")
-        for name, value in (
-            ("--max-seconds", self.max_seconds),
-            ("--fps", self.fps),
-            ("--bvh-scale", self.bvh_scale),
-        ):
-            if value is not None and not (np.isfinite(value) and value > 0):
-                raise UsageError(f"{name} must be a positive number, got {value}")
+        most_workers = 4 * (os.cpu_count() or 1)
+        if not 1 <= self.workers <= most_workers:
+            raise UsageError(
+                f"--workers must be between 1 and {most_workers} (4 per CPU core), "
+                f"got {self.workers}"
+            )
+        if self.seed < 0:
+            raise UsageError(f"--seed must be 0 or more, got {self.seed}")
+        shortest = 2 / DATASET_FPS  # two frames, the fewest a clip has features for
+        if not (np.isfinite(self.max_seconds) and self.max_seconds >= shortest):
+            raise UsageError(
+                f"--max-seconds must be a number of seconds >= {shortest:g}, got {self.max_seconds}"
+            )
+        if self.bvh_scale is not None and not (np.isfinite(self.bvh_scale) and self.bvh_scale > 0):
+            raise UsageError(f"--bvh-scale must be a positive number, got {self.bvh_scale}")
+        if self.fps is not None and (problem := fps_problem(self.fps)) is not None:
+            raise UsageError(f"--fps: {problem}")
         if not self.input_dir.is_dir():
             raise UsageError(f"input folder {self.input_dir} does not exist")
         for name, folder in (("--texts", self.texts_dir), ("--splits", self.splits_dir)):
@@ -127,15 +166,35 @@ class BuildConfig:
             if file is not None and not file.is_file():
                 raise UsageError(f"{name} file {file} not found")
         if self.target_skeleton is not None:
-            try:
-                frame = np.load(self.target_skeleton, allow_pickle=False)
-            except (OSError, ValueError) as error:
-                raise UsageError(f"--target-skeleton {self.target_skeleton}: {error}") from None
+            frame = load_npy(self.target_skeleton)
             if frame.ndim != 2 or frame.shape[0] < SMPL.num_joints or frame.shape[1] != 3:
                 raise UsageError(
                     f"--target-skeleton {self.target_skeleton}: expected one frame "
                     f"(>= {SMPL.num_joints}, 3), got {frame.shape}"
                 )
+        if self.splits_dir is not None:
+            for split in ("train", "val", "test"):
+                if not humanml3d.split_path(self.splits_dir, split).is_file():
+                    raise UsageError(f"--splits folder {self.splits_dir} has no {split}.txt")
+        self._validate_output()
+
+    def _validate_output(self) -> None:
+        """The output folder can be written and is none of the folders the build reads (it
+        rewrites ``texts/`` and the split files, and would read its own outputs as sources)."""
+        check_output_folder(self.out_dir, "--out folder")
+        out = self.out_dir.resolve()
+        if out == self.input_dir.resolve():
+            raise UsageError(f"--out {self.out_dir} must not be the --input folder")
+        if self.texts_dir is not None and self.texts_dir.resolve() == out / humanml3d.TEXTS_DIR:
+            raise UsageError(
+                f"--texts {self.texts_dir} is the texts/ folder the build writes; "
+                "copy the caption files elsewhere"
+            )
+        if self.splits_dir is not None and self.splits_dir.resolve() == out:
+            raise UsageError(
+                f"--splits {self.splits_dir} is the folder whose split files the build writes; "
+                "copy them elsewhere"
+            )
 
 
 @dataclass
@@ -249,6 +308,162 @@ def list_tasks(config: BuildConfig) -> list[ClipTask]:
     return tasks
 
 
+def _name_problem(name: str) -> str | None:
+    """Why ``name`` cannot name a clip's files and split lines, or None."""
+    if not name:
+        return "empty clip name"
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        return "the file name is not valid UTF-8"
+    if name.startswith("."):
+        return "clip names starting with '.' would be hidden files"
+    if not name.isprintable() or name != name.strip() or "\\" in name:
+        return "clip names must not hold control characters, a backslash or outer spaces"
+    longest = len(mirror_name(name).encode("utf-8")) + _TEMPORARY_NAME_OVERHEAD
+    if longest > MAX_FILE_NAME_BYTES:
+        return f"clip name too long ({len(name.encode('utf-8'))} bytes)"
+    return None
+
+
+def _name_key(name: str) -> str:
+    """Names equal under this key are one file on a case-insensitive (or normalising) disk."""
+    return unicodedata.normalize("NFC", name).casefold()
+
+
+def refuse_unsafe_names(tasks: Sequence[ClipTask]) -> tuple[list[ClipTask], list[dict]]:
+    """Split ``tasks`` into those safe to build and refusals (``{name, path, reason}``).
+
+    Refused: names that cannot be stored (:func:`_name_problem`); names equal to another task's
+    up to case or Unicode normalisation (all of them: none may overwrite another, and which one
+    wins must not depend on the order of files); names equal to another task's mirror name
+    (``walk`` and ``Mwalk``: the mirror keeps its name, the source file named like it is
+    refused). So no two clips share a file or a split line.
+    """
+    refused: dict[int, str] = {}
+    for index, task in enumerate(tasks):
+        if (problem := _name_problem(task.name)) is not None:
+            refused[index] = problem
+    by_key: dict[str, list[int]] = {}
+    for index, task in enumerate(tasks):
+        if index not in refused:
+            by_key.setdefault(_name_key(task.name), []).append(index)
+    for indices in by_key.values():
+        for index in indices if len(indices) > 1 else ():
+            others = [tasks[other].path for other in indices if other != index]
+            refused[index] = (
+                f"clip name {tasks[index].name!r} collides with the clip of {others[0]}"
+                f"{f' and {len(others) - 1} more' if len(others) > 1 else ''} "
+                "(names must differ in more than case); rename one of the files"
+            )
+    mirrors = {_name_key(mirror_name(name)): name for name in (task.name for task in tasks)}
+    for index, task in enumerate(tasks):
+        original = mirrors.get(_name_key(task.name))
+        if index not in refused and original is not None:
+            refused[index] = (
+                f"clip name {task.name!r} is the mirror name of clip {original!r} "
+                f"({humanml3d.MIRROR_PREFIX} + name); rename the file"
+            )
+    kept = [task for index, task in enumerate(tasks) if index not in refused]
+    refusals = [
+        {"name": tasks[index].name, "path": tasks[index].path, "reason": reason}
+        for index, reason in sorted(refused.items())
+    ]
+    return kept, refusals
+
+
+# ----------------------------------------------------------------------------- the folder's record
+
+
+def _sha256(path: Path | None) -> str | None:
+    return None if path is None else hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def content_options(config: BuildConfig, options: dict) -> dict:
+    """The options that decide what a clip's files hold (JSON values), for ``build_options.json``.
+
+    The source kind, the resolved reading options (frame rate, up axis, BVH mapping, scale and
+    first frame), crop length and seed, and the content (SHA-256) of the small files that shape
+    clips: index, target skeleton, mapping file. Where files live is not part of it (the same
+    sources moved elsewhere give the same clips); neither are the worker count, the splits
+    (rewritten by every run) or the caption files (a changed caption needs ``--force``).
+    """
+    mapping = config.mapping
+    mapping_file = Path(mapping) if mapping and Path(mapping).is_file() else None
+    reading = {key: value for key, value in options.items() if key != "body_model_dir"}
+    record = {
+        "source": config.source,
+        "reading": reading,
+        "max_seconds": config.max_seconds,
+        "seed": config.seed,
+        "index_sha256": _sha256(config.index),
+        "target_skeleton_sha256": _sha256(config.target_skeleton),
+        "mapping_sha256": _sha256(mapping_file),
+    }
+    return json.loads(json.dumps(record))  # tuples as lists, as they read back
+
+
+def _read_options_record(out_dir: Path) -> dict | None:
+    """The ``options`` recorded in ``out_dir/build_options.json`` (None when absent)."""
+    path = out_dir / OPTIONS_FILE
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+        return dict(record["options"])
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise UsageError(
+            f"{path} is unreadable ({type(error).__name__}); delete it and pass --force to "
+            "rebuild every clip"
+        ) from None
+
+
+def claim_output(out_dir: Path, record: dict, names: Sequence[str], force: bool) -> None:
+    """Make ``out_dir`` a folder of this build's options, or refuse (UsageError).
+
+    A new or empty folder is claimed. A folder built with the same options is resumed; with
+    ``force`` its clips ``names`` are marked unfinished (their ``texts/`` files, written last,
+    are removed) so that every one is rebuilt, even if this run is killed half-way. A folder
+    built with other options needs ``force``; a non-empty folder that no build wrote is refused.
+    """
+    recorded = _read_options_record(out_dir)
+    ours = recorded is not None or (out_dir / humanml3d.REPORT_FILE).is_file()
+    if not ours and out_dir.is_dir() and any(out_dir.iterdir()):
+        raise UsageError(
+            f"--out {out_dir} is not empty and holds no dataset built by this tool; "
+            "choose a new or empty folder"
+        )
+    if ours and recorded != record and not force:
+        changed = sorted(key for key in record if (recorded or {}).get(key) != record[key])
+        what = f"other options ({', '.join(changed)})" if recorded else "unrecorded options"
+        raise UsageError(
+            f"{out_dir} was built with {what}; pass --force to rebuild every clip with these "
+            "options, or choose another --out"
+        )
+    if ours and force:
+        for name in names:
+            for clip in (name, mirror_name(name)):
+                humanml3d.texts_path(out_dir, clip).unlink(missing_ok=True)
+    write_json_atomic(out_dir / OPTIONS_FILE, {"format": OPTIONS_FORMAT, "options": record})
+
+
+@contextlib.contextmanager
+def _exclusive(out_dir: Path) -> Iterator[int]:
+    """Hold a lock on ``out_dir`` (created) while one build writes into it; yields the lock's
+    file descriptor (worker processes close their inherited copy, so that a killed build's
+    workers never keep the folder locked). UsageError when another build holds it."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    descriptor = os.open(out_dir, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise UsageError(f"another build is writing into {out_dir}; wait for it") from None
+        yield descriptor
+    finally:
+        os.close(descriptor)
+
+
 # ----------------------------------------------------------------------------- per-clip work
 
 _LOADED: dict[str, Motion] = {}  # the last file read by this process (index rows share files)
@@ -333,8 +548,8 @@ def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
         if not np.isfinite(motion.joints).all():
             bad = int((~np.isfinite(motion.joints)).any(axis=(1, 2)).sum())
             raise ClipError(f"{bad} frame(s) contain NaN or inf")
-        if not (np.isfinite(motion.fps) and motion.fps > 0):
-            raise ClipError(f"bad frame rate {motion.fps}")
+        if (problem := fps_problem(motion.fps)) is not None:
+            raise ClipError(problem)
         joints = segment.resample(motion.joints, motion.fps, DATASET_FPS)
         result.seconds["load"] = time.perf_counter() - clock
 
@@ -348,20 +563,21 @@ def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
         mirrored = mirror_joints(joints)[:, :22]
         outputs = {}
         for name, clip in ((task.name, joints[:, :22]), (mirror_name(task.name), mirrored)):
-            features, recovered = process_motion(clip, SMPL, context.target_offsets)
+            try:
+                features, recovered = process_motion(clip, SMPL, context.target_offsets)
+            except ValueError as error:  # degenerate motion, refused by process_motion
+                raise ClipError(str(error)) from None
+            with np.errstate(over="ignore", invalid="ignore"):
+                features, recovered = features.astype(np.float32), recovered.astype(np.float32)
             if not (np.isfinite(features).all() and np.isfinite(recovered).all()):
-                raise ClipError("features came out non-finite")
+                raise ClipError("features came out non-finite (coordinates too large?)")
             outputs[name] = (features, recovered)
         result.seconds["features"] = time.perf_counter() - clock
 
         clock = time.perf_counter()
         for name, (features, recovered) in outputs.items():
-            save_npy_atomic(
-                humanml3d.features_path(context.out_dir, name), features.astype(np.float32)
-            )
-            save_npy_atomic(
-                humanml3d.joints_path(context.out_dir, name), recovered.astype(np.float32)
-            )
+            save_npy_atomic(humanml3d.features_path(context.out_dir, name), features)
+            save_npy_atomic(humanml3d.joints_path(context.out_dir, name), recovered)
         result.seconds["write"] = time.perf_counter() - clock
         result.frames = len(outputs[task.name][0])
         result.captions = captions
@@ -371,6 +587,7 @@ def process_task(task: ClipTask, context: _WorkerContext) -> ClipResult:
 
 
 def _process_star(arguments: tuple[ClipTask, _WorkerContext]) -> ClipResult:
+    # Looked up at call time (not bound), so a test can replace process_task in workers too.
     return process_task(*arguments)
 
 
@@ -414,7 +631,13 @@ def make_splits(
     if splits_dir is not None:
         assigned: dict[str, str] = {}
         for split in splits:
-            for name in humanml3d.read_split(splits_dir, split):
+            try:
+                listed = humanml3d.read_split(splits_dir, split)
+            except (OSError, ValueError) as error:  # missing, or not UTF-8
+                raise UsageError(
+                    f"--splits {splits_dir}: cannot read {split}.txt ({error})"
+                ) from None
+            for name in listed:
                 assigned.setdefault(name, split)
         for names in groups.values():
             for name in names:
@@ -459,7 +682,8 @@ def _versions() -> dict[str, str]:
 
 
 def _source_options(config: BuildConfig) -> dict:
-    """Per-source reading options, resolved from flags and ``source.json``."""
+    """Per-source reading options, resolved from flags and ``source.json``; UsageError (one
+    line) for options or shared files (source.json, mapping, body models) that cannot work."""
     options: dict = {
         "body_model_dir": str(config.body_model_dir) if config.body_model_dir else None,
         # Joint arrays met by another source (HumanAct12 rows of an AMASS index) are in the
@@ -476,14 +700,16 @@ def _source_options(config: BuildConfig) -> dict:
             raise UsageError("--fps is required for joint arrays without a source.json or --index")
         options["fps"] = float(fps)
         options["up"] = config.up or source_config.get("up", "y")
-        if options["up"] not in ("y", "z"):
-            raise UsageError(f"up axis must be 'y' or 'z', got {options['up']!r}")
     if config.source == "amass":
-        if config.body_model_dir is None or not config.body_model_dir.is_dir():
-            raise UsageError(
-                "--body-model DIR (with male|female|neutral/model.npz) is required for AMASS"
-            )
+        _check_body_models(config.body_model_dir)
     if config.source == "bvh":
+        from dataset_tools.sources.bvh import load_mapping
+
+        if config.mapping is not None:
+            try:
+                load_mapping(config.mapping)
+            except ValueError as error:
+                raise UsageError(f"--mapping: {error}") from None
         options["bvh"] = {
             "mapping": config.mapping,
             "scale": config.bvh_scale,
@@ -493,71 +719,125 @@ def _source_options(config: BuildConfig) -> dict:
     return options
 
 
-def _run_tasks(
-    tasks: Sequence[ClipTask], context: _WorkerContext, workers: int
-) -> Iterator[ClipResult]:
-    arguments = [(task, context) for task in tasks]
-    if workers <= 1 or len(tasks) <= 1:
-        yield from map(_process_star, arguments)
-        return
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    chunksize = max(1, min(16, len(tasks) // (workers * 8)))
-    with multiprocessing.get_context(method).Pool(workers) as pool:
-        yield from pool.imap_unordered(_process_star, arguments, chunksize=chunksize)
+def _check_body_models(folder: Path | None) -> None:
+    """Load every body model under ``folder`` once (cached: forked workers inherit them), so a
+    broken one is one line now rather than a failure in every clip."""
+    from dataset_tools.sources.amass import GENDERS, NUM_JOINTS, load_body_model
+
+    if folder is None or not folder.is_dir():
+        raise UsageError(
+            "--body-model DIR (with male|female|neutral/model.npz) is required for AMASS"
+        )
+    paths = [folder / gender / "model.npz" for gender in GENDERS]
+    if not any(path.is_file() for path in paths):
+        raise UsageError(f"--body-model {folder} has no male|female|neutral/model.npz")
+    for path in paths:
+        if path.is_file():
+            try:
+                model = load_body_model(str(path))
+            except ValueError as error:
+                raise UsageError(f"--body-model: {error}") from None
+            if len(model.parents) != NUM_JOINTS:
+                raise UsageError(
+                    f"--body-model: {path} has {len(model.parents)} joints, SMPL-H has {NUM_JOINTS}"
+                )
+
+
+def _read_clip_features(out_dir: Path, name: str) -> np.ndarray:
+    """``new_joint_vecs/<name>.npy`` of a built clip; UsageError naming the file when it cannot
+    be read (damaged after it was written: the build's own writes are atomic)."""
+    try:
+        return load_npy(humanml3d.features_path(out_dir, name), finite=False)
+    except UsageError as error:
+        raise UsageError(f"{error}; delete it and run the build again to rebuild it") from None
 
 
 def compute_stats(out_dir: Path, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Mean/Std over the features of ``names`` (their files in ``new_joint_vecs``)."""
+    """Mean/Std over the features of ``names`` (their files in ``new_joint_vecs``); the info
+    dict counts their frames (``frames_out``) and the frames the statistics used (``frames``)."""
     layout = FeatureLayout(SMPL.num_joints)
     stats = FeatureStats(layout.dim)
     skipped = []
+    frames_out = 0
     for name in tqdm(names, desc="stats", unit="clip", leave=False, disable=len(names) < 1000):
-        features = np.load(humanml3d.features_path(out_dir, name), allow_pickle=False)
+        features = _read_clip_features(out_dir, name)
+        frames_out += len(features) if features.ndim else 0
         try:
             stats.add(features)
         except ValueError as error:
             skipped.append({"name": name, "reason": str(error)})
     if stats.count == 0:
-        raise ValueError("no clip has finite features; cannot compute Mean/Std")
+        raise UsageError(f"no clip in {out_dir} has finite features; cannot compute Mean/Std")
     mean, std, constant = mean_and_pooled_std(stats, layout.groups())
-    return mean, std, {"frames": stats.count, "skipped": skipped, "constant_groups": constant}
+    info = {"frames": stats.count, "skipped": skipped, "constant_groups": constant}
+    return mean, std, info | {"frames_out": frames_out}
 
 
 def build_dataset(config: BuildConfig) -> dict:
     """Build (or resume) the dataset described by ``config``; returns the build report.
 
-    Raises UsageError for unusable configuration (missing input, unknown source, ...); clip-level
-    problems are reported in ``report["skipped"]`` instead.
+    Raises UsageError for unusable configuration (missing input, unknown source, other options
+    than the folder was built with, ...) and ChildProcessError when a worker process dies;
+    clip-level problems (refused names included) are reported in ``report["skipped"]``.
     """
     started = time.perf_counter()
     timings: dict[str, float] = {}
-    # 1. Check the configuration and list the clips.
+    # 1. Check the configuration and list the clips, before touching the output folder.
     config.validate()
     options = _source_options(config)
     texts.load_nlp()  # fail now, not after the motion work, when no English model is installed
     target_offsets = None
     if config.target_skeleton is not None:
-        target_offsets = target_offsets_from_example(
-            np.load(config.target_skeleton, allow_pickle=False)
-        )
-    humanml3d.make_folders(config.out_dir)
+        target_offsets = target_offsets_from_example(load_npy(config.target_skeleton))
+    record = content_options(config, options)
     clock = time.perf_counter()
-    tasks = list_tasks(config)
-    names = [task.name for task in tasks]
-    if len(set(names)) != len(names):
-        raise UsageError("two source clips map to the same clip name")
-    todo = [task for task in tasks if config.force or not is_finished(config.out_dir, task.name)]
+    all_tasks = list_tasks(config)
+    tasks, skipped = refuse_unsafe_names(all_tasks)
     timings["list_s"] = time.perf_counter() - clock
-    logger.info("%d clips listed, %d to build", len(tasks), len(todo))
 
-    # 2. Motions in parallel; captions tagged and written by chunk as clips finish.
-    context = _WorkerContext(
-        out_dir=config.out_dir,
-        options=options,
-        target_offsets=target_offsets,
-        max_frames=int(round(config.max_seconds * DATASET_FPS)),
-        seed=config.seed,
-    )
+    with _exclusive(config.out_dir) as lock:
+        # 2. Claim the folder: clean up after a killed run, refuse other options.
+        partial = [
+            str(path)
+            for folder in _folders(config.out_dir)
+            for path in remove_partial_files(folder)
+        ]
+        if partial:
+            logger.info("removed %d temporary file(s) of an interrupted build", len(partial))
+        claim_output(config.out_dir, record, [task.name for task in tasks], config.force)
+        humanml3d.make_folders(config.out_dir)
+        todo = [task for task in tasks if not is_finished(config.out_dir, task.name)]
+        logger.info("%d clips listed, %d to build", len(tasks), len(todo))
+        context = _WorkerContext(
+            out_dir=config.out_dir,
+            options=options,
+            target_offsets=target_offsets,
+            max_frames=int(round(config.max_seconds * DATASET_FPS)),
+            seed=config.seed,
+        )
+        built, clip_skips = _build_clips(todo, context, config, lock, timings)
+        skipped += clip_skips
+        report = _finish(config, all_tasks, tasks, built, skipped, timings, started)
+        report["partial_files_removed"] = len(partial)
+        _write_report(config.out_dir, report)
+    return report
+
+
+def _folders(out_dir: Path) -> list[Path]:
+    """The dataset folder and its per-clip folders (where atomic writes leave temporaries)."""
+    subfolders = (humanml3d.FEATURES_DIR, humanml3d.JOINTS_DIR, humanml3d.TEXTS_DIR)
+    return [out_dir, *(out_dir / sub for sub in subfolders)]
+
+
+def _build_clips(
+    todo: Sequence[ClipTask],
+    context: _WorkerContext,
+    config: BuildConfig,
+    lock: int,
+    timings: dict[str, float],
+) -> tuple[list[ClipResult], list[dict]]:
+    """Motions in worker processes; captions tagged and written by chunk as clips finish (and
+    for every finished clip when the build stops early). Returns (built, skipped entries)."""
     skipped: list[dict] = []
     built: list[ClipResult] = []
     pending: list[ClipResult] = []
@@ -572,32 +852,54 @@ def build_dataset(config: BuildConfig) -> dict:
         pending.clear()
 
     progress = tqdm(total=len(todo), desc="build", unit="clip", disable=None)
-    for result in _run_tasks(todo, context, config.workers):
-        progress.update()
-        for step, seconds in result.seconds.items():
-            worker_seconds[step] += seconds
-        if result.error is not None:
-            skipped.append({"name": result.name, "path": result.path, "reason": result.error})
-            continue
-        built.append(result)
-        pending.append(result)
-        if len(pending) >= CAPTION_CHUNK:
+    results = imap_unordered(
+        _process_star,
+        ((task, context) for task in todo),
+        min(config.workers, len(todo)),
+        initializer=os.close,  # the worker's copy of the folder lock (see _exclusive)
+        initargs=(lock,),
+    )
+    try:
+        for result in results:
+            progress.update()
+            for step, seconds in result.seconds.items():
+                worker_seconds[step] += seconds
+            if result.error is not None:
+                skipped.append({"name": result.name, "path": result.path, "reason": result.error})
+                continue
+            built.append(result)
+            pending.append(result)
+            if len(pending) >= CAPTION_CHUNK:
+                flush()
+    finally:
+        # Clips whose motions are on disk get their texts (which mark them finished), also when
+        # a worker died or the user interrupted: a re-run then resumes after them.
+        if pending:
             flush()
-    if pending:
-        flush()
-    progress.close()
+        progress.close()
     timings["clips_s"] = time.perf_counter() - clock
+    for step, seconds in worker_seconds.items():
+        timings[f"worker_{step}_s"] = seconds
+    return built, skipped
 
-    # 3. Statistics and splits over every finished clip (this run's and earlier runs').
+
+def _finish(
+    config: BuildConfig,
+    all_tasks: Sequence[ClipTask],
+    tasks: Sequence[ClipTask],
+    built: Sequence[ClipResult],
+    skipped: list[dict],
+    timings: dict[str, float],
+    started: float,
+) -> dict:
+    """Statistics and splits over every finished clip (this run's and earlier runs'); the report."""
     clock = time.perf_counter()
     skipped_names = {entry["name"] for entry in skipped}
     finished = [
         t for t in tasks if t.name not in skipped_names and is_finished(config.out_dir, t.name)
     ]
     if not finished:
-        report = _report(config, tasks, built, skipped, [], timings, started, {})
-        _write_report(config.out_dir, report)
-        return report
+        return _report(config, all_tasks, built, skipped, [], timings, started, {})
     all_names = sorted(name for task in finished for name in (task.name, mirror_name(task.name)))
     mean, std, stats_info = compute_stats(config.out_dir, all_names)
     humanml3d.write_mean_std(config.out_dir, mean, std)
@@ -615,19 +917,14 @@ def build_dataset(config: BuildConfig) -> dict:
     )
     humanml3d.write_splits(config.out_dir, splits, split_names)
     timings["splits_s"] = time.perf_counter() - clock
-    for step, seconds in worker_seconds.items():
-        timings[f"worker_{step}_s"] = seconds
 
     stats_info["unassigned_to_splits"] = unassigned
     labels = config.input_dir / humanml3d.LABELS_FILE
     if labels.is_file():
         # Ground-truth labels of a procedural corpus travel with the dataset, for evaluation.
-        write_text_atomic(
-            config.out_dir / humanml3d.LABELS_FILE, labels.read_text(encoding="utf-8")
-        )
-    report = _report(config, tasks, built, skipped, finished, timings, started, stats_info)
+        write_bytes_atomic(config.out_dir / humanml3d.LABELS_FILE, labels.read_bytes())
+    report = _report(config, all_tasks, built, skipped, finished, timings, started, stats_info)
     report["splits"] = {split: len(names) for split, names in splits.items()}
-    _write_report(config.out_dir, report)
     return report
 
 
@@ -642,12 +939,7 @@ def _report(
     stats_info: dict,
 ) -> dict:
     """The content of ``build_report.json``."""
-    frames = 0
-    for task in finished:
-        features = np.load(
-            humanml3d.features_path(config.out_dir, task.name), mmap_mode="r", allow_pickle=False
-        )
-        frames += 2 * len(features)
+    frames = stats_info.pop("frames_out", 0)
     seconds_in = sum(r.source_frames / r.source_fps for r in built if r.source_fps > 0)
     timings["total_s"] = time.perf_counter() - started
     config_dict = {

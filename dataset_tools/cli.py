@@ -16,7 +16,7 @@ from dataset_tools.command import (
     config_from_args,
     option,
 )
-from dataset_tools.io import load_npy, save_npy_atomic
+from dataset_tools.io import check_output_file, load_npy, save_npy_atomic
 from dataset_tools.representation import (
     FeatureLayout,
     process_motion,
@@ -57,6 +57,33 @@ class RecoverConfig:
     the target skeleton"""
 
 
+def check_outputs(inputs: list[Path | None], outputs: list[tuple[str, Path | None]]) -> None:
+    """Before any work: every output can be written, and none is an input or another output
+    (an output written over an input would destroy the user's file). UsageError otherwise."""
+    seen: dict[Path, str] = {}
+    for path in inputs:
+        if path is not None:
+            seen[path.resolve()] = f"the input {path}"
+    for what, path in outputs:
+        if path is None:
+            continue
+        check_output_file(path, what)
+        if path.resolve() in seen:
+            raise UsageError(f"{what} {path} is {seen[path.resolve()]}; give another file name")
+        seen[path.resolve()] = f"the {what}"
+
+
+def finite_float32(array: np.ndarray, source: Path) -> np.ndarray:
+    """``array`` as float32 for writing; UsageError naming ``source`` when a value is not finite
+    in float32 (NaN, or beyond its range), so no command writes an array that would poison
+    every later step."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        result = np.asarray(array).astype(np.float32)
+    if not np.isfinite(result).all():
+        raise UsageError(f"{source}: the result is not finite in float32 (values out of range?)")
+    return result
+
+
 @command
 def features_main(argv: list[str] | None = None) -> int:
     parser = CommandParser(
@@ -66,6 +93,10 @@ def features_main(argv: list[str] | None = None) -> int:
     )
     add_config_options(parser, FeaturesConfig)
     config = config_from_args(FeaturesConfig, parser.parse_args(argv))
+    check_outputs(
+        [config.input, config.target_skeleton],
+        [("output", config.output), ("--joints-out", config.joints_out)],
+    )
     joints = load_npy(config.input)
     if joints.ndim != 3 or joints.shape[-1] != 3 or joints.shape[1] not in (21, 22):
         raise UsageError(f"{config.input}: expected joints (T, 22 or 21, 3), got {joints.shape}")
@@ -81,10 +112,17 @@ def features_main(argv: list[str] | None = None) -> int:
                 f"got {example.shape}"
             )
         offsets = target_offsets_from_example(example, skeleton)
-    features, recovered = process_motion(joints, skeleton, offsets, compat=not config.fixed_across)
-    save_npy_atomic(config.output, features.astype(np.float32))
+    try:
+        features, recovered = process_motion(
+            joints, skeleton, offsets, compat=not config.fixed_across
+        )
+    except ValueError as error:  # degenerate input (a documented refusal of process_motion)
+        raise UsageError(f"{config.input}: {error}") from None
+    features = finite_float32(features, config.input)
+    recovered = finite_float32(recovered, config.input)
+    save_npy_atomic(config.output, features)
     if config.joints_out is not None:
-        save_npy_atomic(config.joints_out, recovered.astype(np.float32))
+        save_npy_atomic(config.joints_out, recovered)
     return 0
 
 
@@ -96,6 +134,7 @@ def recover_main(argv: list[str] | None = None) -> int:
     )
     add_config_options(parser, RecoverConfig)
     config = config_from_args(RecoverConfig, parser.parse_args(argv))
+    check_outputs([config.input], [("output", config.output)])
     features = load_npy(config.input)
     dims = {FeatureLayout(joints).dim: joints for joints in (22, 21)}
     if features.ndim != 2 or features.shape[1] not in dims:
@@ -107,5 +146,5 @@ def recover_main(argv: list[str] | None = None) -> int:
         joints = recover_from_ric(features, num_joints)
     else:
         joints = recover_from_rot(features, skeleton_for(num_joints))
-    save_npy_atomic(config.output, joints.astype(np.float32))
+    save_npy_atomic(config.output, finite_float32(joints, config.input))
     return 0

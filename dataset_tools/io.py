@@ -1,10 +1,18 @@
-"""Atomic file writes (a reader never sees a half-written file, a crash leaves the old one), and
-the one reader of arrays that a user names on a command line (:func:`load_npy`).
+"""Atomic file writes (a reader never sees a half-written file, a crash leaves the old one), the
+checks of output paths before long work, and the readers of arrays that a user names
+(:func:`load_npy`, :func:`load_npz`).
 
 This is the one atomic writer of the project (datasets, checkpoints, renders, exports all use it).
-The temporary file is made beside the target (same file system, so the rename is atomic) and
+The temporary file is made beside the target (same file system, so the rename is atomic), named
+``.<stem>.<8 random characters>.partial<suffix>`` (:func:`is_partial_file`; a run killed while
+writing leaves one behind, which the next run removes with :func:`remove_partial_files`) and
 given the permissions an ordinary ``open(path, "w")`` would: ``0o666`` less the process umask
 (``tempfile.mkstemp`` alone makes 0600 files, unreadable by other users of a shared machine).
+
+Arrays are checked from their header before a byte of data is read: a header that claims more
+data than the file holds (or than the machine's memory), Python objects, strings and complex
+numbers are refused with one line naming the file, so a hostile file cannot make a reader
+allocate terabytes or run code.
 """
 
 from __future__ import annotations
@@ -12,10 +20,13 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import pickle
+import re
 import tempfile
-from collections.abc import Callable, Iterator
+import zipfile
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -31,6 +42,33 @@ def _current_umask() -> int:
     return mask
 
 
+_PARTIAL_TAG = ".partial"
+# ".<stem>.<mkstemp's 8 characters>.partial<suffix>": what atomic_output names its temporaries.
+_PARTIAL_NAME = re.compile(r"\..*\.[a-z0-9_]{8}\.partial(\.[^.]*)?")
+
+
+def is_partial_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is named like a temporary file of :func:`atomic_output`."""
+    return _PARTIAL_NAME.fullmatch(Path(path).name) is not None
+
+
+def remove_partial_files(folder: str | os.PathLike) -> list[Path]:
+    """Remove the temporary files that killed writers left directly in ``folder`` (only names
+    matching :func:`is_partial_file`, only plain files, no recursion); returns what was removed.
+
+    Call it only while no other process writes into ``folder``.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    removed = []
+    for entry in os.scandir(folder):
+        if entry.is_file(follow_symlinks=False) and is_partial_file(entry.name):
+            Path(entry.path).unlink(missing_ok=True)
+            removed.append(Path(entry.path))
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix) for a writer that wants a file name
@@ -41,7 +79,9 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+    handle, temp = tempfile.mkstemp(
+        dir=path.parent, prefix=f".{path.stem}.", suffix=f"{_PARTIAL_TAG}{path.suffix}"
+    )
     os.close(handle)
     try:
         os.chmod(temp, 0o666 & ~_current_umask())
@@ -80,33 +120,171 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
     return write_text_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
 
+# ----------------------------------------------------------------------------- output paths
+
+
+def _check_writable_place(path: Path, folder: Path, what: str) -> None:
+    """``folder`` (where ``path`` goes) exists as a writable folder or can be created: its
+    nearest existing ancestor is a folder we may write in."""
+    ancestor = folder
+    while not os.path.lexists(ancestor) and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise UsageError(f"{what} {path}: {ancestor} is a file, not a folder")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise UsageError(f"{what} {path}: no permission to write in {ancestor}")
+
+
+def check_output_file(path: str | os.PathLike, what: str = "output") -> Path:
+    """Raise UsageError (one line) unless a file can be written at ``path``: it is not a folder
+    and its folder is (or can be made) a writable folder. Call it before long work."""
+    path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{what} {path} is a folder; give a file name")
+    _check_writable_place(path, path.parent, what)
+    return path
+
+
+def check_output_folder(path: str | os.PathLike, what: str = "output folder") -> Path:
+    """Raise UsageError (one line) unless ``path`` is, or can be made, a writable folder.
+    Call it before long work."""
+    path = Path(path)
+    if os.path.lexists(path) and not path.is_dir():
+        raise UsageError(f"{what} {path} is a file, not a folder")
+    _check_writable_place(path, path, what)
+    return path
+
+
+# ----------------------------------------------------------------------------- reading arrays
+
 _NPY_MAGIC = b"\x93NUMPY"  # the first bytes of every .npy file
+_ZIP_MAGIC = b"PK\x03\x04"  # the first bytes of an .npz archive
 
 
-def load_npy(path: str | os.PathLike) -> np.ndarray:
-    """The array of a .npy file that a user named: numbers, all finite; pickles are never loaded.
+def memory_bytes() -> int:
+    """Physical memory of this machine in bytes (the bound on one array a reader will load)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not reported: no bound beyond the file size
+        return 1 << 62
 
-    Raises UsageError (one line naming the file) for a missing file, a file that is not a .npy
-    array (a text file, an .npz archive) or holds Python objects, non-numeric values, NaN or
-    infinity.
+
+def _format_bytes(count: int) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if count < 1024 or unit == "PiB":
+            return f"{count:.0f} {unit}" if unit == "bytes" else f"{count:.1f} {unit}"
+        count /= 1024
+    raise AssertionError("unreachable")
+
+
+def _read_header(file: IO[bytes]) -> tuple[tuple[int, ...], np.dtype]:
+    """(shape, dtype) from the header of the .npy stream ``file``, positioned after it.
+
+    Raises ValueError for a malformed header or a format version this reader does not take.
+    """
+    version = np.lib.format.read_magic(file)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(file)
+    elif version == (2, 0):
+        shape, _, dtype = np.lib.format.read_array_header_2_0(file)
+    else:
+        raise ValueError(f"unsupported .npy format version {version[0]}.{version[1]}")
+    return tuple(int(size) for size in shape), dtype
+
+
+def _check_header(
+    shape: tuple[int, ...], dtype: np.dtype, data_bytes: int, strings: bool = False
+) -> str | None:
+    """What is wrong with an array of ``shape`` and ``dtype`` stored in ``data_bytes`` bytes, or
+    None. Allowed: real numbers (and text, with ``strings``); never Python objects."""
+    if dtype.hasobject:
+        return "it holds Python objects (a pickle), which are never loaded"
+    numeric = np.issubdtype(dtype, np.number) and not np.issubdtype(dtype, np.complexfloating)
+    if not (numeric or (strings and dtype.kind in "US")):
+        return f"it holds {dtype} values, not real numbers"
+    claimed = math.prod(shape) * dtype.itemsize
+    if claimed != data_bytes:
+        return (
+            f"its header promises a {'x'.join(map(str, shape)) or 'scalar'} {dtype} array "
+            f"({_format_bytes(claimed)}) but the file holds {_format_bytes(data_bytes)}"
+        )
+    if claimed > memory_bytes():
+        return f"its {_format_bytes(claimed)} array is larger than this machine's memory"
+    return None
+
+
+def load_npy(path: str | os.PathLike, finite: bool = True) -> np.ndarray:
+    """The array of a .npy file that a user named: real numbers (all finite unless ``finite`` is
+    False); pickles are never loaded, and nothing is allocated before the header is checked
+    against the file's size.
+
+    Raises UsageError (one line naming the file) for a missing or empty file, a file that is not
+    a .npy array (a text file, an .npz archive), a header that does not match the file's size
+    or claims more than the machine's memory, Python objects, strings, complex numbers, and
+    (with ``finite``) NaN or infinity.
     """
     path = Path(path)
     if not path.is_file():
         raise UsageError(f"no such file: {path}")
     try:
         with open(path, "rb") as file:
-            is_npy = file.read(len(_NPY_MAGIC)) == _NPY_MAGIC
-        array = np.load(path, allow_pickle=False) if is_npy else None
-    except (OSError, ValueError) as error:
+            start = file.read(len(_NPY_MAGIC))
+            if not start:
+                raise UsageError(f"cannot read {path}: the file is empty")
+            if start.startswith(_ZIP_MAGIC):
+                raise UsageError(f"cannot read {path}: not a .npy file (an .npz archive)")
+            if start != _NPY_MAGIC:
+                raise UsageError(f"cannot read {path}: not a .npy file (no numpy header)")
+            file.seek(0)
+            shape, dtype = _read_header(file)
+            problem = _check_header(shape, dtype, os.fstat(file.fileno()).st_size - file.tell())
+            if problem is not None:
+                raise UsageError(f"cannot read {path}: {problem}")
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        if isinstance(error, UsageError):
+            raise
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise UsageError(f"cannot read {path} as a .npy array ({reason})") from error
-    if array is None:
-        raise UsageError(f"{path} is not a .npy file (no numpy header)")
-    if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
-        raise UsageError(f"{path} holds {array.dtype} values, not real numbers")
-    if not np.all(np.isfinite(array)):
+        raise UsageError(f"cannot read {path} as a .npy array ({reason})") from None
+    if finite and not np.all(np.isfinite(array)):
         raise UsageError(f"{path} contains NaN or infinite values")
     return array
+
+
+def load_npz(path: str | os.PathLike, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an .npz archive (all, or only ``keys`` that it holds): real numbers or text;
+    nothing is allocated before each member's header is checked against its stored size.
+
+    Raises UsageError (one line naming the file) for a missing file, a file that is not an .npz
+    archive, a member holding Python objects or complex numbers, or a member whose header does
+    not match its size or claims more than the machine's memory.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"no such file: {path}")
+    arrays = {}
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                key = info.filename.removesuffix(".npy")
+                if keys is not None and key not in keys:
+                    continue
+                with archive.open(info) as member:
+                    shape, dtype = _read_header(member)
+                    header_bytes = member.tell()
+                    problem = _check_header(
+                        shape, dtype, info.file_size - header_bytes, strings=True
+                    )
+                    if problem is not None:
+                        raise UsageError(f"cannot read {path}: member {key!r}: {problem}")
+                with archive.open(info) as member:
+                    arrays[key] = np.lib.format.read_array(member, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        if isinstance(error, UsageError):
+            raise
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise UsageError(f"cannot read {path} as an .npz archive ({reason})") from None
+    return arrays
 
 
 class _PlainUnpickler(pickle.Unpickler):

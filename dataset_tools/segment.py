@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dataset_tools.command import UsageError
+
 # Seconds of lead-in the reference pipeline drops before applying index frames (T-poses and
 # calibration moves at the start of these captures).
 LEADING_TRIM_SECONDS: dict[str, float] = {
@@ -91,24 +93,36 @@ class IndexRow:
 def read_index(path: str | Path) -> list[IndexRow]:
     """Read an ``index.csv`` (``source_path,start_frame,end_frame,new_name``).
 
-    Raises ValueError naming the line for a missing column or a non-integer frame.
+    Raises UsageError (a ValueError) naming the file, and the line where there is one, for a
+    file that is not UTF-8 CSV, a missing column, a non-integer or negative start frame, or an
+    end frame (other than -1) before its start.
     """
     path = Path(path)
     rows: list[IndexRow] = []
-    with path.open(newline="", encoding="utf-8") as handle:
-        reader = csv.DictReader(handle)
-        missing = {"source_path", "start_frame", "end_frame", "new_name"} - set(
-            reader.fieldnames or []
-        )
-        if missing:
-            raise ValueError(f"{path}: index is missing column(s) {sorted(missing)}")
-        for line_number, row in enumerate(reader, start=2):
-            try:
-                start, end = int(row["start_frame"]), int(row["end_frame"])
-            except (TypeError, ValueError):
-                raise ValueError(f"{path}:{line_number}: frames must be integers") from None
-            name = Path(row["new_name"]).stem
-            rows.append(IndexRow(row["source_path"], start, None if end < 0 else end, name))
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            reader = csv.DictReader(handle)
+            missing = {"source_path", "start_frame", "end_frame", "new_name"} - set(
+                reader.fieldnames or []
+            )
+            if missing:
+                raise UsageError(f"{path}: index is missing column(s) {sorted(missing)}")
+            for line_number, row in enumerate(reader, start=2):
+                try:
+                    start, end = int(row["start_frame"]), int(row["end_frame"])
+                except (TypeError, ValueError):
+                    raise UsageError(f"{path}:{line_number}: frames must be integers") from None
+                if start < 0 or (end >= 0 and end <= start):
+                    raise UsageError(
+                        f"{path}:{line_number}: frames {start}..{end} are not a segment "
+                        "(start >= 0, end > start or -1)"
+                    )
+                name = Path(row["new_name"] or "").stem
+                rows.append(
+                    IndexRow(row["source_path"] or "", start, None if end < 0 else end, name)
+                )
+    except (UnicodeDecodeError, csv.Error) as error:
+        raise UsageError(f"{path}: not a UTF-8 CSV index ({error})") from None
     return rows
 
 

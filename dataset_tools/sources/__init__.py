@@ -11,6 +11,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# Frame rates a source may have: below 1 fps resampling to 20 fps would multiply the frames
+# without bound; above 10 kHz no capture system records.
+MIN_FPS, MAX_FPS = 1.0, 10_000.0
+
+
+def fps_problem(fps: float) -> str | None:
+    """Why ``fps`` is not a usable frame rate (not a number in [MIN_FPS, MAX_FPS]), or None."""
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)):
+        return f"frame rate must be a number, got {fps!r}"
+    if not (MIN_FPS <= fps <= MAX_FPS):  # also refuses NaN
+        return f"frame rate must be between {MIN_FPS:g} and {MAX_FPS:g}, got {fps:g}"
+    return None
+
 
 class ClipError(ValueError):
     """A problem with one clip's data (unreadable or corrupt file, NaN frames, too few frames,

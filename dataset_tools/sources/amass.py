@@ -11,12 +11,13 @@ heavy dependencies for a dozen lines of numpy.)
 from __future__ import annotations
 
 import functools
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from dataset_tools.command import UsageError
+from dataset_tools.io import load_npz
 from dataset_tools.rotations import z_up_to_y_up
 from dataset_tools.sources import ClipError, Motion
 
@@ -50,31 +51,57 @@ class BodyModel:
         return self.j_regressor @ vertices
 
 
-def _npz(path: Path) -> dict[str, np.ndarray]:
+def _npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The members ``keys`` of an .npz file (those it has); ClipError when it is unreadable."""
     try:
-        with np.load(path, allow_pickle=False) as data:
-            return {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise ClipError(f"{path.name}: cannot read ({type(error).__name__}: {error})") from None
+        return load_npz(path, keys)
+    except UsageError as error:
+        raise ClipError(str(error)) from None
 
 
 @functools.cache
 def load_body_model(path: str) -> BodyModel:
-    """Read an SMPL-H ``model.npz`` (cached per process). Raises ValueError for missing keys."""
-    data = _npz(Path(path))
+    """Read an SMPL-H ``model.npz`` (cached per process). Raises ValueError for an unreadable
+    file or missing keys."""
+    data = _npz(Path(path), MODEL_KEYS)
     missing = [key for key in MODEL_KEYS if key not in data]
     if missing:
         raise ValueError(f"body model {path} lacks {missing}")
-    parents = data["kintree_table"][0].astype(np.int64)
+    template, directions = _numeric(data, "v_template"), _numeric(data, "shapedirs")
+    regressor, tree = _numeric(data, "J_regressor"), _numeric(data, "kintree_table")
+    vertices = template.shape[0] if template.ndim == 2 else -1
+    if not (
+        template.shape == (vertices, 3)
+        and directions.ndim == 3
+        and directions.shape[:2] == (vertices, 3)
+        and regressor.ndim == 2
+        and regressor.shape[1] == vertices
+        and tree.ndim == 2
+        and tree.shape[1] == regressor.shape[0]
+    ):
+        raise ValueError(
+            f"body model {path}: expected v_template (V, 3), shapedirs (V, 3, S), J_regressor "
+            f"(J, V) and kintree_table (2, J); got {template.shape}, {directions.shape}, "
+            f"{regressor.shape}, {tree.shape}"
+        )
+    parents = tree[0].astype(np.int64)
     parents[0] = -1  # stored as 2**32 - 1 in the released files
     if np.any(parents[1:] >= np.arange(1, len(parents))) or np.any(parents[1:] < 0):
         raise ValueError(f"body model {path}: kintree_table parents must precede children")
     return BodyModel(
-        v_template=data["v_template"].astype(np.float64),
-        shapedirs=data["shapedirs"].astype(np.float64),
-        j_regressor=np.asarray(data["J_regressor"], dtype=np.float64),
+        v_template=template.astype(np.float64),
+        shapedirs=directions.astype(np.float64),
+        j_regressor=regressor.astype(np.float64),
         parents=parents,
     )
+
+
+def _numeric(data: dict[str, np.ndarray], key: str) -> np.ndarray:
+    """``data[key]`` when it holds numbers; ClipError naming the key otherwise."""
+    value = data[key]
+    if not np.issubdtype(value.dtype, np.number):
+        raise ClipError(f"{key} holds {value.dtype} values, not numbers")
+    return value
 
 
 def axis_angle_to_matrix(axis_angle: np.ndarray) -> np.ndarray:
@@ -138,13 +165,14 @@ def load_amass(path: str | Path, body_model_dir: str | Path) -> Motion:
     wrong shapes or a missing body model.
     """
     path = Path(path)
-    data = _npz(path)
+    data = _npz(path, ("mocap_framerate", "poses", "trans", "betas", "gender"))
     if "mocap_framerate" not in data:
         raise ClipError("no mocap_framerate (not a motion file)")
     missing = [key for key in ("poses", "trans", "betas") if key not in data]
     if missing:
         raise ClipError(f"missing key(s) {missing}")
-    poses, trans = np.asarray(data["poses"], np.float64), np.asarray(data["trans"], np.float64)
+    poses = _numeric(data, "poses").astype(np.float64)
+    trans = _numeric(data, "trans").astype(np.float64)
     if poses.ndim != 2 or poses.shape[1] < 3 * NUM_JOINTS or trans.shape != (poses.shape[0], 3):
         raise ClipError(
             f"poses (T, 156) and trans (T, 3) expected, got {poses.shape}, {trans.shape}"
@@ -158,8 +186,11 @@ def load_amass(path: str | Path, body_model_dir: str | Path) -> Motion:
     model = load_body_model(str(model_path))
     if len(model.parents) != NUM_JOINTS:
         raise ValueError(f"body model has {len(model.parents)} joints, SMPL-H has {NUM_JOINTS}")
-    rest = model.rest_joints(data["betas"])
+    rest = model.rest_joints(_numeric(data, "betas"))
     joints = smplh_joints(poses[:, : 3 * NUM_JOINTS], trans, rest, model.parents)
-    fps = float(np.asarray(data["mocap_framerate"]).reshape(-1)[0])
+    framerate = _numeric(data, "mocap_framerate").reshape(-1)
+    if framerate.size != 1:
+        raise ClipError(f"mocap_framerate must be one number, got {framerate.size}")
+    fps = float(framerate[0])
     metadata = {"gender": gender, "body_model": str(model_path)}
     return Motion(joints=z_up_to_y_up(joints), fps=fps, metadata=metadata)

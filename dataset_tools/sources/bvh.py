@@ -118,6 +118,7 @@ def _check_mapping(mapping: JointMapping, where: str) -> JointMapping:
             and len(target) == 3
             and all(isinstance(part, str) for part in target[:2])
             and isinstance(target[2], (int, float))
+            and np.isfinite(target[2])
         )
         if not ok:
             raise ValueError(f"{where}: {smpl} must map to a joint name or [joint, joint, t]")
@@ -139,11 +140,13 @@ def load_mapping(spec: str | Path) -> JointMapping:
         )
     try:
         content = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
         raise ValueError(f"{path.name}: mapping is not valid JSON ({error})") from None
     if not isinstance(content, dict):
         raise ValueError(f"{path.name}: mapping must be a JSON object")
     joints = content.get("joints", content)
+    if not isinstance(joints, dict):
+        raise ValueError(f"{path.name}: mapping's joints must be a JSON object")
     return _check_mapping(
         JointMapping(path.stem, dict(joints), bool(content.get("drop_first_frame", False))),
         path.name,

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import json
 import logging
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from dataset_tools.command import UsageError
+from dataset_tools.io import load_npy
 from dataset_tools.rotations import to_y_up
-from dataset_tools.sources import ClipError, Motion
+from dataset_tools.sources import ClipError, Motion, fps_problem
 
 logger = logging.getLogger(__name__)
 
@@ -35,16 +36,24 @@ class JointsOptions:
 
 
 def read_source_config(input_dir: str | Path) -> dict:
-    """The folder's ``source.json`` as a dict ({} when absent). Raises ValueError if malformed."""
+    """The folder's ``source.json`` as a dict ({} when absent), its ``fps`` (when given) a usable
+    frame rate and its ``up`` (when given) "y" or "z".
+
+    Raises UsageError (one line naming the file) when it is malformed.
+    """
     path = Path(input_dir) / SOURCE_CONFIG
     if not path.is_file():
         return {}
     try:
         config = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise UsageError(f"{path}: not valid JSON ({error})") from None
     if not isinstance(config, dict):
-        raise ValueError(f"{path}: expected a JSON object")
+        raise UsageError(f"{path}: expected a JSON object")
+    if "fps" in config and (problem := fps_problem(config["fps"])) is not None:
+        raise UsageError(f"{path}: {problem}")
+    if config.get("up", "y") not in ("y", "z"):
+        raise UsageError(f"{path}: up must be 'y' or 'z', got {config['up']!r}")
     return config
 
 
@@ -62,9 +71,9 @@ def load_joints(path: str | Path, options: JointsOptions) -> Motion:
     """
     path = Path(path)
     try:
-        joints = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-        raise ClipError(f"cannot read joint array ({type(error).__name__}: {error})") from None
+        joints = load_npy(path, finite=False)  # NaN frames are counted by the build
+    except UsageError as error:
+        raise ClipError(str(error)) from None
     if joints.ndim != 3 or joints.shape[1] < 22 or joints.shape[2] != 3:
         raise ClipError(f"joint array must be (T, >=22, 3), got {joints.shape}")
     joints_in_file = joints.shape[1]

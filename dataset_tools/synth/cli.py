@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +17,7 @@ from dataset_tools.command import (
     config_from_args,
     configure_logging,
 )
+from dataset_tools.io import check_output_file, load_npy
 from dataset_tools.rotations import to_y_up
 
 
@@ -40,6 +41,10 @@ class SynthConfig:
     """no progress bar"""
 
 
+MAX_SHEET_CLIPS = 64
+MAX_SHEET_FRAMES = 32
+
+
 @dataclass
 class ContactSheetConfig:
     """``python -m dataset_tools contact-sheet``."""
@@ -58,8 +63,16 @@ class ContactSheetConfig:
     """camera azimuth in degrees"""
 
     def __post_init__(self) -> None:
-        if self.clips < 1 or self.frames < 1:
-            raise UsageError("--clips and --frames must be at least 1")
+        # The sheet is one image of clips x frames figures: bounded so that it fits in memory.
+        if not (1 <= self.clips <= MAX_SHEET_CLIPS and 1 <= self.frames <= MAX_SHEET_FRAMES):
+            raise UsageError(
+                f"--clips must be between 1 and {MAX_SHEET_CLIPS} and --frames between 1 and "
+                f"{MAX_SHEET_FRAMES}, got {self.clips} and {self.frames}"
+            )
+        if not math.isfinite(self.azimuth):
+            raise UsageError(f"--azimuth must be a number of degrees, got {self.azimuth}")
+        if self.seed < 0:
+            raise UsageError(f"--seed must be 0 or more, got {self.seed}")
 
 
 @command
@@ -94,12 +107,12 @@ def _load_for_sheet(
     """(joints y-up, caption) of ``count`` random clips of a synth corpus (``joints/``, any up
     axis and fps, per its ``source.json``) or a HumanML3D folder (``new_joints/``, y-up, 20 fps),
     and their fps."""
+    from dataset_tools.sources.joints import read_source_config
+
     rng = np.random.default_rng(seed)
     if (folder / "source.json").exists() and (folder / "joints").is_dir():
-        source = json.loads((folder / "source.json").read_text(encoding="utf-8"))
+        source = read_source_config(folder)  # checks fps and up
         up = source.get("up", "y")
-        if up not in ("y", "z"):
-            raise UsageError(f"{folder}/source.json: up must be 'y' or 'z'")
         files, fps = sorted((folder / "joints").glob("*.npy")), float(source.get("fps", 60))
     elif (folder / humanml3d.JOINTS_DIR).is_dir():
         files, fps, up = sorted((folder / humanml3d.JOINTS_DIR).glob("*.npy")), 20.0, "y"
@@ -116,10 +129,17 @@ def _load_for_sheet(
         caption = path.stem
         # Corpus captions are plain lines, HumanML3D's tagged ones; the first line is shown.
         text_path = humanml3d.texts_path(folder, path.stem)
-        lines = text_path.read_text(encoding="utf-8").splitlines() if text_path.exists() else []
-        if lines and lines[0].strip():
-            caption = f"{path.stem}: {humanml3d.parse_caption_line(lines[0], str(text_path)).text}"
-        clips.append((to_y_up(np.load(path, allow_pickle=False), up), caption))
+        try:
+            lines = text_path.read_text(encoding="utf-8").splitlines() if text_path.exists() else []
+            if lines and lines[0].strip():
+                text = humanml3d.parse_caption_line(lines[0], str(text_path)).text
+                caption = f"{path.stem}: {text}"
+        except (OSError, ValueError) as error:  # not UTF-8, or a malformed line
+            raise UsageError(f"cannot read {text_path}: {error}") from None
+        joints = load_npy(path)
+        if joints.ndim != 3 or joints.shape[1] < 22 or joints.shape[2] != 3 or len(joints) < 1:
+            raise UsageError(f"{path}: expected joints (T, >=22, 3), got {joints.shape}")
+        clips.append((to_y_up(joints[:, :22], up), caption))
     return clips, fps
 
 
@@ -135,6 +155,9 @@ def contact_sheet_main(argv: list[str] | None = None) -> int:
     )
     add_config_options(parser, ContactSheetConfig)
     config = config_from_args(ContactSheetConfig, parser.parse_args(argv))
+    check_output_file(config.out, "--out")
+    if not config.input.is_dir():
+        raise UsageError(f"--input folder {config.input} does not exist")
     clips, fps = _load_for_sheet(config.input, config.clips, config.seed)
     render_contact_sheet(
         clips, config.out, frames_per_clip=config.frames, azimuth_deg=config.azimuth, fps=fps

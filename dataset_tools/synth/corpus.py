@@ -11,13 +11,17 @@ of the builder's z-up reader, so building restores the generated y-up motion exa
 
 Clip ``i`` of seed ``s`` is generated from its own random streams (``[s, i]`` for the motion,
 ``[s, i, 1]`` for the captions): the corpus does not depend on the number of workers, and the
-same seed gives the same bytes.
+same seed gives the same bytes. ``source.json`` is written last: a folder without it is an
+unfinished corpus (a killed run), which ``--force`` replaces. Replacing removes only files this
+writer names (``synth_NNNNNN.npy|txt``, ``labels.json``, ``source.json``, temporaries); a folder
+holding anything else is refused.
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing
+import os
+import re
 import shutil
 from dataclasses import asdict
 from pathlib import Path
@@ -27,7 +31,14 @@ from tqdm import tqdm
 
 from dataset_tools.command import UsageError
 from dataset_tools.humanml3d import LABELS_FILE
-from dataset_tools.io import save_npy_atomic, write_json_atomic, write_text_atomic
+from dataset_tools.io import (
+    check_output_folder,
+    is_partial_file,
+    save_npy_atomic,
+    write_json_atomic,
+    write_text_atomic,
+)
+from dataset_tools.parallel import imap_unordered
 from dataset_tools.rotations import y_up_to_z_up, z_up_to_y_up
 from dataset_tools.synth.captions import captions_for
 from dataset_tools.synth.clip import FPS, synthesize_clip
@@ -36,6 +47,13 @@ log = logging.getLogger(__name__)
 
 GENERATOR = "dataset_tools.synth"
 FORMAT_VERSION = 1
+SOURCE_FILE = "source.json"
+# The demo corpus is meant for thousands of clips (HumanML3D has 14,616); labels of every clip
+# are held in memory until the end.
+MAX_CLIPS = 200_000
+# Disk use of one clip, rounded up from the longest clips (joints ~158 KB, texts and label).
+BYTES_PER_CLIP = 170_000
+_CLIP_FILE = re.compile(r"synth_\d{6,}\.(npy|txt)")
 
 
 def clip_name(index: int) -> str:
@@ -79,15 +97,20 @@ def write_corpus(
 ) -> dict:
     """Generate ``clips`` clips into ``out`` (layout in the module docstring); returns source.json.
 
-    Raises UsageError (a ValueError) for a non-positive clip count or worker count, or when
-    ``out`` already holds a corpus and ``force`` is not set (a forced write removes the old clips
-    first); nothing is written then.
+    Raises UsageError (a ValueError), before anything is written, for a clip count outside
+    [1, MAX_CLIPS], a worker count outside [1, 4 per CPU core], a negative seed, an output
+    folder that cannot be written or lacks the disk space, or when ``out`` already holds a
+    corpus and ``force`` is not set (a forced write removes the old corpus's files first, and
+    refuses a folder holding files it did not write). ChildProcessError when a worker dies.
     """
-    if clips < 1:
-        raise UsageError(f"--clips must be at least 1, got {clips}")
-    if workers < 1:
-        raise UsageError(f"--workers must be at least 1, got {workers}")
-    out = Path(out)
+    most_workers = 4 * (os.cpu_count() or 1)
+    if not 1 <= clips <= MAX_CLIPS:
+        raise UsageError(f"--clips must be between 1 and {MAX_CLIPS}, got {clips}")
+    if not 1 <= workers <= most_workers:
+        raise UsageError(f"--workers must be between 1 and {most_workers}, got {workers}")
+    if seed < 0:
+        raise UsageError(f"--seed must be 0 or more, got {seed}")
+    out = check_output_folder(out, "--out folder")
     source = {
         "fps": int(FPS),
         "up": "z",
@@ -98,33 +121,63 @@ def write_corpus(
         "clips": int(clips),
         "heldout_phrasings": bool(heldout_phrasings),
     }
-    existing = out / "source.json"
-    if (out / "joints").exists() or existing.exists():
+    existing = out / SOURCE_FILE
+    if (out / "joints").exists() or (out / "texts").exists() or existing.exists():
         if not force:
             raise UsageError(f"{out} already holds a corpus; pass --force to replace it")
-        for sub in ("joints", "texts"):
-            shutil.rmtree(out / sub, ignore_errors=True)
+        _remove_corpus(out)
+    _check_disk_space(out, clips)
     (out / "joints").mkdir(parents=True, exist_ok=True)
     (out / "texts").mkdir(parents=True, exist_ok=True)
 
-    jobs = [(str(out), int(seed), i, bool(heldout_phrasings)) for i in range(clips)]
+    jobs = ((str(out), int(seed), i, bool(heldout_phrasings)) for i in range(clips))
     labels: dict[str, dict] = {}
     bar = tqdm(total=clips, desc="synth", unit="clip", disable=not progress)
-    if workers == 1:
-        results = map(_write_one, jobs)
-        for name, label in results:
-            labels[name] = label
-            bar.update()
-    else:
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
-            for name, label in pool.imap(_write_one, jobs, chunksize=8):
-                labels[name] = label
-                bar.update()
+    for name, label in imap_unordered(_write_one, jobs, min(workers, clips)):
+        labels[name] = label
+        bar.update()
     bar.close()
+    labels = {name: labels[name] for name in sorted(labels)}  # bytes independent of workers
     write_json_atomic(out / LABELS_FILE, {"fps": int(FPS), "up": "z", "clips": labels})
     write_json_atomic(existing, source)
     log.info("wrote %d clips to %s", clips, out)
     return source
+
+
+def _remove_corpus(out: Path) -> None:
+    """Remove the files of an earlier (or killed) corpus in ``out``; UsageError, removing
+    nothing, when ``joints/`` or ``texts/`` hold anything this writer does not name."""
+    for sub in ("joints", "texts"):
+        folder = out / sub
+        if folder.exists() and not folder.is_dir():
+            raise UsageError(f"{folder} is a file; choose another --out")
+        for entry in folder.iterdir() if folder.is_dir() else ():
+            if not (
+                entry.is_file() and (_CLIP_FILE.fullmatch(entry.name) or is_partial_file(entry))
+            ):
+                raise UsageError(
+                    f"{folder} holds {entry.name}, which synth did not write; "
+                    "choose another --out (nothing was removed)"
+                )
+    for sub in ("joints", "texts"):
+        if (out / sub).is_dir():
+            for entry in (out / sub).iterdir():
+                entry.unlink()
+    for name in (LABELS_FILE, SOURCE_FILE):
+        (out / name).unlink(missing_ok=True)
+
+
+def _check_disk_space(out: Path, clips: int) -> None:
+    """UsageError when the corpus would not fit on the disk that holds ``out``."""
+    existing = out
+    while not existing.exists():
+        existing = existing.parent
+    needed, free = clips * BYTES_PER_CLIP, shutil.disk_usage(existing).free
+    if needed > free:
+        raise UsageError(
+            f"{clips} clips need about {needed / 1e9:.1f} GB but {out} has {free / 1e9:.1f} GB "
+            "free; ask for fewer --clips"
+        )
 
 
 def load_clip(corpus: str | Path, name: str) -> tuple[np.ndarray, list[str], dict]:
