@@ -349,7 +349,9 @@ def read_glove_folder(folder: str | Path, max_tokens: int = 20) -> WordVectors:
     if not isinstance(words, list) or not all(isinstance(w, str) for w in words):
         raise UsageError(f"{words_file}: expected a list of words")
     if not isinstance(rows, dict) or set(rows) != set(words):
-        raise UsageError(f"{index_file}: expected a dict from each word of {words_file.name} to a row")
+        raise UsageError(
+            f"{index_file}: expected a dict from each word of {words_file.name} to a row"
+        )
     if sorted(rows.values()) != list(range(len(vectors))):
         raise UsageError(f"{index_file}: rows must number the {len(vectors)} vectors once each")
     by_row = sorted(rows, key=rows.__getitem__)
