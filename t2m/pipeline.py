@@ -256,9 +256,9 @@ class TextToMotion:
             try:
                 return load_stage(run_dir, stage, resolved, which)
             except ValueError as error:
-                if "make " in str(error):
+                if "make " in str(error):  # it already says what to run
                     raise
-                raise ValueError(f"{error} (train it with {retrain[stage]})") from None
+                raise UsageError(f"{error} (train it with {retrain[stage]})") from None
 
         t2m = load("generator")
         length = load("length") if need_length_model else None
@@ -401,9 +401,17 @@ class TextToMotion:
             self.initial_code,
             generator,
         )
-        normalised = self.decoder(codes.to(self.decoder_dtype)).float()  # (B, 4 S, D)
-        features = self.normalizer.denormalize(normalised).cpu().numpy()
-        return [features[i, :length] for i, length in enumerate(frames)]
+        # Decode each length on its own: the transposed convolutions would carry the padding
+        # past a shorter item's end into its last frames (a batch must give what batch 1 gives).
+        features: list[np.ndarray] = [np.empty(0)] * len(frames)
+        for steps in sorted(set(num_snippets.tolist())):
+            rows = [i for i, n in enumerate(num_snippets.tolist()) if n == steps]
+            group = codes[rows, :steps].to(self.decoder_dtype)  # (G, steps, C)
+            normalised = self.decoder(group).float()  # (G, unit * steps, D)
+            decoded = self.normalizer.denormalize(normalised).cpu().numpy()
+            for row, item in zip(rows, decoded):
+                features[row] = item[: frames[row]]
+        return features
 
     def generate(
         self,

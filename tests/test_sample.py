@@ -343,3 +343,22 @@ def test_reduced_precision_stays_close_to_fp32(tiny_run, pipe, precision):
 def test_bad_precision_is_a_value_error(tiny_run):
     with pytest.raises(ValueError, match="precision"):
         TextToMotion.from_checkpoints(tiny_run, precision="fp16")
+
+
+def test_batched_decoding_gives_what_each_motion_decoded_alone_gives(pipe, monkeypatch):
+    import torch
+
+    prepared = pipe.prepare(["a person walks forward", "a person jumps", "a person walks back"])
+    frames = [48, 80, 64]
+    unit = pipe.spec.snippet_length
+    codes = torch.randn(3, max(frames) // unit, pipe.initial_code.shape[-1])
+    for row, length in enumerate(frames):
+        codes[row, length // unit :] = 0.0  # as generate leaves the rows past an item's end
+    monkeypatch.setattr(pipe.vae, "generate", lambda *args, **kwargs: codes)
+    batched = pipe.generate_features([p.encoded for p in prepared], frames, torch.Generator())
+    for row, length in enumerate(frames):
+        with torch.no_grad():
+            alone = pipe.decoder(codes[row : row + 1, : length // unit]).float()
+        expected = pipe.normalizer.denormalize(alone).numpy()[0]
+        assert batched[row].shape == (length, pipe.normalizer.dim)
+        np.testing.assert_allclose(batched[row], expected, rtol=1e-5, atol=1e-5)
