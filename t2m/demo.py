@@ -28,7 +28,8 @@ from dataset_tools.command import (
     configure_logging,
     option,
 )
-from t2m.config import PRESETS, preset
+from t2m.config import PRESETS, check_seed, preset
+from t2m.train.logbook import read_records
 from t2m.train.stage import FINISHED
 from t2m.train.stages import STAGES, train_stage
 
@@ -78,12 +79,8 @@ def final_losses(run_dir: Path) -> dict[str, dict]:
     """The last validation record of each stage (from its metrics.jsonl)."""
     losses = {}
     for stage in STAGES:
-        path = stage.folder(run_dir) / "metrics.jsonl"
-        if not path.is_file():
-            continue
         last = None
-        for line in path.read_text(encoding="utf-8").splitlines():
-            record = json.loads(line)
+        for record in read_records(stage.folder(run_dir) / "metrics.jsonl"):
             if record.get("split") == "val":
                 last = record
         if last:
@@ -146,6 +143,7 @@ class DemoConfig:
         for name in ("clips", "samples", "workers"):
             if getattr(self, name) < 1:
                 raise UsageError(f"--{name} must be at least 1, got {getattr(self, name)}")
+        check_seed(self.seed)
 
 
 def run_demo(config: DemoConfig) -> str:

@@ -53,6 +53,8 @@ class TrainOptions:
     """run folder (default: checkpoints/<preset>)"""
     resume: bool = False
     """continue from the stage's latest.pt"""
+    force: bool = False
+    """retrain a stage whose folder already holds a run (its best.pt is replaced)"""
     device: str | None = None
     """auto, cpu, cuda, cuda:N (default: the config's, auto)"""
     bf16: bool | None = None
@@ -122,7 +124,12 @@ def main(argv: list[str] | None = None) -> int:
     stage = find_stage(options.stage).name
     start = time.time()
     stage_dir = train_stage(
-        stage, config, options.dataset, options.run_dir(), resume=options.resume
+        stage,
+        config,
+        options.dataset,
+        options.run_dir(),
+        resume=options.resume,
+        force=options.force,
     )
     logger.info("%s trained in %.0f s: %s", stage, time.time() - start, stage_dir)
     return 0
