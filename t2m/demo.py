@@ -23,6 +23,7 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
+    check_output_path,
     command,
     config_from_args,
     configure_logging,
@@ -150,6 +151,12 @@ def run_demo(config: DemoConfig) -> str:
     """Run every step that has no result yet; return the summary text."""
     start = time.perf_counter()
     dataset, run_dir, out = config.dataset, config.checkpoints, config.out
+    eval_dir = out.parent / f"{out.name}_eval"
+    # 0. the output folders, before the long work (the samples replace only an earlier demo's)
+    from t2m.sample import check_out
+
+    check_out(out, overwrite=True)
+    check_output_path(eval_dir, "the evaluation folder", folder=True)
     # 1. dataset
     if _dataset_ready(dataset):
         logger.info("dataset %s exists: reused", dataset)
@@ -161,7 +168,6 @@ def run_demo(config: DemoConfig) -> str:
     # 3. samples
     sample_prompts(run_dir, out, config.samples, config.render, config.seed)
     # 4. evaluation
-    eval_dir = out.parent / f"{out.name}_eval"
     quick_evaluation(dataset, run_dir, eval_dir)
     table = (eval_dir / "results.md").read_text(encoding="utf-8")
 
