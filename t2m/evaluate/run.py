@@ -14,7 +14,7 @@ from typing import Any
 
 import torch
 
-from dataset_tools.command import UsageError
+from dataset_tools.command import UsageError, check_output_path
 from dataset_tools.skeleton import spec_for_folder
 from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
@@ -40,8 +40,8 @@ def check_inputs(
         raise UsageError(f"--dataset {dataset_dir}: no split file {split_file.name} (--split)")
     if not split_file.read_text(encoding="utf-8").strip():
         raise UsageError(f"--split {split}: {split_file} lists no clip")
-    if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
-        raise UsageError(f"--out {out_dir} exists and is not a folder")
+    if out_dir is not None:
+        check_output_path(out_dir, "--out", folder=True)
 
 
 def evaluate(
