@@ -46,7 +46,7 @@ class ExportCommandConfig:
         if self.output.suffix.lower() != ".bvh":
             raise UsageError(f"output must end in .bvh, got {self.output.name!r}")
         if self.fps is not None and not 0 < self.fps < math.inf:
-            raise UsageError(f"--fps must be a positive number, got {self.fps}")
+            raise UsageError(f"--fps must be positive and finite, got {self.fps}")
         check_output_path(self.output, "output")
 
 

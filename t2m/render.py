@@ -48,7 +48,7 @@ class RenderCommandConfig:
         if self.output.suffix.lower() not in SUFFIXES:
             raise UsageError(f"output must end in {', '.join(SUFFIXES)}, got {self.output.name!r}")
         if self.fps is not None and not 0 < self.fps < math.inf:
-            raise UsageError(f"--fps must be a positive number, got {self.fps}")
+            raise UsageError(f"--fps must be positive and finite, got {self.fps}")
         check_output_path(self.output, "output")
         if self.keyframes < 1:
             raise UsageError(f"--keyframes must be at least 1, got {self.keyframes}")

@@ -145,11 +145,14 @@ def _written_files(folder: Path) -> set[str] | None:
 def check_out(out: str | Path, overwrite: bool) -> Path:
     """Check that ``out`` can take the results (before any model work); returns it resolved.
 
-    A missing or empty folder is fine; a non-empty one only with ``overwrite`` and only when
+    First removes what killed runs left beside it (:func:`clean_stale`). A missing or empty
+    folder is fine; a non-empty one only with ``overwrite`` and only when
     this tool wrote it (our marker) and everything in it is a file the marker lists, since
     ``--overwrite`` replaces the whole folder. Raises UsageError (one line) otherwise.
     """
     out = check_output_path(Path(out).resolve(), "--out", folder=True)
+    if out.parent.is_dir():
+        clean_stale(out)
     if not out.is_dir() or not any(out.iterdir()):
         return out
     if not overwrite:
@@ -211,12 +214,11 @@ def _write_marker(folder: Path, files: Sequence[str]) -> None:
 
 
 def _prepare_out(out: Path, overwrite: bool) -> Path:
-    """Check ``out``, clean what killed runs left beside it, and create the hidden temp folder
-    (marked as ours from the start) that the results are written into."""
+    """Check ``out`` and create the hidden temp folder beside it (marked as ours from the
+    start) that the results are written into."""
     out = check_out(out, overwrite)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        clean_stale(out)
         tmp = Path(
             tempfile.mkdtemp(prefix=f".{out.name}.{os.getpid()}.", suffix=".tmp", dir=out.parent)
         )

@@ -40,6 +40,11 @@ def read_records(path: Path) -> list[dict[str, Any]]:
     return records
 
 
+def _step(record: dict[str, Any]) -> int:
+    step = record.get("step", 0)
+    return step if isinstance(step, int) else 0
+
+
 class Logbook:
     """Appends one JSON object per record to ``metrics.jsonl`` and redraws ``curves.png``.
 
@@ -90,11 +95,6 @@ class Logbook:
 
     def records(self) -> list[dict[str, Any]]:
         return read_records(self.path)
-
-
-def _step(record: dict[str, Any]) -> int:
-    step = record.get("step", 0)
-    return step if isinstance(step, int) else 0
 
     def draw(self, force: bool = True, min_interval_s: float = 60.0) -> None:
         """Plot every numeric metric against the step, train and val, one panel per metric.
