@@ -257,29 +257,31 @@ def _gib(count: int) -> str:
 
 
 def check_resources(
-    frames: Sequence[int], spec: DatasetSpec, out: Path, render: str, bvh: bool
+    frames: Sequence[int], num_samples: int, spec: DatasetSpec, out: Path, render: str, bvh: bool
 ) -> None:
     """Refuse, before generating, a request whose motions cannot fit in memory or on disk.
 
-    ``frames``: the length of every motion (the longest possible where it is drawn later).
+    ``frames``: the length of each prompt's motions (the longest possible where it is drawn
+    later); ``num_samples`` motions each.
     Generation keeps every motion in memory until the end, since ``results.npy`` holds them all:
     joints and features per motion plus the (N, J, 3, T_max) array of ``results.npy``. The files
     are those and the per-motion animations and BVH files. UsageError when either estimate
     exceeds what is free.
     """
     joint_values, feature_values = spec.num_joints * 3, spec.feature_dim
-    in_memory = 4 * sum(frames) * (joint_values + feature_values)
-    results = 4 * len(frames) * max(frames) * joint_values
+    num_motions, total_frames = len(frames) * num_samples, sum(frames) * num_samples
+    in_memory = 4 * total_frames * (joint_values + feature_values)
+    results = 4 * num_motions * max(frames) * joint_values
     per_frame_files = RENDER_BYTES_PER_FRAME[render] + (BVH_BYTES_PER_FRAME if bvh else 0)
     memory = in_memory + results
-    disk = in_memory + results + sum(frames) * per_frame_files
+    disk = in_memory + results + total_frames * per_frame_files
     from t2m.train.runtime import available_memory
 
     available = available_memory()
     advice = "lower --num-samples or give fewer prompts per run"
     if available is not None and memory > available:
         raise UsageError(
-            f"{len(frames)} motions need about {_gib(memory)} of memory, {_gib(available)} is "
+            f"{num_motions} motions need about {_gib(memory)} of memory, {_gib(available)} is "
             f"available; {advice}"
         )
     folder = out.parent
@@ -288,7 +290,7 @@ def check_resources(
     free = shutil.disk_usage(folder).free
     if disk > free:
         raise UsageError(
-            f"{len(frames)} motions need about {_gib(disk)} on disk, {_gib(free)} is free in "
+            f"{num_motions} motions need about {_gib(disk)} on disk, {_gib(free)} is free in "
             f"{folder}; {advice}"
         )
 
@@ -334,8 +336,8 @@ def sample_to_folder(
     out = Path(out).resolve()  # "." has no name to put a temp folder beside
     # 1. where to write, and whether it fits (fails early, before any model work)
     longest = pipe.spec.max_frames
-    frames = [min(p.frames or longest, longest) for p in prompts for _ in range(num_samples)]
-    check_resources(frames, pipe.spec, out, render, bvh)
+    frames = [min(p.frames or longest, longest) for p in prompts]
+    check_resources(frames, num_samples, pipe.spec, out, render, bvh)
     tmp = _prepare_out(out, overwrite)
     try:
         # 2. generate
