@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import types
 import typing
 from collections.abc import Callable
@@ -530,6 +531,14 @@ def check_seed(seed: int, option: str = "--seed") -> None:
         raise UsageError(f"{option} must be from 0 to 2**63 - 1, got {seed}")
 
 
+def check_threads(threads: int, option: str = "--threads") -> None:
+    """UsageError (a ValueError) for a thread count outside ``0 .. the machine's CPUs`` (0: torch's
+    choice); torch crashes on a count far beyond them."""
+    cpus = os.cpu_count() or 1
+    if not 0 <= threads <= cpus:
+        raise UsageError(f"{option} must be from 0 to {cpus} (this machine's CPUs), got {threads}")
+
+
 def _check_numbers(node: Any, where: str) -> None:
     """Every float of a config section finite; every int of a model section at least 1."""
     model = "model" in where.split(".")
@@ -549,8 +558,7 @@ def validate(cfg: Config) -> None:
     """Raise ValueError for settings that cannot work together or would train nothing (see also
     :func:`validate_for_spec`, the checks against the dataset)."""
     check_seed(cfg.seed, "seed")
-    if cfg.num_threads < 0:
-        raise ValueError(f"num_threads must be >= 0, got {cfg.num_threads}")
+    check_threads(cfg.num_threads, "num_threads")
     _check_numbers(cfg, "")
     data = cfg.data
     if data.max_text_tokens < 1 or data.trainable_word_dim < 1 or not data.feature_bias > 0:

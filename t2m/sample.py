@@ -45,7 +45,7 @@ from dataset_tools.command import (
     option,
 )
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
-from t2m.config import check_seed
+from t2m.config import check_seed, check_threads
 from t2m.pipeline import GeneratedMotion
 
 logger = logging.getLogger("t2m.sample")
@@ -433,11 +433,7 @@ class SampleConfig:
             raise UsageError("give one of --length and --seconds")
         if self.num_samples < 1 or self.batch_size < 1:
             raise UsageError("--num-samples and --batch-size must be at least 1")
-        if not 0 <= self.threads <= (os.cpu_count() or 1):
-            raise UsageError(
-                f"--threads must be from 0 to {os.cpu_count() or 1} (this machine's CPUs), "
-                f"got {self.threads}"
-            )
+        check_threads(self.threads)
         if self.text_file is not None and not self.text_file.is_file():
             raise UsageError(f"--text-file {self.text_file} is not a file")
         check_seed(self.seed)

@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 from dataset_tools.command import UsageError, option
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
-from t2m.config import check_seed
+from t2m.config import check_seed, check_threads
 from t2m.data.dataset import Caption, Clip
 from t2m.evaluate import metrics
 from t2m.evaluate.backend import Backend
@@ -131,6 +131,7 @@ class EvalConfig:
                 name = "threads" if key == "num_threads" else key.replace("_", "-")
                 raise UsageError(f"--{name} must be >= {least}, got {value}")
         check_seed(self.seed)
+        check_threads(self.num_threads)
 
 
 STANDARD = EvalConfig()

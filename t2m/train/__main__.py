@@ -25,6 +25,7 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
+    check_output_path,
     command,
     config_from_args,
     configure_logging,
@@ -122,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         print(config.to_json())
         return 0
     stage = find_stage(options.stage).name
+    check_output_path(options.run_dir(), "--checkpoints", folder=True)
     start = time.time()
     stage_dir = train_stage(
         stage,

@@ -243,6 +243,7 @@ def _train_argv(dataset: Path, run_dir: Path, stage: str = "autoencoder") -> lis
         ("--generator.patience=0", "generator.patience"),
         ("--generator.kl_weight=inf", "finite number"),
         ("--seed=-1", "seed must be from 0"),
+        ("--num_threads=100000", "num_threads must be from 0"),  # torch would crash
         ("--autoencoder.batch_size=1000", "fewer than one batch of autoencoder.batch_size=1000"),
     ],
 )
@@ -252,6 +253,15 @@ def test_training_that_trains_nothing_is_refused_before_any_work(
     assert train_main([*_train_argv(tiny_dataset, tmp_path / "run"), override]) == 2
     one_line(capsys.readouterr().err, needle)
     assert not (tmp_path / "run" / "autoencoder").exists()
+
+
+def test_checkpoints_under_a_file_is_refused_before_any_work(tiny_dataset, tmp_path, capsys):
+    file = tmp_path / "file"
+    file.write_text("mine")
+    for run_dir, needle in ((file, "exists and is not a folder"), (file / "run", "is a file")):
+        assert train_main(_train_argv(tiny_dataset, run_dir)) == 2
+        one_line(capsys.readouterr().err, "--checkpoints", needle)
+    assert file.read_text() == "mine"
 
 
 def test_generator_without_a_clip_long_enough_is_refused(tiny_dataset, tiny_run, tmp_path, capsys):
@@ -356,6 +366,7 @@ def test_one_replication_reports_no_interval(tiny_dataset, tiny_run, tmp_path, c
         (["--split", "all", "--mm-samples", str(10**9)], "GiB of memory"),
         (["--seed", "-1"], "--seed must be from 0"),
         (["--replications", "0"], "--replications must be >= 1"),
+        (["--threads", "100000"], "--threads must be from 0"),
     ],
 )
 def test_bad_evaluation_settings_say_what_is_wrong(
@@ -379,6 +390,13 @@ def test_evaluation_out_and_garbage_checkpoints_fail_before_the_work(
     assert code == 2
     one_line(err, "exists and is not a folder")
     assert file.read_text() == "mine"
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "results.md").write_text("my own results")
+    code, err = _evaluate(capsys, tiny_dataset, tiny_run, notes)
+    assert code == 2
+    one_line(err, "that no evaluation wrote")
+    assert (notes / "results.md").read_text() == "my own results"
     for name, content in (("empty", b""), ("truncated", None)):
         broken = tmp_path / name
         shutil.copytree(tiny_run, broken)
