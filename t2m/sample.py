@@ -13,7 +13,12 @@ Writes into ``--out`` (default ``outputs/<timestamp>/``), per prompt NN and samp
 ``motion`` (N, 22, 3, T_max), ``text``, ``lengths``, ``num_samples``, ``num_repetitions``; motion
 ``i = rep * num_samples + prompt``, padded past its length with its last pose) and
 ``results.json``. Everything is written into a hidden folder beside ``--out`` and renamed at the
-end, so an error leaves nothing half-written. Exit status 2 with a one-line message on bad input.
+end, so an error leaves nothing half-written; the hidden folder of a killed run is removed by the
+next run into the same ``--out``. Every output folder holds ``.t2m-sample.json``, the list of the
+files written there: ``--overwrite`` replaces only such a folder, and only while it holds nothing
+else. Before generating, the memory and disk the request needs are estimated (``results.npy``
+holds every motion) and a request that cannot fit is refused; motions with NaN or infinite values
+are refused before anything is written. Exit status 2 with a one-line message on bad input.
 """
 
 from __future__ import annotations
