@@ -40,20 +40,27 @@ def read_records(path: Path) -> list[dict[str, Any]]:
     return records
 
 
-def _step(record: dict[str, Any]) -> int:
-    step = record.get("step", 0)
-    return step if isinstance(step, int) else 0
+def _position(record: dict[str, Any]) -> tuple[int, int]:
+    """(step, epoch) of a record, 0 for a value that is not an integer."""
+    step, epoch = record.get("step"), record.get("epoch")
+    return (step if isinstance(step, int) else 0, epoch if isinstance(epoch, int) else 0)
 
 
 class Logbook:
     """Appends one JSON object per record to ``metrics.jsonl`` and redraws ``curves.png``.
 
-    Only the main process writes; on resume, records past the checkpoint's step are dropped so
-    the file reads as one run.
+    Only the main process writes; on resume, the records the checkpoint does not cover are
+    dropped so the file reads as one run: those past its step, and those of its step from a later
+    epoch (a validation record written just before a kill, which the resumed run writes again).
     """
 
     def __init__(
-        self, stage_dir: Path, stage: str, enabled: bool = True, resume_step: int | None = None
+        self,
+        stage_dir: Path,
+        stage: str,
+        enabled: bool = True,
+        resume_step: int | None = None,
+        resume_epoch: int = 0,
     ):
         self.path = stage_dir / "metrics.jsonl"
         self.curves_path = stage_dir / "curves.png"
@@ -67,7 +74,11 @@ class Logbook:
         if resume_step is None:
             self.path.unlink(missing_ok=True)
         elif self.path.is_file():
-            kept = [r for r in read_records(self.path) if _step(r) <= resume_step]
+            kept = [
+                record
+                for record in read_records(self.path)
+                if _position(record) <= (resume_step, resume_epoch)
+            ]
             text = "".join(json.dumps(record) + "\n" for record in kept)
             write_bytes_atomic(self.path, text.encode())
 

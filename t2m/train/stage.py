@@ -258,6 +258,7 @@ class StageRun:
             self.name,
             enabled=runtime.is_main,
             resume_step=self.step if job.resume else None,
+            resume_epoch=self.progress.epoch,
         )
 
     def _stored_progress(self) -> dict[str, Any]:

@@ -337,6 +337,23 @@ def test_sigkill_during_training_and_a_torn_metrics_line_resume(tiny_dataset, tm
     )
 
 
+@pytest.mark.parametrize(("resume_epoch", "kept"), [(0, [(2, 0)]), (1, [(2, 0), (2, 1)])])
+def test_resume_drops_torn_and_uncovered_records(tmp_path, resume_epoch, kept):
+    from t2m.train.logbook import Logbook, read_records
+
+    metrics = tmp_path / "metrics.jsonl"
+    lines = [
+        {"split": "train", "step": 2, "epoch": 0},
+        {"split": "val", "step": 2, "epoch": 1},  # written just before a kill, not checkpointed
+        {"split": "train", "step": 3, "epoch": 1},
+    ]
+    metrics.write_text("".join(json.dumps(line) + "\n" for line in lines) + '{"split": "tr')
+    assert len(read_records(metrics)) == 3  # the torn line is skipped, not an error
+    Logbook(tmp_path, "autoencoder", resume_step=2, resume_epoch=resume_epoch)
+    assert [(r["step"], r["epoch"]) for r in read_records(metrics)] == kept
+    assert metrics.read_text().endswith("}\n")
+
+
 # ----------------------------------------------------------------------------------- evaluate
 
 
