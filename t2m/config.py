@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import os
 import types
 import typing
 from collections.abc import Callable
@@ -530,14 +532,59 @@ def _without_legacy_frames(data: dict[str, Any]) -> dict[str, Any]:
     return {key: value for key, value in data.items() if key not in LEGACY_DATA_KEYS}
 
 
+MAX_SEED = 2**63 - 1
+"""The largest seed every random generator of the project takes (torch's is a signed 64-bit)."""
+
+
+def check_seed(seed: int, option: str = "--seed") -> None:
+    """UsageError (a ValueError) for a seed outside ``0 .. MAX_SEED``."""
+    if not 0 <= seed <= MAX_SEED:
+        raise UsageError(f"{option} must be from 0 to 2**63 - 1, got {seed}")
+
+
+def check_threads(threads: int, option: str = "--threads") -> None:
+    """UsageError (a ValueError) for a thread count outside ``0 .. the machine's CPUs`` (0: torch's
+    choice); torch crashes on a count far beyond them."""
+    cpus = os.cpu_count() or 1
+    if not 0 <= threads <= cpus:
+        raise UsageError(f"{option} must be from 0 to {cpus} (this machine's CPUs), got {threads}")
+
+
+def _check_numbers(node: Any, where: str) -> None:
+    """Every float of a config section finite; every int of a model section at least 1."""
+    model = "model" in where.split(".")
+    for item in dataclasses.fields(node):
+        value, key = getattr(node, item.name), f"{where}.{item.name}".lstrip(".")
+        if dataclasses.is_dataclass(value):
+            _check_numbers(value, key)
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{key} must be a finite number, got {value}")
+        elif model and isinstance(value, int) and not isinstance(value, bool) and value < 1:
+            raise ValueError(f"{key} must be at least 1, got {value}")
+        elif model and isinstance(value, tuple) and any(size < 1 for size in value):
+            raise ValueError(f"{key} must hold sizes of at least 1, got {value}")
+
+
 def validate(cfg: Config) -> None:
-    """Raise ValueError for settings that cannot work together (see also
+    """Raise ValueError for settings that cannot work together or would train nothing (see also
     :func:`validate_for_spec`, the checks against the dataset)."""
+    check_seed(cfg.seed, "seed")
+    check_threads(cfg.num_threads, "num_threads")
+    _check_numbers(cfg, "")
+    data = cfg.data
+    if data.max_text_tokens < 1 or data.trainable_word_dim < 1 or not data.feature_bias > 0:
+        raise ValueError(
+            "data.max_text_tokens, data.trainable_word_dim and data.feature_bias must be positive"
+        )
     autoencoder = cfg.autoencoder
     if autoencoder.reconstruction_loss not in RECONSTRUCTION_LOSSES:
         raise ValueError(
             f"autoencoder.reconstruction_loss must be one of {', '.join(RECONSTRUCTION_LOSSES)}, "
             f"got {autoencoder.reconstruction_loss!r}"
+        )
+    if not 0.0 <= autoencoder.model.dropout < 1.0:
+        raise ValueError(
+            f"autoencoder.model.dropout must be in [0, 1), got {autoencoder.model.dropout}"
         )
     generator = cfg.generator
     if not 1 <= generator.start_snippets <= generator.end_snippets:
@@ -546,9 +593,26 @@ def validate(cfg: Config) -> None:
         raise ValueError("generator.curriculum_step must be at least 1")
     if not 0.0 <= generator.teacher_forcing <= 1.0:
         raise ValueError("generator.teacher_forcing must be a probability")
+    if generator.patience < 1 or generator.max_stage_epochs < 1 or generator.final_epochs < 0:
+        raise ValueError(
+            "generator.patience and generator.max_stage_epochs must be at least 1, "
+            "generator.final_epochs at least 0"
+        )
+    if not generator.decoder_lr > 0:
+        raise ValueError(f"generator.decoder_lr must be positive, got {generator.decoder_lr}")
     for name, section in cfg.stage_sections().items():
-        if section.batch_size < 1 or section.lr <= 0:
-            raise ValueError(f"{name}.batch_size and {name}.lr must be positive")
+        # Each of these would train nothing, or crash on its first step.
+        if section.batch_size < 1:
+            raise ValueError(f"{name}.batch_size must be at least 1, got {section.batch_size}")
+        if not section.lr > 0:
+            raise ValueError(f"{name}.lr must be positive, got {section.lr}")
+        epochs = getattr(section, "epochs", 1)
+        if epochs < 1:
+            raise ValueError(f"{name}.epochs must be at least 1, got {epochs}")
+        if section.max_steps < 0 or section.grad_clip < 0:
+            raise ValueError(f"{name}.max_steps and {name}.grad_clip must not be negative")
+        if section.checkpoint_every < 1 or section.log_every < 1:
+            raise ValueError(f"{name}.checkpoint_every and {name}.log_every must be at least 1")
 
 
 def validate_for_spec(cfg: Config, spec: DatasetSpec) -> None:

@@ -23,12 +23,14 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
+    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
-from t2m.config import PRESETS, preset
+from t2m.config import PRESETS, check_seed, preset
+from t2m.train.logbook import read_records
 from t2m.train.stage import FINISHED
 from t2m.train.stages import STAGES, train_stage
 
@@ -78,12 +80,8 @@ def final_losses(run_dir: Path) -> dict[str, dict]:
     """The last validation record of each stage (from its metrics.jsonl)."""
     losses = {}
     for stage in STAGES:
-        path = stage.folder(run_dir) / "metrics.jsonl"
-        if not path.is_file():
-            continue
         last = None
-        for line in path.read_text(encoding="utf-8").splitlines():
-            record = json.loads(line)
+        for record in read_records(stage.folder(run_dir) / "metrics.jsonl"):
             if record.get("split") == "val":
                 last = record
         if last:
@@ -146,12 +144,19 @@ class DemoConfig:
         for name in ("clips", "samples", "workers"):
             if getattr(self, name) < 1:
                 raise UsageError(f"--{name} must be at least 1, got {getattr(self, name)}")
+        check_seed(self.seed)
 
 
 def run_demo(config: DemoConfig) -> str:
     """Run every step that has no result yet; return the summary text."""
     start = time.perf_counter()
     dataset, run_dir, out = config.dataset, config.checkpoints, config.out
+    eval_dir = out.parent / f"{out.name}_eval"
+    # 0. the output folders, before the long work (the samples replace only an earlier demo's)
+    from t2m.sample import check_out
+
+    check_out(out, overwrite=True)
+    check_output_path(eval_dir, "the evaluation folder", folder=True)
     # 1. dataset
     if _dataset_ready(dataset):
         logger.info("dataset %s exists: reused", dataset)
@@ -163,7 +168,6 @@ def run_demo(config: DemoConfig) -> str:
     # 3. samples
     sample_prompts(run_dir, out, config.samples, config.render, config.seed)
     # 4. evaluation
-    eval_dir = out.parent / f"{out.name}_eval"
     quick_evaluation(dataset, run_dir, eval_dir)
     table = (eval_dir / "results.md").read_text(encoding="utf-8")
 

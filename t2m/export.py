@@ -6,6 +6,7 @@ is only its command.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -15,6 +16,7 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
+    check_output_path,
     command,
     config_from_args,
     configure_logging,
@@ -43,8 +45,9 @@ class ExportCommandConfig:
     def __post_init__(self) -> None:
         if self.output.suffix.lower() != ".bvh":
             raise UsageError(f"output must end in .bvh, got {self.output.name!r}")
-        if self.fps is not None and not self.fps > 0:
-            raise UsageError(f"--fps must be positive, got {self.fps}")
+        if self.fps is not None and not 0 < self.fps < math.inf:
+            raise UsageError(f"--fps must be positive and finite, got {self.fps}")
+        check_output_path(self.output, "output")
 
 
 @command

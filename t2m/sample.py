@@ -13,14 +13,21 @@ Writes into ``--out`` (default ``outputs/<timestamp>/``), per prompt NN and samp
 ``motion`` (N, 22, 3, T_max), ``text``, ``lengths``, ``num_samples``, ``num_repetitions``; motion
 ``i = rep * num_samples + prompt``, padded past its length with its last pose) and
 ``results.json``. Everything is written into a hidden folder beside ``--out`` and renamed at the
-end, so an error leaves nothing half-written. Exit status 2 with a one-line message on bad input.
+end, so an error leaves nothing half-written; the hidden folder of a killed run is removed by the
+next run into the same ``--out``. Every output folder holds ``.t2m-sample.json``, the list of the
+files written there: ``--overwrite`` replaces only such a folder, and only while it holds nothing
+else. Before generating, the memory and disk the request needs are estimated (``results.npy``
+holds every motion) and a request that cannot fit is refused; motions with NaN or infinite values
+are refused before anything is written. Exit status 2 with a one-line message on bad input.
 """
 
 from __future__ import annotations
 
+import glob
 import json
 import logging
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -36,12 +43,14 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
+    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
+from t2m.config import check_seed, check_threads
 from t2m.pipeline import GeneratedMotion
 
 logger = logging.getLogger("t2m.sample")
@@ -103,14 +112,13 @@ def mdm_results(motions: Sequence[Sequence[GeneratedMotion]], num_repetitions: i
     """The ``results.npy`` dict of the MDM layout from ``motions[prompt][rep]``."""
     flat = [motions[p][r] for r in range(num_repetitions) for p in range(len(motions))]
     max_frames = max(m.num_frames for m in flat)
-    stacked = np.stack(
-        [
-            np.pad(m.joints, ((0, max_frames - m.num_frames), (0, 0), (0, 0)), mode="edge")
-            for m in flat
-        ]
-    )  # (N, T, J, 3)
+    num_joints = flat[0].joints.shape[1]
+    stacked = np.empty((len(flat), num_joints, 3, max_frames), np.float32)  # (N, J, 3, T)
+    for row, motion in enumerate(flat):  # filled in place: one copy of the joints, not three
+        stacked[row, ..., : motion.num_frames] = motion.joints.transpose(1, 2, 0)
+        stacked[row, ..., motion.num_frames :] = motion.joints[-1][..., None]  # the last pose
     return {
-        "motion": np.ascontiguousarray(stacked.transpose(0, 2, 3, 1)),  # (N, J, 3, T)
+        "motion": stacked,
         "text": [m.text for m in flat],
         "lengths": np.array([m.num_frames for m in flat], dtype=np.int64),
         "num_samples": len(motions),
@@ -118,30 +126,117 @@ def mdm_results(motions: Sequence[Sequence[GeneratedMotion]], num_repetitions: i
     }
 
 
+# ---------------------------------------------------------------------------- the output folder
+
+MARKER = ".t2m-sample.json"
+"""Written into every output folder with the list of the files this tool wrote there:
+``--overwrite`` replaces only a folder that has one and holds nothing else."""
+
+_TEMP = r"\.{name}\.(?P<pid>\d+)\.\w+\.tmp"  # the hidden folder a run writes into
+_OLD = r"\.{name}\.old-(?P<pid>\d+)"  # the replaced output, for the moment of the swap
+
+
+def _written_files(folder: Path) -> set[str] | None:
+    """The files our marker in ``folder`` lists, or None when ``folder`` has no marker of ours."""
+    try:
+        marker = json.loads((folder / MARKER).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(marker, dict) or marker.get("written_by") != "t2m.sample":
+        return None
+    return {name for name in marker.get("files", []) if isinstance(name, str)}
+
+
+def check_out(out: str | Path, overwrite: bool) -> Path:
+    """Check that ``out`` can take the results (before any model work); returns it resolved.
+
+    First removes what killed runs left beside it (:func:`clean_stale`). A missing or empty
+    folder is fine; a non-empty one only with ``overwrite`` and only when
+    this tool wrote it (our marker) and everything in it is a file the marker lists, since
+    ``--overwrite`` replaces the whole folder. Raises UsageError (one line) otherwise.
+    """
+    out = check_output_path(Path(out).resolve(), "--out", folder=True)
+    if out.parent.is_dir():
+        clean_stale(out)
+    if not out.is_dir() or not any(out.iterdir()):
+        return out
+    if not overwrite:
+        raise UsageError(f"--out {out} exists and is not empty (choose another or add --overwrite)")
+    written = _written_files(out)
+    if written is None:
+        raise UsageError(
+            f"--overwrite refuses to replace {out}: it has no {MARKER}, so t2m.sample did not "
+            "write it"
+        )
+    foreign = sorted(
+        p.name
+        for p in out.iterdir()
+        if p.name != MARKER and (p.name not in written or p.is_symlink() or not p.is_file())
+    )
+    if foreign:
+        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+        raise UsageError(
+            f"--overwrite refuses to replace {out}: {foreign[0]}{more} was not written by "
+            "t2m.sample; move it away first"
+        )
+    return out
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # someone else's process
+        return True
+    return True
+
+
+def clean_stale(out: Path) -> None:
+    """Remove the hidden temp folders beside ``out`` that a killed run left (our name pattern,
+    our marker inside, and a process id no longer running); a replaced output left by a run
+    killed in the middle of its final swap is put back when ``out`` is missing."""
+    temp, old = (re.compile(p.format(name=re.escape(out.name))) for p in (_TEMP, _OLD))
+    for path in out.parent.glob(f".{glob.escape(out.name)}.*"):
+        match = temp.fullmatch(path.name) or old.fullmatch(path.name)
+        if match is None or _process_alive(int(match["pid"])) or path.is_symlink():
+            continue
+        if _written_files(path) is None:  # not ours after all: leave it
+            continue
+        if match.re is old and not out.exists():
+            os.replace(path, out)
+            logger.warning("restored %s from an interrupted run", out)
+        else:
+            shutil.rmtree(path)
+            logger.info("removed %s, left by an interrupted run", path.name)
+
+
+def _write_marker(folder: Path, files: Sequence[str]) -> None:
+    marker = {"written_by": "t2m.sample", "files": sorted(files)}
+    (folder / MARKER).write_text(json.dumps(marker, indent=1) + "\n", encoding="utf-8")
+
+
 def _prepare_out(out: Path, overwrite: bool) -> Path:
-    """Check ``out`` can be written and create the hidden temp folder beside it."""
-    if out.exists() and not out.is_dir():
-        raise UsageError(f"--out {out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not overwrite:
-            raise UsageError(
-                f"--out {out} exists and is not empty (choose another or add --overwrite)"
-            )
-        # --overwrite deletes the folder: only ever one that an earlier run wrote.
-        if not (out / "results.json").is_file():
-            raise UsageError(
-                f"--overwrite refuses to replace {out}: it holds no results.json, so "
-                "it is not an earlier sampling output"
-            )
+    """Check ``out`` and create the hidden temp folder beside it (marked as ours from the
+    start) that the results are written into."""
+    out = check_out(out, overwrite)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        tmp = Path(
+            tempfile.mkdtemp(prefix=f".{out.name}.{os.getpid()}.", suffix=".tmp", dir=out.parent)
+        )
     except OSError as error:
         raise UsageError(f"cannot write to --out {out}: {error.strerror or error}") from None
+    _write_marker(tmp, [])
+    return tmp
 
 
-def _publish(tmp: Path, out: Path) -> None:
-    """Move the finished temp folder to ``out`` (replacing an empty or --overwrite'n one)."""
+def _publish(tmp: Path, out: Path, overwrite: bool) -> None:
+    """Move the finished temp folder to ``out`` (replacing an empty or --overwrite'n one, checked
+    again: a file put there while the motions were generated is never deleted)."""
+    check_out(out, overwrite)
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700 folders
@@ -152,6 +247,69 @@ def _publish(tmp: Path, out: Path) -> None:
     os.replace(tmp, out)
     if old is not None:
         shutil.rmtree(old)
+
+
+# ---------------------------------------------------------------------------- resources
+
+# Bytes of each rendered frame with a margin of about two: measured on 22-joint stick figures
+# of 196 frames, a gif frame is about 5.7 KB, an mp4 frame 1.2 KB, a BVH frame 0.7 KB of text.
+RENDER_BYTES_PER_FRAME = {"mp4": 3_000, "gif": 12_000, "none": 0}
+BVH_BYTES_PER_FRAME = 1_500
+
+
+def _gib(count: int) -> str:
+    return f"{count / 2**30:.1f} GiB"
+
+
+def check_resources(
+    frames: Sequence[int], num_samples: int, spec: DatasetSpec, out: Path, render: str, bvh: bool
+) -> None:
+    """Refuse, before generating, a request whose motions cannot fit in memory or on disk.
+
+    ``frames``: the length of each prompt's motions (the longest possible where it is drawn
+    later); ``num_samples`` motions each.
+    Generation keeps every motion in memory until the end, since ``results.npy`` holds them all:
+    joints and features per motion plus the (N, J, 3, T_max) array of ``results.npy``. The files
+    are those and the per-motion animations and BVH files. UsageError when either estimate
+    exceeds what is free.
+    """
+    joint_values, feature_values = spec.num_joints * 3, spec.feature_dim
+    num_motions, total_frames = len(frames) * num_samples, sum(frames) * num_samples
+    in_memory = 4 * total_frames * (joint_values + feature_values)
+    results = 4 * num_motions * max(frames) * joint_values
+    per_frame_files = RENDER_BYTES_PER_FRAME[render] + (BVH_BYTES_PER_FRAME if bvh else 0)
+    memory = in_memory + results
+    disk = in_memory + results + total_frames * per_frame_files
+    from t2m.train.runtime import available_memory
+
+    available = available_memory()
+    advice = "lower --num-samples or give fewer prompts per run"
+    if available is not None and memory > available:
+        raise UsageError(
+            f"{num_motions} motions need about {_gib(memory)} of memory, {_gib(available)} is "
+            f"available; {advice}"
+        )
+    folder = out.parent
+    while not folder.exists():
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    if disk > free:
+        raise UsageError(
+            f"{num_motions} motions need about {_gib(disk)} on disk, {_gib(free)} is free in "
+            f"{folder}; {advice}"
+        )
+
+
+def _check_finite(motions: Sequence[Sequence[GeneratedMotion]]) -> None:
+    """UsageError naming the first motion with NaN or infinite values (a broken checkpoint)."""
+    for row in motions:
+        for motion in row:
+            if not (np.isfinite(motion.features).all() and np.isfinite(motion.joints).all()):
+                raise UsageError(
+                    f"the model produced NaN or infinite values for prompt {motion.prompt_index} "
+                    f"({motion.text!r}), sample {motion.repetition}; its checkpoints are "
+                    "broken (retrain or resume from a good one); nothing was written"
+                )
 
 
 def sample_to_folder(
@@ -181,7 +339,10 @@ def sample_to_folder(
     if bvh and pipe.spec.num_joints != 22:
         raise UsageError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
     out = Path(out).resolve()  # "." has no name to put a temp folder beside
-    # 1. where to write (fails early, before any model work)
+    # 1. where to write, and whether it fits (fails early, before any model work)
+    longest = pipe.spec.max_frames
+    frames = [min(p.frames or longest, longest) for p in prompts]
+    check_resources(frames, num_samples, pipe.spec, out, render, bvh)
     tmp = _prepare_out(out, overwrite)
     try:
         # 2. generate
@@ -194,6 +355,7 @@ def sample_to_folder(
             batch_size=batch_size,
             progress=True,
         )
+        _check_finite(motions)
         # 3. per-motion files
         files: list[str] = []
         flat = [m for row in motions for m in row]
@@ -222,8 +384,9 @@ def sample_to_folder(
             **(extra_info or {}),
         }
         (tmp / "results.json").write_text(json.dumps(summary, indent=2) + "\n")
+        _write_marker(tmp, summary["files"])
         # 5. publish in one rename
-        _publish(tmp, out)
+        _publish(tmp, out, overwrite)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -277,8 +440,10 @@ class SampleConfig:
             raise UsageError("give one of --length and --seconds")
         if self.num_samples < 1 or self.batch_size < 1:
             raise UsageError("--num-samples and --batch-size must be at least 1")
-        if self.threads < 0:
-            raise UsageError(f"--threads must be >= 0, got {self.threads}")
+        check_threads(self.threads)
+        if self.text_file is not None and not self.text_file.is_file():
+            raise UsageError(f"--text-file {self.text_file} is not a file")
+        check_seed(self.seed)
 
     def prompts(self, spec: DatasetSpec = HUMANML3D) -> list[Prompt]:
         """The prompts with their lengths in frames of ``spec`` (the loaded models' dataset;
@@ -293,9 +458,12 @@ class SampleConfig:
                 default_frames = frames_for_seconds(self.seconds, spec)
             else:
                 default_frames = None
+            return [
+                Prompt(p.text, default_frames if p.frames is None else frames_for(p.frames, spec))
+                for p in prompts
+            ]
         except ValueError as error:  # frames_for refuses a non-positive length: the user's
             raise UsageError(str(error)) from None
-        return [Prompt(p.text, default_frames if p.frames is None else p.frames) for p in prompts]
 
 
 @command(interrupted="interrupted; nothing was written")
@@ -315,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
     # again in frames of the models' dataset once they are)
     prompts = config.prompts()
     out = config.out or Path("outputs") / time.strftime("%Y-%m-%d_%H-%M-%S")
-    _prepare_out(out.resolve(), config.overwrite).rmdir()
+    check_out(out, config.overwrite)
     if config.threads:
         import torch
 

@@ -177,7 +177,7 @@ def test_cli_exit_codes(tiny_dataset, tmp_path, capsys):
     assert main(base + ["--ae.batch_size=abc"]) == 2
     one_line_error("expected an integer")
     assert main(base + ["--autoencoder.batch_size", "0"]) == 2
-    one_line_error("autoencoder.batch_size and autoencoder.lr must be positive")
+    one_line_error("autoencoder.batch_size must be at least 1, got 0")
     assert main(base + ["stray"]) == 2
     one_line_error("unexpected argument 'stray'")
     assert main(base + ["--device", "tpu"]) == 2

@@ -43,6 +43,7 @@ from tqdm import tqdm
 
 from dataset_tools.command import UsageError, option
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
+from t2m.config import check_seed, check_threads
 from t2m.data.dataset import Caption, Clip
 from t2m.evaluate import metrics
 from t2m.evaluate.backend import Backend
@@ -129,6 +130,8 @@ class EvalConfig:
             if value is not None and value < least:
                 name = "threads" if key == "num_threads" else key.replace("_", "-")
                 raise UsageError(f"--{name} must be >= {least}, got {value}")
+        check_seed(self.seed)
+        check_threads(self.num_threads)
 
 
 STANDARD = EvalConfig()
@@ -347,6 +350,25 @@ def _multimodality(
     )
 
 
+def check_memory(num_items: int, config: EvalConfig, spec: DatasetSpec) -> None:
+    """Refuse, before the first replication, settings whose generations cannot fit in memory:
+    a generated row (``num_items`` motions) and the MultiModality generations
+    (``mm_texts x (mm_samples - 1)`` motions, made in one call) are held as features of up to
+    the dataset's longest motion. UsageError naming the options to lower."""
+    from t2m.train.runtime import available_memory
+
+    available = available_memory()
+    mm_motions = min(config.mm_texts, num_items) * (config.mm_samples - 1)
+    motions = max(num_items, mm_motions)
+    needed = 2 * 4 * motions * spec.max_frames * spec.feature_dim  # features, and a copy
+    if available is not None and needed > available:
+        raise UsageError(
+            f"{motions} generations at once need about {needed / 2**30:.1f} GiB of memory, "
+            f"{available / 2**30:.1f} GiB is available; lower --mm-texts or --mm-samples "
+            "(or --max-items)"
+        )
+
+
 def run_protocol(
     clips: Sequence[Clip],
     backend: Backend,
@@ -364,11 +386,16 @@ def run_protocol(
     available = len(clips) if config.max_items is None else min(len(clips), config.max_items)
     num_items = (available // config.pool_size) * config.pool_size
     if num_items == 0:
-        limit = "" if config.max_items is None else f", of which --max-items {config.max_items}"
+        if available < len(clips):  # the split would do: the user asked for too few
+            raise UsageError(
+                f"--max-items {config.max_items} is fewer than one R-precision pool of "
+                f"{config.pool_size} items (raise --max-items or lower --pool-size)"
+            )
         raise UsageError(
-            f"the {config.split} split has {len(clips)} usable items{limit}; R-precision needs "
-            f"at least one pool of {config.pool_size}"
+            f"the {config.split} split has {len(clips)} usable items; R-precision needs at least "
+            f"one pool of {config.pool_size} (lower --pool-size or evaluate a larger split)"
         )
+    check_memory(num_items, config, spec)
     values = {
         row: {
             name: [] for name in METRICS + EXTRA_METRICS if row != REAL or name != "multimodality"

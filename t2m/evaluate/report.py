@@ -9,6 +9,7 @@ like Table 2 of Guo et al.; :func:`write_results` writes both files atomically.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -29,18 +30,31 @@ COLUMN_TITLES = {
 }
 
 
+def _entry(series: list[float]) -> dict[str, Any]:
+    """Mean, 95% interval and values of one metric; the interval is None (n/a) for a single
+    replication, and a non-finite number is None, so results.json is standard JSON."""
+    mean, interval = metrics.confidence_interval(series)
+    return {
+        "mean": _finite(mean),
+        "interval": _finite(interval) if len(series) > 1 else None,
+        "values": [_finite(value) for value in series],
+    }
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
 def summarize(result: ProtocolResult) -> dict[str, Any]:
     """The results.json content: settings, deviations, and per row/metric mean, interval, values."""
     rows: dict[str, dict[str, Any]] = {}
     for row in ROWS:
         rows[row] = {}
         for name, series in result.values[row].items():
-            mean, interval = metrics.confidence_interval(series)
-            rows[row][name] = {"mean": mean, "interval": interval, "values": series}
+            rows[row][name] = _entry(series)
         for name, series in result.semantic[row].items():
-            mean, interval = metrics.confidence_interval(series)
             key = "semantic_accuracy" if name == "all" else f"semantic_accuracy_{name}"
-            rows[row][key] = {"mean": mean, "interval": interval, "values": series}
+            rows[row][key] = _entry(series)
     return {
         "quick": result.config.quick,
         "standard_protocol": not deviations(result.config, result.num_items),
@@ -53,10 +67,16 @@ def summarize(result: ProtocolResult) -> dict[str, Any]:
     }
 
 
-def _cell(entry: dict[str, float] | None, digits: int = 3) -> str:
+def _number(value: float | None, digits: int) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def _cell(entry: dict[str, Any] | None, digits: int = 3) -> str:
+    """``mean ±interval``; ``n/a`` for a value that is not a number or an interval that one
+    replication cannot give."""
     if entry is None:
         return "-"
-    return f"{entry['mean']:.{digits}f} ±{entry['interval']:.{digits}f}"
+    return f"{_number(entry['mean'], digits)} ±{_number(entry['interval'], digits)}"
 
 
 def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
@@ -97,7 +117,8 @@ def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evalua
     lines.append(
         f"Split `{settings['split']}`: {summary['num_items']} items evaluated "
         f"(of {summary['num_items_available']} usable), {settings['replications']} replications, "
-        f"seed {settings['seed']}. Each cell is mean ±95% interval (1.96 σ / √replications)."
+        f"seed {settings['seed']}. Each cell is mean ±95% interval (1.96 σ / √replications"
+        + ("; n/a with one replication)." if settings["replications"] == 1 else ").")
     )
     lines.append("")
     if summary["deviations"]:

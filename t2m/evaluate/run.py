@@ -8,13 +8,14 @@ scorer, if any), run the protocol, summarise and write ``results.json`` and ``re
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from dataset_tools.command import UsageError
+from dataset_tools.command import UsageError, check_output_path
 from dataset_tools.skeleton import spec_for_folder
 from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
@@ -40,8 +41,26 @@ def check_inputs(
         raise UsageError(f"--dataset {dataset_dir}: no split file {split_file.name} (--split)")
     if not split_file.read_text(encoding="utf-8").strip():
         raise UsageError(f"--split {split}: {split_file} lists no clip")
-    if out_dir is not None and Path(out_dir).exists() and not Path(out_dir).is_dir():
-        raise UsageError(f"--out {out_dir} exists and is not a folder")
+    if out_dir is not None:
+        check_output_path(out_dir, "--out", folder=True)
+        _check_replaceable(Path(out_dir))
+
+
+def _check_replaceable(out_dir: Path) -> None:
+    """UsageError when ``out_dir`` holds a results.json or results.md that no evaluation wrote
+    (an evaluation's results.json has its ``rows`` and ``settings``): they would be replaced."""
+    json_path = out_dir / "results.json"
+    if not (json_path.exists() or (out_dir / "results.md").exists()):
+        return
+    try:
+        earlier = json.loads(json_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        earlier = None
+    if not (isinstance(earlier, dict) and {"rows", "settings"} <= earlier.keys()):
+        raise UsageError(
+            f"--out {out_dir} holds a results.json or results.md that no evaluation wrote; "
+            "choose another --out"
+        )
 
 
 def evaluate(

@@ -25,6 +25,7 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
+    check_output_path,
     command,
     config_from_args,
     configure_logging,
@@ -53,6 +54,8 @@ class TrainOptions:
     """run folder (default: checkpoints/<preset>)"""
     resume: bool = False
     """continue from the stage's latest.pt"""
+    force: bool = False
+    """retrain a stage whose folder already holds a run (its best.pt is replaced)"""
     device: str | None = None
     """auto, cpu, cuda, cuda:N (default: the config's, auto)"""
     bf16: bool | None = None
@@ -120,9 +123,15 @@ def main(argv: list[str] | None = None) -> int:
         print(config.to_json())
         return 0
     stage = find_stage(options.stage).name
+    check_output_path(options.run_dir(), "--checkpoints", folder=True)
     start = time.time()
     stage_dir = train_stage(
-        stage, config, options.dataset, options.run_dir(), resume=options.resume
+        stage,
+        config,
+        options.dataset,
+        options.run_dir(),
+        resume=options.resume,
+        force=options.force,
     )
     logger.info("%s trained in %.0f s: %s", stage, time.time() - start, stage_dir)
     return 0

@@ -16,6 +16,7 @@ from t2m.train.stage import (
     LossesOf,
     StageJob,
     StageRun,
+    check_batches,
     load_stage_data,
     validation_chunks,
 )
@@ -55,6 +56,7 @@ def train_autoencoder(job: StageJob) -> Path:
     section = config.autoencoder
     # 1. data: windows must fit in every clip, which load_split's min_frames guarantees
     data = load_stage_data(config, job.dataset_dir)
+    check_batches(job, data)
     sizes = ModelSizes(feature_dim=data.train.feature_dim)
     # 2. model, optimizer, resume
     seed_init(config.seed)

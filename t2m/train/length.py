@@ -15,6 +15,7 @@ from t2m.train.stage import (
     LossesOf,
     StageJob,
     StageRun,
+    check_batches,
     load_stage_data,
     to_device,
     validation_chunks,
@@ -39,6 +40,7 @@ def train_length(job: StageJob) -> Path:
     section = config.length
     # 1. data and vocabulary
     data = load_stage_data(config, job.dataset_dir)
+    check_batches(job, data)
     sizes = data.sizes()
     # 2. model, optimizer, resume
     seed_init(config.seed)

@@ -1,4 +1,8 @@
-"""Training records: metrics as JSON lines in the stage folder, and a PNG of the curves."""
+"""Training records: metrics as JSON lines in the stage folder, and a PNG of the curves.
+
+Each record is appended with one ``write`` call of the whole line, so a process killed while
+writing leaves at most one torn last line; readers (:func:`read_records`, a resume) skip it.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import io
 import json
 import logging
 import math
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -15,15 +20,47 @@ from dataset_tools.io import write_bytes_atomic
 logger = logging.getLogger(__name__)
 
 
+def read_records(path: Path) -> list[dict[str, Any]]:
+    """The records of a ``metrics.jsonl`` (empty when it does not exist); a line that is not a
+    JSON object (the torn last line of a killed run) is skipped with a warning."""
+    if not path.is_file():
+        return []
+    records = []
+    for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines()):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except ValueError:
+            record = None
+        if isinstance(record, dict):
+            records.append(record)
+        else:
+            logger.warning("%s:%d: skipping a torn or malformed record", path, number + 1)
+    return records
+
+
+def _position(record: dict[str, Any]) -> tuple[int, int]:
+    """(step, epoch) of a record, 0 for a value that is not an integer."""
+    step, epoch = record.get("step"), record.get("epoch")
+    return (step if isinstance(step, int) else 0, epoch if isinstance(epoch, int) else 0)
+
+
 class Logbook:
     """Appends one JSON object per record to ``metrics.jsonl`` and redraws ``curves.png``.
 
-    Only the main process writes; on resume, records past the checkpoint's step are dropped so
-    the file reads as one run.
+    Only the main process writes; on resume, the records the checkpoint does not cover are
+    dropped so the file reads as one run: those past its step, and those of its step from a later
+    epoch (a validation record written just before a kill, which the resumed run writes again).
     """
 
     def __init__(
-        self, stage_dir: Path, stage: str, enabled: bool = True, resume_step: int | None = None
+        self,
+        stage_dir: Path,
+        stage: str,
+        enabled: bool = True,
+        resume_step: int | None = None,
+        resume_epoch: int = 0,
     ):
         self.path = stage_dir / "metrics.jsonl"
         self.curves_path = stage_dir / "curves.png"
@@ -38,11 +75,12 @@ class Logbook:
             self.path.unlink(missing_ok=True)
         elif self.path.is_file():
             kept = [
-                line
-                for line in self.path.read_text().splitlines()
-                if line.strip() and json.loads(line).get("step", 0) <= resume_step
+                record
+                for record in read_records(self.path)
+                if _position(record) <= (resume_step, resume_epoch)
             ]
-            write_bytes_atomic(self.path, "".join(line + "\n" for line in kept).encode())
+            text = "".join(json.dumps(record) + "\n" for record in kept)
+            write_bytes_atomic(self.path, text.encode())
 
     def write(self, split: str, step: int, epoch: int, values: dict[str, Any]) -> None:
         if not self.enabled:
@@ -57,13 +95,17 @@ class Logbook:
         for key, value in values.items():
             value = float(value) if not isinstance(value, (str, int)) else value
             record[key] = None if isinstance(value, float) and not math.isfinite(value) else value
-        with open(self.path, "a", encoding="utf-8") as handle:
-            handle.write(json.dumps(record) + "\n")
+        line = (json.dumps(record) + "\n").encode()
+        descriptor = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+        try:
+            written = 0
+            while written < len(line):  # one call for any line of a record's size
+                written += os.write(descriptor, line[written:])
+        finally:
+            os.close(descriptor)
 
     def records(self) -> list[dict[str, Any]]:
-        if not self.path.is_file():
-            return []
-        return [json.loads(line) for line in self.path.read_text().splitlines() if line.strip()]
+        return read_records(self.path)
 
     def draw(self, force: bool = True, min_interval_s: float = 60.0) -> None:
         """Plot every numeric metric against the step, train and val, one panel per metric.

@@ -97,6 +97,19 @@ def inference_device(device: str, precision: str) -> str:
     return "cpu" if precision == "int8" and device == "auto" else device
 
 
+def available_memory() -> int | None:
+    """Bytes of memory the system can still give (Linux ``MemAvailable``), or None if unknown;
+    what sampling and evaluation compare their up-front estimates with."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 def start(device: str = "auto", bf16: bool = False, num_threads: int = 0) -> Runtime:
     """Open the process group when launched by torchrun, choose the device, set threads."""
     world_size = int(os.environ.get("WORLD_SIZE", "1"))

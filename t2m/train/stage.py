@@ -176,6 +176,10 @@ def start_on_autoencoder(job: StageJob) -> OnAutoencoder:
             f"the autoencoder was trained on {autoencoder.dims.feature_dim}-d features, "
             f"the dataset has {sizes.feature_dim}"
         )
+    if job.stage.name == "generator":  # its curriculum starts on crops of start_snippets
+        check_batches(job, data, frames=config.generator.start_snippets * data.spec.snippet_length)
+    else:  # the evaluator's negatives pair each validation item with another
+        check_batches(job, data, val_items=2)
     return OnAutoencoder(dataclasses.replace(job, config=config), autoencoder, data, sizes)
 
 
@@ -260,6 +264,7 @@ class StageRun:
             self.name,
             enabled=runtime.is_main,
             resume_step=self.step if job.resume else None,
+            resume_epoch=self.progress.epoch,
         )
 
     def _stored_progress(self) -> dict[str, Any]:
@@ -446,8 +451,40 @@ class StageRun:
             self.runtime.barrier()
         if self.runtime.is_main:
             self.logbook.draw()
-            write_json_atomic(self.dir / FINISHED, self._stored_progress())
+            write_json_atomic(self.dir / FINISHED, json_safe(self._stored_progress()))
         return self.dir
+
+
+def json_safe(record: dict[str, Any]) -> dict[str, Any]:
+    """``record`` with non-finite floats (a best value never set is infinity) as None, so the
+    JSON file is standard JSON (``json.dumps`` would write ``Infinity``)."""
+    return {
+        key: None if isinstance(value, float) and not math.isfinite(value) else value
+        for key, value in record.items()
+    }
+
+
+def check_batches(job: StageJob, data: StageData, frames: int = 0, val_items: int = 1) -> None:
+    """UsageError, before any model is built, when an epoch of the stage would train nothing:
+    fewer training clips of at least ``frames`` frames per process than one batch, or fewer
+    than ``val_items`` validation clips of that length."""
+    name, runtime = job.stage.name, job.runtime
+    batch_size = getattr(job.config, name).batch_size
+    at_least = f" of at least {frames} frames" if frames else ""
+    train = len(data.train.indices_at_least(frames))
+    if train // runtime.world_size < batch_size:
+        processes = f" over {runtime.world_size} processes" if runtime.world_size > 1 else ""
+        raise UsageError(
+            f"{name}: the train split has {train} usable clips{at_least}, fewer than one batch "
+            f"of {name}.batch_size={batch_size}{processes}; lower --{name}.batch_size or use "
+            "a larger dataset"
+        )
+    val = len(data.val.indices_at_least(frames))
+    if val < val_items:
+        raise UsageError(
+            f"{name}: the validation split has {val} usable clips{at_least}; validation needs "
+            f"at least {val_items}"
+        )
 
 
 def validation_chunks(indices: np.ndarray, batch_size: int) -> list[np.ndarray]:

@@ -47,7 +47,7 @@ from t2m.train.evaluator import train_evaluator
 from t2m.train.generator import train_generator
 from t2m.train.length import train_length
 from t2m.train.runtime import Runtime
-from t2m.train.stage import StageJob
+from t2m.train.stage import FINISHED, StageJob
 
 
 @dataclass(frozen=True)
@@ -221,10 +221,13 @@ def train_stage(
     run_dir: str | Path,
     runtime: Runtime | None = None,
     resume: bool = False,
+    force: bool = False,
 ) -> Path:
     """Train ``stage`` with ``config`` into its folder of ``run_dir``; returns that folder.
 
-    The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line UsageError
+    A stage folder that already holds a run (a checkpoint or ``finished.json``) is continued
+    with ``resume``, started afresh over with ``force``, and otherwise refused (UsageError), so
+    that a trained ``best.pt`` is never replaced by mistake. The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line UsageError
     names the make target of a missing one). Opens (and closes) the runtime when not given one.
     Example::
 
@@ -232,6 +235,16 @@ def train_stage(
     """
     record = find_stage(stage)
     run_dir = Path(run_dir)
+    if resume and force:
+        raise UsageError("give one of --resume (continue the run) and --force (start afresh)")
+    stage_dir = record.folder(run_dir)
+    earlier = [name for name in ("best.pt", "latest.pt", FINISHED) if (stage_dir / name).is_file()]
+    if earlier and not (resume or force):
+        state = "finished" if FINISHED in earlier else "unfinished"
+        raise UsageError(
+            f"{stage_dir} holds a {state} {record.name} run; use --resume to continue or "
+            "--force to retrain"
+        )
     own_runtime = runtime is None
     if runtime is None:
         runtime = runtime_module.start(config.device, config.bf16, config.num_threads)
