@@ -291,24 +291,3 @@ def config_from_args(cls: type[Config], namespace: argparse.Namespace) -> Config
 
 
 # ----------------------------------------------------------------------------- output paths
-
-
-def check_output_path(path: str | os.PathLike, option: str, folder: bool = False) -> Path:
-    """Refuse, before any long work, an output path that cannot be written: one under a file,
-    a folder where a file goes (``folder`` False) or a file where a folder goes (``folder``
-    True), or one whose first existing folder is not writable. Returns ``path`` as a Path;
-    creates nothing. ``option`` names it in the :class:`UsageError` (``"--out"``, ``"output"``).
-    """
-    path = Path(path)
-    if folder and path.exists() and not path.is_dir():
-        raise UsageError(f"{option} {path} exists and is not a folder")
-    if not folder and path.is_dir():
-        raise UsageError(f"{option} {path} is a folder; give a file name")
-    ancestor = path.absolute() if folder and path.is_dir() else path.absolute().parent
-    while not ancestor.exists():
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise UsageError(f"{option} {path}: {ancestor} is a file, not a folder")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise UsageError(f"{option} {path}: the folder {ancestor} is not writable")
-    return path

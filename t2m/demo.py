@@ -23,12 +23,12 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
-    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
+from dataset_tools.io import check_output_folder
 from t2m.config import PRESETS, check_seed, preset
 from t2m.train.logbook import read_records
 from t2m.train.stage import FINISHED
@@ -156,7 +156,7 @@ def run_demo(config: DemoConfig) -> str:
     from t2m.sample import check_out
 
     check_out(out, overwrite=True)
-    check_output_path(eval_dir, "the evaluation folder", folder=True)
+    check_output_folder(eval_dir, "the evaluation folder")
     # 1. dataset
     if _dataset_ready(dataset):
         logger.info("dataset %s exists: reused", dataset)

@@ -16,13 +16,13 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
-    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
 from dataset_tools.humanml3d import read_joints
+from dataset_tools.io import check_output_file
 from dataset_tools.skeleton import HUMANML3D, SMPL
 
 
@@ -47,7 +47,7 @@ class ExportCommandConfig:
             raise UsageError(f"output must end in .bvh, got {self.output.name!r}")
         if self.fps is not None and not 0 < self.fps < math.inf:
             raise UsageError(f"--fps must be positive and finite, got {self.fps}")
-        check_output_path(self.output, "output")
+        check_output_file(self.output, "output")
 
 
 @command

@@ -14,13 +14,13 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
-    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
 from dataset_tools.humanml3d import read_joints
+from dataset_tools.io import check_output_file
 from dataset_tools.skeleton import spec_for_joints
 from dataset_tools.viz import FORMATS, render_animation, render_keyframes
 
@@ -49,7 +49,7 @@ class RenderCommandConfig:
             raise UsageError(f"output must end in {', '.join(SUFFIXES)}, got {self.output.name!r}")
         if self.fps is not None and not 0 < self.fps < math.inf:
             raise UsageError(f"--fps must be positive and finite, got {self.fps}")
-        check_output_path(self.output, "output")
+        check_output_file(self.output, "output")
         if self.keyframes < 1:
             raise UsageError(f"--keyframes must be at least 1, got {self.keyframes}")
 

@@ -43,12 +43,12 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
-    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
+from dataset_tools.io import check_output_folder
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
 from t2m.pipeline import GeneratedMotion
@@ -155,7 +155,7 @@ def check_out(out: str | Path, overwrite: bool) -> Path:
     this tool wrote it (our marker) and everything in it is a file the marker lists, since
     ``--overwrite`` replaces the whole folder. Raises UsageError (one line) otherwise.
     """
-    out = check_output_path(Path(out).resolve(), "--out", folder=True)
+    out = check_output_folder(Path(out).resolve(), "--out")
     if out.parent.is_dir():
         clean_stale(out)
     if not out.is_dir() or not any(out.iterdir()):

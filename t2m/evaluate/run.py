@@ -15,7 +15,8 @@ from typing import Any
 
 import torch
 
-from dataset_tools.command import UsageError, check_output_path
+from dataset_tools.command import UsageError
+from dataset_tools.io import check_output_folder
 from dataset_tools.skeleton import spec_for_folder
 from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
@@ -42,7 +43,7 @@ def check_inputs(
     if not split_file.read_text(encoding="utf-8").strip():
         raise UsageError(f"--split {split}: {split_file} lists no clip")
     if out_dir is not None:
-        check_output_path(out_dir, "--out", folder=True)
+        check_output_folder(out_dir, "--out")
         _check_replaceable(Path(out_dir))
 
 

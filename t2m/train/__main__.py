@@ -25,12 +25,12 @@ from dataset_tools.command import (
     CommandParser,
     UsageError,
     add_config_options,
-    check_output_path,
     command,
     config_from_args,
     configure_logging,
     option,
 )
+from dataset_tools.io import check_output_folder
 from t2m.config import PRESETS, Config, apply_overrides, preset
 from t2m.train.stages import STAGES, find_stage, train_stage
 
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         print(config.to_json())
         return 0
     stage = find_stage(options.stage).name
-    check_output_path(options.run_dir(), "--checkpoints", folder=True)
+    check_output_folder(options.run_dir(), "--checkpoints")
     start = time.time()
     stage_dir = train_stage(
         stage,
