@@ -77,7 +77,7 @@ SPLIT_FRACTIONS = (0.80, 0.05, 0.15)
 # fast, and a crash loses at most one chunk of finished motions' texts (re-done on resume).
 CAPTION_CHUNK = 512
 # build_options.json: the options a dataset folder's clips were built with.
-OPTIONS_FILE = "build_options.json"
+OPTIONS_FILE = humanml3d.OPTIONS_FILE
 OPTIONS_FORMAT = 1
 # The longest file name most file systems take; a clip's longest is its mirror's temporary file.
 MAX_FILE_NAME_BYTES = 255

@@ -9,6 +9,8 @@ This module is the one place that knows the layout; ``dataset_tools.build`` writ
     Mean.npy, Std.npy           (D,) float32 feature mean and group-pooled std
     train.txt, val.txt, test.txt, train_val.txt, all.txt   clip names, one a line
     build_report.json           what the build did (ours; not in the original release)
+    build_options.json          the options that decide the clips' content (ours: a rebuild with
+                                other options is refused unless --force)
     labels.json                 ground-truth labels of a procedural corpus (ours, optional)
 
 The mirror of clip ``name`` (x negated, left and right swapped) is the clip ``"M" + name``.
@@ -36,6 +38,7 @@ JOINTS_DIR = "new_joints"
 TEXTS_DIR = "texts"
 MEAN_FILE = "Mean.npy"
 STD_FILE = "Std.npy"
+OPTIONS_FILE = "build_options.json"
 REPORT_FILE = "build_report.json"
 LABELS_FILE = "labels.json"
 SPLITS: tuple[str, ...] = ("train", "val", "test", "train_val", "all")
