@@ -150,7 +150,7 @@ def check_output_folder(path: str | os.PathLike, what: str = "output folder") ->
     Call it before long work."""
     path = Path(path)
     if os.path.lexists(path) and not path.is_dir():
-        raise UsageError(f"{what} {path} is a file, not a folder")
+        raise UsageError(f"{what} {path} exists and is not a folder")
     _check_writable_place(path, path, what)
     return path
 

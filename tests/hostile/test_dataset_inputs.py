@@ -163,7 +163,7 @@ def test_output_paths_are_checked_before_work(tmp_path, capsys):
             ),
             "is the output",
         ),
-        (("synth", "--out", str(joints), "--clips", "1"), "is a file, not a folder"),
+        (("synth", "--out", str(joints), "--clips", "1"), "exists and is not a folder"),
         (("contact-sheet", "--input", str(tmp_path), "--out", str(tmp_path)), "is a folder"),
     ]
     for argv, words in cases:
