@@ -105,8 +105,7 @@ class Embedder:
                 "source": "the original T2M release's text_mot_match",
                 "path": str(release.path),
                 "sha256": release.sha256,
-                "normalization": f"{meta}/mean.npy and std.npy (the release's "
-                "meta/, as stored)",
+                "normalization": f"{meta}/mean.npy and std.npy (the release's meta/, as stored)",
             },
         )
 
