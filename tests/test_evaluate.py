@@ -253,7 +253,7 @@ def test_inputs_are_checked_before_anything_is_loaded(tmp_path, folders, capsys)
     assert "lists no clip" in capsys.readouterr().err
     (tmp_path / "file").write_text("")
     assert main([*folders, "--out", str(tmp_path / "file")]) == 2
-    assert "is not a folder" in capsys.readouterr().err
+    assert "not a folder" in capsys.readouterr().err
     # A run folder without its stages: the one line names the make target that trains them.
     assert main(folders) == 2
     err = capsys.readouterr().err

@@ -7,8 +7,10 @@ standard protocol). The package's rooms:
 - :mod:`~t2m.evaluate.protocol`: settings (:class:`EvalConfig`), drawing the test items, the
   replications and metric rows (:func:`run_protocol`), the scorer plug-ins (:func:`find_scorer`);
 - :mod:`~t2m.evaluate.metrics`: the formulas (R-precision, FID, MM-Dist, diversity, ...);
-- :mod:`~t2m.evaluate.backend`: what the protocol needs from the models (:class:`Backend`) and
-  the trained run behind it (:class:`CheckpointBackend`);
+- :mod:`~t2m.evaluate.backend`: what the protocol needs from the models (:class:`Backend`), the
+  generator behind it (:class:`CheckpointBackend`: a run of ours or the original T2M release) and
+  the evaluator that embeds, fed its way (:class:`Embedder`: the run's own, or the release's
+  ``text_mot_match``, the field's standard evaluator);
 - :mod:`~t2m.evaluate.report`: summary, markdown table, results files;
 - :mod:`~t2m.evaluate.run`: :func:`evaluate`, the library entry point (folders in, files out);
 - ``__main__``: the command.
@@ -18,7 +20,7 @@ The names below are the public API; import them from here.
 
 from typing import Any
 
-from t2m.evaluate.backend import Backend, CheckpointBackend
+from t2m.evaluate.backend import Backend, CheckpointBackend, Embedder
 from t2m.evaluate.protocol import (
     EXTRA_METRICS,
     GT_LENGTH,
@@ -54,6 +56,7 @@ __all__ = [
     "Backend",
     "CheckpointBackend",
     "Draw",
+    "Embedder",
     "EvalConfig",
     "ProtocolResult",
     "Scorer",

@@ -32,7 +32,13 @@ class EvalFolders:
     dataset: Path = field(metadata=option(metavar="DIR"))
     """HumanML3D-layout dataset folder"""
     checkpoints: Path = field(metadata=option(metavar="DIR"))
-    """run folder with the evaluator, length and generator stages"""
+    """run folder with the evaluator, length and generator stages, or a folder of the original
+    T2M release"""
+    evaluator: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """the standard evaluator: the original T2M release's checkpoints/<t2m|kit>/text_mot_match,
+    fed as the release feeds it (default: the run's own evaluator stage; a release's own)"""
+    glove: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """the release's GloVe subset (default: glove/ beside the release's checkpoints/)"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default: <checkpoints>/eval_results, eval_results_quick with --quick)"""
 
@@ -79,7 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     folders = config_from_args(EvalFolders, arguments)
     config = eval_config(arguments)
     out = folders.out_dir(config.quick)
-    summary = evaluate(folders.dataset, folders.checkpoints, out, config)
+    summary = evaluate(
+        folders.dataset,
+        folders.checkpoints,
+        out,
+        config,
+        evaluator_dir=folders.evaluator,
+        glove_dir=folders.glove,
+    )
     print(format_markdown(summary))
     print(f"wrote {out / 'results.md'} and {out / 'results.json'}")
     return 0

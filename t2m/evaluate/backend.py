@@ -1,21 +1,30 @@
 """The models behind the evaluation: what the protocol asks of them, and the trained stages.
 
 :class:`Backend` is all :func:`~t2m.evaluate.protocol.run_protocol` needs: text and motion
-embeddings from an evaluator, and a generator. :class:`CheckpointBackend` is the trained run:
-the contrastive evaluator of the ``eval`` stage embeds, the shared text-to-motion pipeline
-(:class:`~t2m.pipeline.TextToMotion`) generates, both in batches.
+embeddings from an evaluator, and a generator. :class:`CheckpointBackend` is a generator (a run
+of ours or the original T2M release, through the shared text-to-motion pipeline
+:class:`~t2m.pipeline.TextToMotion`) and an :class:`Embedder`: the evaluator with the statistics
+and vocabulary that feed it, either a run's own evaluator stage (:meth:`Embedder.from_stage`) or
+the release's ``text_mot_match``, the field's standard evaluator (:meth:`Embedder.from_release`).
+Motions pass between the two as raw features: the generator de-normalises with its own
+statistics, the embedder normalises with the evaluator's.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 
+from dataset_tools.skeleton import DatasetSpec
 from t2m.data.dataset import Caption
+from t2m.data.normalization import Normalizer
+from t2m.data.words import WordVectors
+from t2m.models.evaluator import Evaluator
 
 
 class Backend(Protocol):
@@ -38,43 +47,126 @@ class Backend(Protocol):
         ...
 
 
+@dataclass(frozen=True)
+class Embedder:
+    """An evaluator and how it is fed: raw features are normalised with ``normalizer`` and
+    zero-padded to the longest motion, captions encoded by ``vectorizer`` with their true token
+    count (:meth:`Evaluator.embed_motion` drops the contacts and runs ``frames // 4`` steps).
+
+    Attributes:
+        evaluator: the contrastive text/motion evaluator (eval mode, float32).
+        normalizer: (D,) mean/std of the evaluator's input.
+        vectorizer: the vocabulary of its text encoder.
+        spec: the dataset spec it reads (feature dimension, snippet length, longest motion).
+        description: what the results name it by (results.json ``evaluator``): ``source``,
+            ``path`` and ``sha256`` of its file, ``normalization`` (which mean/std).
+    """
+
+    evaluator: Evaluator
+    normalizer: Normalizer
+    vectorizer: WordVectors
+    spec: DatasetSpec
+    description: dict[str, str | None]
+
+    @classmethod
+    def from_stage(cls, stage: Any) -> Embedder:
+        """A run's own trained ``evaluator`` stage (:class:`~t2m.train.checkpoint.TrainedStage`;
+        one built without a checkpoint, as the benchmark does, has no path)."""
+        from t2m.release.load import file_sha256
+
+        path = stage.path
+        return cls(
+            evaluator=stage.models["evaluator"],
+            normalizer=stage.normalizer,
+            vectorizer=stage.vectorizer,
+            spec=stage.spec,
+            description={
+                "source": "the run's own evaluator stage",
+                "path": None if path is None else str(path),
+                "sha256": None if path is None else file_sha256(Path(path)),
+                "normalization": "the mean/std stored with the evaluator stage",
+            },
+        )
+
+    @classmethod
+    def from_release(cls, release: Any) -> Embedder:
+        """The original T2M release's evaluator (:class:`~t2m.release.ReleaseEvaluator`), fed
+        as the release feeds it: its generator's ``meta/`` statistics as stored, its GloVe
+        subset."""
+        from t2m.release import find_release
+
+        meta = find_release(release.path.parents[1]).meta_dir
+        return cls(
+            evaluator=release.evaluator,
+            normalizer=release.normalizer,
+            vectorizer=release.vectorizer,
+            spec=release.spec,
+            description={
+                "source": "the original T2M release's text_mot_match",
+                "path": str(release.path),
+                "sha256": release.sha256,
+                "normalization": f"{meta}/mean.npy and std.npy (the release's meta/, as stored)",
+            },
+        )
+
+    @classmethod
+    def load(
+        cls,
+        folder: str | Path,
+        device: str | torch.device = "cpu",
+        which: str = "best",
+        glove_dir: str | Path | None = None,
+    ) -> Embedder:
+        """The release's evaluator when ``folder`` is (in) a release
+        (:func:`t2m.release.load_release_evaluator`, ``glove_dir`` its GloVe subset), else the
+        ``evaluator`` stage of the run folder ``folder``."""
+        from t2m.release import is_release_folder, load_release_evaluator
+        from t2m.train import load_stage
+
+        if is_release_folder(folder):
+            return cls.from_release(load_release_evaluator(folder, glove_dir, device))
+        return cls.from_stage(load_stage(folder, "evaluator", device, which))
+
+
 def _chunks(count: int, size: int) -> list[slice]:
     """Consecutive slices of at most ``size`` items that cover ``range(count)``."""
     return [slice(start, min(start + size, count)) for start in range(0, count, size)]
 
 
 class CheckpointBackend:
-    """The trained evaluator (embeddings) and the shared text-to-motion pipeline (generation).
+    """An evaluator (embeddings) and the shared text-to-motion pipeline (generation).
 
-    Build one with :meth:`from_run_dir`, or from an evaluator stage
-    (:class:`~t2m.train.checkpoint.TrainedStage`) and a :class:`~t2m.pipeline.TextToMotion`
-    (the benchmark builds untrained ones of a preset's sizes).
+    Build one with :meth:`from_run_dir`, or from an evaluator and a
+    :class:`~t2m.pipeline.TextToMotion` (the benchmark builds untrained ones of a preset's sizes).
 
     Args:
-        evaluator_stage: the trained ``evaluator`` stage (its evaluator, statistics and vocabulary).
+        evaluator: an :class:`Embedder`, or a trained ``evaluator`` stage
+            (:class:`~t2m.train.checkpoint.TrainedStage`: its evaluator, statistics and
+            vocabulary, :meth:`Embedder.from_stage`).
         pipeline: generation (text2length + temporal VAE + decoder), batched.
         batch_size: items per forward pass.
     """
 
-    def __init__(self, evaluator_stage: Any, pipeline: Any, batch_size: int = 128):
+    def __init__(self, evaluator: Any, pipeline: Any, batch_size: int = 128):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        self.evaluator_stage = evaluator_stage
+        embedder = evaluator if isinstance(evaluator, Embedder) else Embedder.from_stage(evaluator)
+        self.embedder = embedder
         self.pipeline = pipeline
         self.batch_size = batch_size
-        self.evaluator = evaluator_stage.models["evaluator"]
+        self.evaluator = embedder.evaluator
         self.device = next(self.evaluator.parameters()).device
-        if evaluator_stage.normalizer.dim != pipeline.normalizer.dim:
+        if embedder.normalizer.dim != pipeline.normalizer.dim:
             raise ValueError(
-                f"the evaluator reads {evaluator_stage.normalizer.dim}-d features but the generator "
+                f"the evaluator reads {embedder.normalizer.dim}-d features but the generator "
                 f"writes {pipeline.normalizer.dim}-d ones"
             )
-        if evaluator_stage.spec != pipeline.spec:
+        if embedder.spec != pipeline.spec:
             raise ValueError(
-                f"the evaluator was trained on {evaluator_stage.spec.name}, the generator on "
+                f"the evaluator was trained on {embedder.spec.name}, the generator on "
                 f"{pipeline.spec.name}"
             )
-        self.spec = evaluator_stage.spec
+        self.spec = embedder.spec
         """The dataset spec of the models (snippet length, longest motion, fps)."""
         # Replications reuse captions: encode each once per vocabulary.
         self._encoded: dict[tuple[str, tuple[str, ...]], Any] = {}
@@ -87,17 +179,24 @@ class CheckpointBackend:
         which: str = "best",
         batch_size: int = 128,
         precision: str = "fp32",
+        evaluator_dir: str | Path | None = None,
+        glove_dir: str | Path | None = None,
     ) -> CheckpointBackend:
-        """Load the evaluator, length and generator stages of a run folder (a one-line
-        UsageError names the make target of a missing stage)."""
+        """Load the generator and length stages of a run folder, or the original T2M release's
+        models (any folder of its layout), and the evaluator (:meth:`Embedder.load`): the one
+        of ``evaluator_dir`` (the release's ``text_mot_match``) when given, else the run's own
+        (a release's own for a release). ``glove_dir``: the GloVe subset of a release (default:
+        ``glove/`` beside its ``checkpoints/``). A one-line UsageError names the make target of
+        a missing stage."""
         from t2m.pipeline import TextToMotion
-        from t2m.train import load_stage
         from t2m.train.runtime import resolve_device
 
         resolved = resolve_device(device)
-        evaluator_stage = load_stage(run_dir, "evaluator", resolved, which)
-        pipeline = TextToMotion.from_checkpoints(run_dir, str(resolved), precision, which=which)
-        return cls(evaluator_stage, pipeline, batch_size)
+        embedder = Embedder.load(evaluator_dir or run_dir, resolved, which, glove_dir)
+        pipeline = TextToMotion.from_checkpoints(
+            run_dir, str(resolved), precision, which=which, glove_dir=glove_dir
+        )
+        return cls(embedder, pipeline, batch_size)
 
     def _encode(self, vectorizer: Any, captions: Sequence[Caption]) -> list[Any]:
         """Dataset tokens (``word/POS``) -> EncodedText, as the models were trained on them."""
@@ -112,7 +211,7 @@ class CheckpointBackend:
 
     @torch.no_grad()
     def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
-        encoded = self._encode(self.evaluator_stage.vectorizer, captions)
+        encoded = self._encode(self.embedder.vectorizer, captions)
         out = []
         for chunk in _chunks(len(encoded), self.batch_size):
             items = encoded[chunk]
@@ -124,7 +223,7 @@ class CheckpointBackend:
 
     @torch.no_grad()
     def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
-        normalizer = self.evaluator_stage.normalizer
+        normalizer = self.embedder.normalizer
         unit = self.spec.snippet_length
         lengths = np.array([len(m) for m in motions], dtype=np.int64)
         if np.any(lengths % unit) or np.any(lengths < unit):

@@ -104,6 +104,17 @@ def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _evaluator_line(evaluator: dict[str, Any]) -> str:
+    """Which evaluator embedded the motions (its file and hash) and what normalised its input."""
+    path, digest = evaluator["path"], evaluator["sha256"]
+    where = "untrained, no file" if path is None else f"`{path}`, sha256 `{digest}`"
+    return (
+        f"Evaluator: {evaluator['source']} ({where}). Its input: raw features (generated ones "
+        f"de-normalised with their generator's own statistics) normalised with "
+        f"{evaluator['normalization']}."
+    )
+
+
 def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evaluation") -> str:
     """The results table (like Table 2 of Guo et al.) with a header that cannot be misread."""
     lines = [f"# {title}", ""]
@@ -121,6 +132,8 @@ def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evalua
         + ("; n/a with one replication)." if settings["replications"] == 1 else ").")
     )
     lines.append("")
+    if "evaluator" in summary:
+        lines += [_evaluator_line(summary["evaluator"]), ""]
     if summary["deviations"]:
         lines.append("Deviations from the standard protocol:")
         lines += [f"- {note}" for note in summary["deviations"]]

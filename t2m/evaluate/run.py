@@ -2,8 +2,10 @@
 
 :func:`evaluate` is what ``python -m t2m.evaluate`` calls: check the inputs (:func:`check_inputs`,
 one-line :class:`~dataset_tools.command.UsageError` before anything is loaded), load the stages
-as a :class:`~t2m.evaluate.backend.CheckpointBackend`, read the split (and find the dataset's
-scorer, if any), run the protocol, summarise and write ``results.json`` and ``results.md``.
+(or the original T2M release) and the evaluator as a
+:class:`~t2m.evaluate.backend.CheckpointBackend`, read the split (and find the dataset's scorer,
+if any), run the protocol, summarise and write ``results.json`` and ``results.md`` (which name
+the evaluator, its file's hash and the statistics that normalise its input).
 """
 
 from __future__ import annotations
@@ -28,15 +30,29 @@ logger = logging.getLogger("t2m.evaluate")
 
 
 def check_inputs(
-    dataset_dir: str | Path, checkpoints_dir: str | Path, out_dir: str | Path | None, split: str
+    dataset_dir: str | Path,
+    checkpoints_dir: str | Path,
+    out_dir: str | Path | None,
+    split: str,
+    evaluator_dir: str | Path | None = None,
+    glove_dir: str | Path | None = None,
 ) -> None:
     """What can be checked before anything is loaded: :class:`UsageError` (one line) for a
-    missing dataset or run folder, a missing or empty split file, an ``out_dir`` that is a file."""
+    missing dataset, run, evaluator or GloVe folder, an evaluator folder that is not (in) a T2M
+    release, a missing or empty split file, an ``out_dir`` that is a file."""
+    from t2m.release import is_release_folder
+
     dataset_dir, checkpoints_dir = Path(dataset_dir), Path(checkpoints_dir)
-    if not dataset_dir.is_dir():
-        raise UsageError(f"--dataset {dataset_dir}: no such folder")
-    if not checkpoints_dir.is_dir():
-        raise UsageError(f"--checkpoints {checkpoints_dir}: no such folder")
+    folders = {"--dataset": dataset_dir, "--checkpoints": checkpoints_dir}
+    folders.update({"--evaluator": evaluator_dir, "--glove": glove_dir})
+    for name, folder in folders.items():
+        if folder is not None and not Path(folder).is_dir():
+            raise UsageError(f"{name} {folder}: no such folder")
+    if evaluator_dir is not None and not is_release_folder(evaluator_dir):
+        raise UsageError(
+            f"--evaluator {evaluator_dir}: not a T2M release folder (pass the release's "
+            "checkpoints/<t2m|kit>/text_mot_match)"
+        )
     split_file = dataset_dir / f"{split}.txt"
     if not split_file.is_file():
         raise UsageError(f"--dataset {dataset_dir}: no split file {split_file.name} (--split)")
@@ -70,8 +86,15 @@ def evaluate(
     out_dir: str | Path | None,
     config: EvalConfig,
     backend: Backend | None = None,
+    evaluator_dir: str | Path | None = None,
+    glove_dir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Evaluate the run in ``checkpoints_dir`` on ``dataset_dir``; write results into ``out_dir``.
+    """Evaluate the run (or T2M release) in ``checkpoints_dir`` on ``dataset_dir``; write
+    results into ``out_dir``.
+
+    ``evaluator_dir``: the original release's ``text_mot_match`` (the field's standard
+    evaluator) instead of the run's own evaluator stage; ``glove_dir``: a release's GloVe subset
+    (default: ``glove/`` beside its ``checkpoints/``). Both are ignored when ``backend`` is given.
 
     Steps: 0. check the inputs, 1. load the stages, 2. read the split, 3. run the protocol,
     4. summarise and write. Returns the summary (the content of results.json). What the user got
@@ -79,7 +102,7 @@ def evaluate(
     raised before the long work.
     """
     # 0. inputs
-    check_inputs(dataset_dir, checkpoints_dir, out_dir, config.split)
+    check_inputs(dataset_dir, checkpoints_dir, out_dir, config.split, evaluator_dir, glove_dir)
     # 1. models
     if config.num_threads > 0:
         torch.set_num_threads(config.num_threads)
@@ -87,9 +110,15 @@ def evaluate(
         device = inference_device(config.device, config.precision)
         try:
             backend = CheckpointBackend.from_run_dir(
-                checkpoints_dir, device, config.which, config.batch_size, config.precision
+                checkpoints_dir,
+                device,
+                config.which,
+                config.batch_size,
+                config.precision,
+                evaluator_dir,
+                glove_dir,
             )
-        except ValueError as error:  # unknown device, missing stage (naming its make target)
+        except ValueError as error:  # unknown device, missing stage or file, models that differ
             raise UsageError(str(error)) from None
         logger.info("evaluator and generator on %s", backend.device)
     # 2. data, read as the models' dataset (a backend without a spec: the folder's own)
@@ -113,6 +142,7 @@ def evaluate(
     summary["checkpoints"] = str(checkpoints_dir)
     if isinstance(backend, CheckpointBackend):
         summary["device"] = str(backend.device)
+        summary["evaluator"] = backend.embedder.description
     if out_dir is not None:
         write_results(summary, out_dir)
     return summary
