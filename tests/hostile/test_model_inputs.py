@@ -375,6 +375,36 @@ def test_one_replication_reports_no_interval(tiny_dataset, tiny_run, tmp_path, c
     assert entries and all(entry["interval"] is None for entry in entries)
 
 
+def test_sigkill_during_evaluation_leaves_nothing_half_written(tiny_dataset, tiny_run, tmp_path):
+    out = tmp_path / "eval"
+    base = ["-m", "t2m.evaluate", "--dataset", str(tiny_dataset), "--checkpoints", str(tiny_run)]
+    base += ["--out", str(out), "--split", "all", "--device", "cpu", "--mm-texts", "2"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    child = subprocess.Popen(
+        [sys.executable, *base, "--replications", "200", "--mm-samples", "20"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    # Kill it once the protocol is under way (its progress bar has started), long before the end.
+    deadline, seen = time.time() + 90, ""
+    while time.time() < deadline and "replication" not in seen:
+        seen += child.stderr.read(1) or ""
+        if child.poll() is not None:
+            break
+    assert child.poll() is None, f"the evaluation ended before it could be killed: {seen[-300:]}"
+    child.send_signal(signal.SIGKILL)
+    child.wait()
+    left = sorted(p.name for p in out.rglob("*")) if out.exists() else []
+    assert not [name for name in left if name.startswith("results")], left
+    assert not [name for name in left if name.startswith(".")], left  # no temporary files
+    again = run_command(*base, "--replications", "1", "--mm-samples", "2")
+    assert again.returncode == 0, again.stderr
+    assert (out / "results.md").is_file() and (out / "results.json").is_file()
+
+
 @pytest.mark.parametrize(
     ("argv", "needle"),
     [
