@@ -11,10 +11,9 @@ import numpy as np
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
     option,
+    parse_config,
 )
 from dataset_tools.io import check_output_file, load_npy, save_npy_atomic
 from dataset_tools.representation import (
@@ -91,8 +90,7 @@ def features_main(argv: list[str] | None = None) -> int:
         description="Joints (T, J, 3), y-up metres at 20 fps (J = 22 SMPL or 21 KIT), to HumanML3D "
         "features (T-1, D): retarget to the target skeleton, canonicalise, extract.",
     )
-    add_config_options(parser, FeaturesConfig)
-    config = config_from_args(FeaturesConfig, parser.parse_args(argv))
+    config = parse_config(parser, FeaturesConfig, argv)
     check_outputs(
         [config.input, config.target_skeleton],
         [("output", config.output), ("--joints-out", config.joints_out)],
@@ -132,8 +130,7 @@ def recover_main(argv: list[str] | None = None) -> int:
         prog="python -m dataset_tools recover",
         description="HumanML3D features (T, 263 or 251) back to joints (T, J, 3), y-up metres.",
     )
-    add_config_options(parser, RecoverConfig)
-    config = config_from_args(RecoverConfig, parser.parse_args(argv))
+    config = parse_config(parser, RecoverConfig, argv)
     check_outputs([config.input], [("output", config.output)])
     features = load_npy(config.input)
     dims = {FeatureLayout(joints).dim: joints for joints in (22, 21)}

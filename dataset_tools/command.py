@@ -12,8 +12,7 @@ A command is a config dataclass plus a ``main(argv) -> int``::
     @command
     def main(argv: list[str] | None = None) -> int:
         parser = CommandParser(prog="python -m greet", description="Say hello.")
-        add_config_options(parser, GreetConfig)
-        config = config_from_args(GreetConfig, parser.parse_args(argv))
+        config = parse_config(parser, GreetConfig, argv)  # options, parsing, checks, logging
         ...
 
 Each field becomes ``--field-name`` (required when the field has no default); its help is the
@@ -291,3 +290,17 @@ def config_from_args(cls: type[Config], namespace: argparse.Namespace) -> Config
 
 
 # ----------------------------------------------------------------------------- output paths
+
+
+def parse_config(
+    parser: CommandParser,
+    cls: type[Config],
+    argv: Sequence[str] | None = None,
+    defaults: dict[str, Any] | None = None,
+) -> Config:
+    """The usual start of a command: ``cls``'s options on ``parser``, ``argv`` (default: the
+    process's arguments) parsed into a validated ``cls``, and logging configured."""
+    add_config_options(parser, cls, defaults)
+    config = config_from_args(cls, parser.parse_args(sys.argv[1:] if argv is None else argv))
+    configure_logging()
+    return config

@@ -25,11 +25,9 @@ import torch
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
-    configure_logging,
     option,
+    parse_config,
 )
 from dataset_tools.io import write_json_atomic, write_text_atomic
 
@@ -131,9 +129,7 @@ class BenchConfig:
 @command
 def main(argv: list[str] | None = None) -> int:
     parser = CommandParser(prog="python -m t2m.bench", description=__doc__.split("\n\n")[0])
-    add_config_options(parser, BenchConfig)
-    config = config_from_args(BenchConfig, parser.parse_args(argv))
-    configure_logging()
+    config = parse_config(parser, BenchConfig, argv)
     names = available()
     unknown = sorted(set(config.only) - set(names))
     if unknown:

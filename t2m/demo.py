@@ -22,11 +22,9 @@ from typing import Literal
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
-    configure_logging,
     option,
+    parse_config,
 )
 from dataset_tools.io import check_output_folder
 from t2m.config import PRESETS, check_seed, preset
@@ -202,9 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         "stages, sample example prompts, run a quick evaluation. A step whose result exists "
         "is skipped (an interrupted training stage resumes).",
     )
-    add_config_options(parser, DemoConfig)
-    config = config_from_args(DemoConfig, parser.parse_args(sys.argv[1:] if argv is None else argv))
-    configure_logging()
+    config = parse_config(parser, DemoConfig, argv)
     print(run_demo(config))
     return 0
 

@@ -15,11 +15,9 @@ from dataset_tools.bvh import write_bvh
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
-    configure_logging,
     option,
+    parse_config,
 )
 from dataset_tools.humanml3d import read_joints
 from dataset_tools.io import check_output_file
@@ -59,9 +57,7 @@ def main(argv: list[str] | None = None) -> int:
         description="Write joints (T, 22, 3) (metres, y-up) or HumanML3D features (T, 263) from "
         "a .npy file as a BVH file of the 22-joint SMPL skeleton.",
     )
-    add_config_options(parser, ExportCommandConfig)
-    config = config_from_args(ExportCommandConfig, parser.parse_args(argv))
-    configure_logging()
+    config = parse_config(parser, ExportCommandConfig, argv)
     joints = read_joints(config.input)
     if joints.shape[1] != SMPL.num_joints:
         raise UsageError(

@@ -13,11 +13,9 @@ from pathlib import Path
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
-    configure_logging,
     option,
+    parse_config,
 )
 from dataset_tools.humanml3d import read_joints
 from dataset_tools.io import check_output_file
@@ -63,9 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         description="Render joints (T, J, 3) or features (T, D) from a .npy file as an mp4 or "
         "gif stick-figure animation, or a PNG strip of key frames.",
     )
-    add_config_options(parser, RenderCommandConfig)
-    config = config_from_args(RenderCommandConfig, parser.parse_args(argv))
-    configure_logging()
+    config = parse_config(parser, RenderCommandConfig, argv)
     joints = read_joints(config.input)
     fps = config.fps or spec_for_joints(joints.shape[1]).fps
     if config.output.suffix.lower() == ".png":

@@ -215,3 +215,24 @@ def test_documented_options_are_generated(capsys, module, options):
         assert "auto, cpu, cuda or cuda:N (auto: CUDA when present) (default: auto)" in " ".join(
             text.split()
         )
+
+
+def test_parse_config_is_options_parsing_and_checks_in_one_call():
+    from dataclasses import dataclass
+
+    from dataset_tools.command import CommandParser, UsageError, parse_config
+
+    @dataclass
+    class Greet:
+        times: int = 1
+        """how often"""
+
+        def __post_init__(self):
+            if self.times < 1:
+                raise UsageError("--times must be at least 1")
+
+    assert parse_config(CommandParser(prog="greet"), Greet, ["--times", "3"]) == Greet(3)
+    with pytest.raises(UsageError, match="--times must be at least 1"):
+        parse_config(CommandParser(prog="greet"), Greet, ["--times", "0"])
+    with pytest.raises(UsageError, match="invalid int value"):
+        parse_config(CommandParser(prog="greet"), Greet, ["--times", "x"])

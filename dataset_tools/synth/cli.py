@@ -12,10 +12,8 @@ from dataset_tools import humanml3d
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
-    configure_logging,
+    parse_config,
 )
 from dataset_tools.io import check_output_file, load_npy
 from dataset_tools.rotations import to_y_up
@@ -85,9 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         description="Write the procedural demo corpus (joints z-up 60 fps, captions, labels) that "
         "`python -m dataset_tools build --source joints` reads.",
     )
-    add_config_options(parser, SynthConfig)
-    config = config_from_args(SynthConfig, parser.parse_args(argv))
-    configure_logging()
+    config = parse_config(parser, SynthConfig, argv)
     # write_corpus checks its arguments (UsageError) before writing anything.
     write_corpus(
         config.out,
@@ -153,8 +149,7 @@ def contact_sheet_main(argv: list[str] | None = None) -> int:
         description="Render a grid of stick-figure key frames of N random clips of a synth corpus "
         "(or of any folder of y-up 20 fps HumanML3D new_joints/ with texts/) to PNG.",
     )
-    add_config_options(parser, ContactSheetConfig)
-    config = config_from_args(ContactSheetConfig, parser.parse_args(argv))
+    config = parse_config(parser, ContactSheetConfig, argv)
     check_output_file(config.out, "--out")
     if not config.input.is_dir():
         raise UsageError(f"--input folder {config.input} does not exist")

@@ -37,11 +37,9 @@ import torch
 from dataset_tools.command import (
     CommandParser,
     UsageError,
-    add_config_options,
     command,
-    config_from_args,
-    configure_logging,
     option,
+    parse_config,
 )
 from dataset_tools.io import atomic_write, save_npy_atomic, write_text_atomic
 from dataset_tools.skeleton import HUMANML3D, KIT_ML
@@ -334,11 +332,7 @@ def main(argv: list[str] | None = None) -> int:
         description="Write a run's generator, length estimator, evaluator, normalisation and "
         "vocabulary in the original T2M release's layout.",
     )
-    add_config_options(parser, ExportConfig)
-    config = config_from_args(
-        ExportConfig, parser.parse_args(sys.argv[1:] if argv is None else argv)
-    )
-    configure_logging()
+    config = parse_config(parser, ExportConfig, argv)
     export_release(config.checkpoints, config.out, config.name, config.which)
     return 0
 
