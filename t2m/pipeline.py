@@ -205,6 +205,26 @@ class TextToMotion:
                 "word vectors (retrain with `make train-len` on the same dataset)"
             )
 
+    def with_precision(self, precision: str) -> TextToMotion:
+        """The same models, vocabulary and settings behind another inference precision (from a
+        float32 pipeline: reduced-precision weights are not converted back)."""
+        if self.precision != "fp32":
+            raise ValueError(f"with_precision needs a fp32 pipeline, this one is {self.precision}")
+        return TextToMotion(
+            vae=self.vae,
+            decoder=self.decoder,
+            normalizer=self.normalizer,
+            vectorizer=self.vectorizer,
+            initial_code=self.initial_code,
+            spec=self.spec,
+            length_model=self.length_model,
+            length_vectorizer=self.length_vectorizer,
+            device=self.device,
+            precision=precision,
+            training_words=self.training_words,
+            spacy_pos=self.spacy_pos,
+        )
+
     # -- loading -----------------------------------------------------------------------------
 
     @classmethod

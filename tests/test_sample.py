@@ -363,3 +363,14 @@ def test_batched_decoding_gives_what_each_motion_decoded_alone_gives(pipe, monke
         expected = pipe.normalizer.denormalize(alone).numpy()[0]
         assert batched[row].shape == (length, pipe.normalizer.dim)
         np.testing.assert_allclose(batched[row], expected, rtol=1e-5, atol=1e-5)
+
+
+def test_with_precision_keeps_models_vocabulary_and_settings(pipe):
+    import torch
+
+    reduced = pipe.with_precision("bf16")
+    assert reduced.precision == "bf16" and reduced.dtype == torch.bfloat16
+    assert reduced.training_words == pipe.training_words and reduced.spec == pipe.spec
+    assert reduced.vectorizer is pipe.vectorizer and reduced.spacy_pos == pipe.spacy_pos
+    with pytest.raises(ValueError, match="needs a fp32 pipeline"):
+        reduced.with_precision("fp32")

@@ -134,7 +134,7 @@ def _generation_speedup(
     finally:
         backend.batch_size = batch_size
     pipeline = backend.pipeline
-    backend.pipeline = _with_precision(pipeline, "bf16")
+    backend.pipeline = pipeline.with_precision("bf16")
     try:
         backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
         start = time.perf_counter()
@@ -148,21 +148,6 @@ def _generation_speedup(
         f"{prefix}_generate_one_at_a_time_motions_per_s": round(count / single, 1),
         f"{prefix}_batched_generation_speedup_x": round(single / batched, 1),
     }
-
-
-def _with_precision(pipeline: TextToMotion, precision: str) -> TextToMotion:
-    """The same models behind another inference precision."""
-    return TextToMotion(
-        vae=pipeline.vae,
-        decoder=pipeline.decoder,
-        normalizer=pipeline.normalizer,
-        vectorizer=pipeline.vectorizer,
-        initial_code=pipeline.initial_code,
-        spec=pipeline.spec,
-        length_model=pipeline.length_model,
-        length_vectorizer=pipeline.length_vectorizer,
-        precision=precision,
-    )
 
 
 def _paper_evaluator_forward(repeats: int) -> float:
