@@ -407,8 +407,12 @@ class TextToMotion:
         encoded: Sequence[EncodedText],
         frames: Sequence[int],
         generator: torch.Generator,
+        noise: torch.Tensor | None = None,
     ) -> list[np.ndarray]:
-        """One batch: normalised-space generation -> de-normalised features (frames_i, D) each."""
+        """One batch: normalised-space generation -> de-normalised features (frames_i, D) each.
+
+        ``noise``: the latent draws (B, max snippets, Z) (default: drawn from ``generator``);
+        given by a caller that batches requests of different seeds (``t2m.serve``)."""
         unit = self.spec.snippet_length
         words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
@@ -420,6 +424,7 @@ class TextToMotion:
             num_snippets.to(self.device),
             self.initial_code,
             generator,
+            noise=noise,
         )
         # Decode each length on its own: the transposed convolutions would carry the padding
         # past a shorter item's end into its last frames (a batch must give what batch 1 gives).

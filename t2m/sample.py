@@ -9,7 +9,8 @@ Examples::
 Writes into ``--out`` (default ``outputs/<timestamp>/``), per prompt NN and sample RR:
 ``sampleNN_repRR.npy`` (joints (T, 22, 3), metres, y-up, at the dataset's fps: 20 for HumanML3D), ``sampleNN_repRR_feats.npy``
 (de-normalised features (T, 263)), ``sampleNN_repRR.mp4|gif`` unless ``--render none``,
-``sampleNN_repRR.bvh`` with ``--bvh``; plus ``results.npy`` (the MDM layout: a dict with
+``sampleNN_repRR.bvh`` with ``--bvh``, ``sampleNN_repRR.glb`` (animated glTF binary) with
+``--glb``; plus ``results.npy`` (the MDM layout: a dict with
 ``motion`` (N, 22, 3, T_max), ``text``, ``lengths``, ``num_samples``, ``num_repetitions``; motion
 ``i = rep * num_samples + prompt``, padded past its length with its last pose) and
 ``results.json``. Everything is written into a hidden folder beside ``--out`` and renamed at the
@@ -48,7 +49,7 @@ from dataset_tools.command import (
     configure_logging,
     option,
 )
-from dataset_tools.io import check_output_folder
+from dataset_tools.io import atomic_write, check_output_folder, write_json_atomic
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
 from t2m.pipeline import GeneratedMotion
@@ -67,6 +68,22 @@ class Prompt:
     frames: int | None = None
 
 
+def parse_prompt_line(line: str, where: str) -> Prompt:
+    """One prompt line, ``text`` or ``text#frames``; ``where`` starts the one-line UsageError."""
+    text, sep, suffix = line.rpartition("#")
+    if not sep:
+        return Prompt(line.strip())
+    try:
+        frames = int(suffix.strip())
+    except ValueError:
+        raise UsageError(
+            f"{where}: after '#' give a length in frames, got {suffix.strip()!r}"
+        ) from None
+    if not text.strip():
+        raise UsageError(f"{where}: empty prompt before '#{suffix.strip()}'")
+    return Prompt(text.strip(), frames)
+
+
 def read_prompt_file(path: str | Path) -> list[Prompt]:
     """Prompts, one a line; ``text#frames`` fixes that prompt's length. Blank lines are skipped."""
     path = Path(path)
@@ -76,23 +93,11 @@ def read_prompt_file(path: str | Path) -> list[Prompt]:
         raise UsageError(f"cannot read --text-file {path}: {error.strerror or error}") from None
     except UnicodeDecodeError:
         raise UsageError(f"--text-file {path} is not UTF-8 text") from None
-    prompts = []
-    for number, line in enumerate(lines, start=1):
-        if not line.strip():
-            continue
-        text, sep, suffix = line.rpartition("#")
-        if not sep:
-            prompts.append(Prompt(line.strip()))
-            continue
-        try:
-            frames = int(suffix.strip())
-        except ValueError:
-            raise UsageError(
-                f"{path.name}:{number}: after '#' give a length in frames, got {suffix.strip()!r}"
-            ) from None
-        if not text.strip():
-            raise UsageError(f"{path.name}:{number}: empty prompt before '#{suffix.strip()}'")
-        prompts.append(Prompt(text.strip(), frames))
+    prompts = [
+        parse_prompt_line(line, f"{path.name}:{number}")
+        for number, line in enumerate(lines, start=1)
+        if line.strip()
+    ]
     if not prompts:
         raise UsageError(f"--text-file {path} holds no prompt")
     return prompts
@@ -104,8 +109,69 @@ def stem(prompt: int, repetition: int) -> str:
 
 
 def _save_npy(path: Path, array) -> None:
-    with open(path, "wb") as handle:  # inside the private temp folder: renamed as a whole later
-        np.save(handle, array, allow_pickle=isinstance(array, dict))
+    # atomic: the web app (t2m.serve) writes into a folder that is being read
+    atomic_write(path, lambda handle: np.save(handle, array, allow_pickle=isinstance(array, dict)))
+
+
+MOTION_FILE_KINDS = ("npy", "feats", "bvh", "glb", "mp4", "gif")
+"""The per-motion files :func:`write_motion_file` writes (``feats``: ``<stem>_feats.npy``)."""
+
+
+def motion_file_name(prompt: int, repetition: int, kind: str) -> str:
+    """File name of one per-motion file: ``sampleNN_repRR.npy``, ``..._feats.npy``, ``.bvh``..."""
+    if kind not in MOTION_FILE_KINDS:
+        raise ValueError(f"unknown motion file kind {kind!r}; use one of {MOTION_FILE_KINDS}")
+    name = stem(prompt, repetition)
+    return f"{name}_feats.npy" if kind == "feats" else f"{name}.{kind}"
+
+
+def write_motion_file(motion: GeneratedMotion, folder: Path, kind: str, fps: float) -> str:
+    """Write one file of ``motion`` into ``folder`` (atomically): ``kind`` one of
+    :data:`MOTION_FILE_KINDS`; returns the file name."""
+    name = motion_file_name(motion.prompt_index, motion.repetition, kind)
+    path = Path(folder) / name
+    if kind == "npy":
+        _save_npy(path, motion.joints)
+    elif kind == "feats":
+        _save_npy(path, motion.features)
+    elif kind == "bvh":
+        from dataset_tools.bvh import write_bvh
+
+        write_bvh(motion.joints, path, fps=fps)
+    elif kind == "glb":
+        from dataset_tools.gltf import write_glb
+
+        write_glb(motion.joints, path, fps=fps, name=motion.text[:200])
+    else:
+        from dataset_tools.viz import render_animation
+
+        render_animation(motion.joints, path, motion.text, fps)
+    return name
+
+
+def write_summaries(
+    motions: Sequence[Sequence[GeneratedMotion]],
+    folder: Path,
+    seed: int,
+    fps: float,
+    files: Sequence[str],
+    extra_info: dict | None = None,
+) -> dict:
+    """Write ``results.npy`` (the MDM layout) and ``results.json`` for ``motions[prompt][rep]``
+    into ``folder``; ``files``: the per-motion files written. Returns the results.json dict."""
+    num_samples = len(motions[0])
+    _save_npy(Path(folder) / "results.npy", mdm_results(motions, num_samples))
+    summary = {
+        "texts": [row[0].text for row in motions],
+        "lengths": [[m.num_frames for m in row] for row in motions],
+        "seed": seed,
+        "num_samples": num_samples,
+        "fps": fps,
+        "files": list(files) + ["results.npy", "results.json"],
+        **(extra_info or {}),
+    }
+    write_json_atomic(Path(folder) / "results.json", summary)
+    return summary
 
 
 def mdm_results(motions: Sequence[Sequence[GeneratedMotion]], num_repetitions: int) -> dict:
@@ -262,7 +328,13 @@ def _gib(count: int) -> str:
 
 
 def check_resources(
-    frames: Sequence[int], num_samples: int, spec: DatasetSpec, out: Path, render: str, bvh: bool
+    frames: Sequence[int],
+    num_samples: int,
+    spec: DatasetSpec,
+    out: Path,
+    render: str,
+    bvh: bool,
+    glb: bool = False,
 ) -> None:
     """Refuse, before generating, a request whose motions cannot fit in memory or on disk.
 
@@ -277,7 +349,7 @@ def check_resources(
     num_motions, total_frames = len(frames) * num_samples, sum(frames) * num_samples
     in_memory = 4 * total_frames * (joint_values + feature_values)
     results = 4 * num_motions * max(frames) * joint_values
-    per_frame_files = RENDER_BYTES_PER_FRAME[render] + (BVH_BYTES_PER_FRAME if bvh else 0)
+    per_frame_files = RENDER_BYTES_PER_FRAME[render] + BVH_BYTES_PER_FRAME * (bvh + glb)
     memory = in_memory + results
     disk = in_memory + results + total_frames * per_frame_files
     from t2m.train.runtime import available_memory
@@ -323,6 +395,7 @@ def sample_to_folder(
     bvh: bool = False,
     overwrite: bool = False,
     extra_info: dict | None = None,
+    glb: bool = False,
 ) -> Path:
     """Generate motions for ``prompts`` with a :class:`t2m.pipeline.TextToMotion` and write every
     file of the output contract into ``out``; returns ``out``. Nothing is left in ``out`` on error.
@@ -330,19 +403,17 @@ def sample_to_folder(
     Raises UsageError (a ValueError) before any generation for an unusable ``out``, ``render``
     or ``bvh`` request.
     """
-    from dataset_tools.bvh import write_bvh
-    from dataset_tools.viz import render_animation
-
     if render not in RENDER_CHOICES:
         raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
     fps = pipe.spec.fps
-    if bvh and pipe.spec.num_joints != 22:
-        raise UsageError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
+    if (bvh or glb) and pipe.spec.num_joints != 22:
+        option = "--bvh" if bvh else "--glb"
+        raise UsageError(f"{option} needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
     out = Path(out).resolve()  # "." has no name to put a temp folder beside
     # 1. where to write, and whether it fits (fails early, before any model work)
     longest = pipe.spec.max_frames
     frames = [min(p.frames or longest, longest) for p in prompts]
-    check_resources(frames, num_samples, pipe.spec, out, render, bvh)
+    check_resources(frames, num_samples, pipe.spec, out, render, bvh, glb)
     tmp = _prepare_out(out, overwrite)
     try:
         # 2. generate
@@ -361,29 +432,11 @@ def sample_to_folder(
         flat = [m for row in motions for m in row]
         from tqdm import tqdm
 
+        kinds = ["npy", "feats"] + [render] * (render != "none") + ["bvh"] * bvh + ["glb"] * glb
         for motion in tqdm(flat, desc="writing", unit="motion", disable=len(flat) < 2):
-            name = stem(motion.prompt_index, motion.repetition)
-            _save_npy(tmp / f"{name}.npy", motion.joints)
-            _save_npy(tmp / f"{name}_feats.npy", motion.features)
-            files += [f"{name}.npy", f"{name}_feats.npy"]
-            if render != "none":
-                render_animation(motion.joints, tmp / f"{name}.{render}", motion.text, fps)
-                files.append(f"{name}.{render}")
-            if bvh:
-                write_bvh(motion.joints, tmp / f"{name}.bvh", fps=fps)
-                files.append(f"{name}.bvh")
+            files += [write_motion_file(motion, tmp, kind, fps) for kind in kinds]
         # 4. the summaries
-        _save_npy(tmp / "results.npy", mdm_results(motions, num_samples))
-        summary = {
-            "texts": texts,
-            "lengths": [[m.num_frames for m in row] for row in motions],
-            "seed": seed,
-            "num_samples": num_samples,
-            "fps": fps,
-            "files": files + ["results.npy", "results.json"],
-            **(extra_info or {}),
-        }
-        (tmp / "results.json").write_text(json.dumps(summary, indent=2) + "\n")
+        summary = write_summaries(motions, tmp, seed, fps, files, extra_info)
         _write_marker(tmp, summary["files"])
         # 5. publish in one rename
         _publish(tmp, out, overwrite)
@@ -422,6 +475,8 @@ class SampleConfig:
     """stick-figure animation format, or none"""
     bvh: bool = False
     """also write a BVH file per motion"""
+    glb: bool = False
+    """also write an animated glTF binary (.glb) per motion"""
     device: str = "auto"
     """auto, cpu, cuda or cuda:N (auto: CUDA when present)"""
     batch_size: int = field(default=32, metadata=option(metavar="N"))
@@ -514,6 +569,7 @@ def main(argv: list[str] | None = None) -> int:
         batch_size=config.batch_size,
         render=config.render,
         bvh=config.bvh,
+        glb=config.glb,
         overwrite=config.overwrite,
         extra_info={
             "checkpoints": str(config.checkpoints),

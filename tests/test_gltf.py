@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from dataset_tools.bvh import motion_from_joints
 from dataset_tools.gltf import write_glb
 from dataset_tools.skeleton import SMPL
 from t2m import export
@@ -161,3 +162,19 @@ def test_export_command_writes_glb_and_refuses_bad_input(tmp_path, capsys):
     assert export.main([str(source), str(tmp_path / "kit.glb")]) == 2
     assert "22-joint" in capsys.readouterr().err
     assert not (tmp_path / "kit.glb").exists()
+
+
+def test_sample_glb_option_writes_a_glb_per_motion(tiny_run, tmp_path):
+    from t2m import sample
+
+    out = tmp_path / "out"
+    argv = ["--text", "a person walks forward", "--num-samples", "2", "--length", "40"]
+    argv += ["--checkpoints", str(tiny_run), "--out", str(out), "--render", "none", "--glb"]
+    assert sample.main(argv) == 0
+    for rep in range(2):
+        # The tiny model's bone lengths drift from the target skeleton's; the file holds the
+        # skeleton motion the BVH writer solves (target bone lengths, the same rotations).
+        solved = motion_from_joints(np.load(out / f"sample00_rep{rep:02d}.npy")).joints()
+        positions, _, _, _ = _read_with_pygltflib(out / f"sample00_rep{rep:02d}.glb")
+        assert np.linalg.norm(positions - solved, axis=-1).max() < 0.01
+    assert "sample00_rep01.glb" in json.loads((out / "results.json").read_text())["files"]
