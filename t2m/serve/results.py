@@ -1,0 +1,196 @@
+"""The web app's generated files: one folder per request under the server's work folder, named
+by an unguessable token, written by ``t2m.sample``'s writers, removed after a set time or when
+the folder grows past a set size.
+
+* A request's id is ``secrets.token_urlsafe(16)`` (128 random bits): knowing one request's links
+  tells nothing about another's. Nothing lists the ids; the page keeps its own history.
+* A download names a file by (id, file name); both are matched against fixed patterns and the id
+  must be a live request of this server before any path is made, so ``..``, slashes, absolute
+  paths or another folder's names never reach the file system.
+* The joints ``.npy`` of every motion and ``results.npy`` / ``results.json`` are written when the
+  motions are made; BVH, glTF and the mp4 / gif animation on the first download (they take
+  longer: BVH and glTF ~0.1 s, a video seconds), once, under the request's lock.
+* Cleanup: requests older than ``keep_seconds`` are removed, then the oldest ones until the
+  files take at most ``max_bytes`` (never the newest request).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import secrets
+import shutil
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from t2m.pipeline import GeneratedMotion
+from t2m.sample import motion_file_name, write_motion_file, write_summaries
+
+logger = logging.getLogger(__name__)
+
+ID_PATTERN = re.compile(r"[A-Za-z0-9_-]{22}")
+FILE_PATTERN = re.compile(
+    r"(?:sample(?P<prompt>\d{2})_rep(?P<sample>\d{2})\.(?P<kind>npy|bvh|glb|mp4|gif))"
+    r"|results\.(?:npy|json)"
+)
+DOWNLOAD_KINDS = ("npy", "bvh", "glb", "mp4", "gif")
+CONTENT_TYPES = {
+    ".npy": "application/octet-stream",
+    ".bvh": "text/plain; charset=utf-8",
+    ".glb": "model/gltf-binary",
+    ".mp4": "video/mp4",
+    ".gif": "image/gif",
+    ".json": "application/json",
+}
+
+
+class Expired(LookupError):
+    """The request's files were removed (too old, or the folder was full)."""
+
+
+@dataclass
+class StoredResult:
+    """One request's motions and its folder."""
+
+    id: str
+    folder: Path
+    motions: list[list[GeneratedMotion]]
+    summary: dict
+    created: float = field(default_factory=time.time)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def size(self) -> int:
+        return sum(p.stat().st_size for p in self.folder.iterdir() if p.is_file())
+
+
+class ResultStore:
+    """The work folder of the server and the requests whose files live there.
+
+    Args:
+        root: the folder (created); each request gets ``root/<id>/``.
+        fps: frames per second of the motions (the models' dataset).
+        keep_seconds: a request's files are removed this long after it was made.
+        max_bytes: above this total, the oldest requests are removed first.
+    """
+
+    def __init__(
+        self,
+        root: Path,
+        fps: float,
+        keep_seconds: float,
+        max_bytes: int,
+        remove_root: bool = False,
+    ) -> None:
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.remove_root = remove_root
+        self._closed = threading.Event()
+        self.fps = fps
+        self.keep_seconds = keep_seconds
+        self.max_bytes = max_bytes
+        self._results: dict[str, StoredResult] = {}
+        self._expired: set[str] = set()
+        self._lock = threading.Lock()
+
+    def add(self, motions: list[list[GeneratedMotion]], seed: int, extra: dict) -> StoredResult:
+        """Write the request's joints and summaries into a new folder; returns its record."""
+        request_id = secrets.token_urlsafe(16)
+        folder = self.root / request_id
+        folder.mkdir()
+        files = [write_motion_file(m, folder, "npy", self.fps) for row in motions for m in row]
+        summary = write_summaries(motions, folder, seed, self.fps, files, extra)
+        result = StoredResult(request_id, folder, motions, summary)
+        with self._lock:
+            self._results[request_id] = result
+        self.clean()
+        return result
+
+    def get(self, request_id: str) -> StoredResult:
+        """The live request ``request_id``; KeyError when unknown, Expired when removed."""
+        if not ID_PATTERN.fullmatch(request_id):
+            raise KeyError(request_id)
+        with self._lock:
+            if request_id in self._expired:
+                raise Expired(request_id)
+            result = self._results[request_id]
+        if time.time() - result.created > self.keep_seconds:  # before the next cleaning round
+            self.clean()
+            raise Expired(request_id)
+        return result
+
+    def file(self, request_id: str, name: str) -> Path:
+        """The path of a download, written first if it is made on demand. KeyError for an
+        unknown id or a file name that is not one of the request's; Expired when removed."""
+        result = self.get(request_id)
+        match = FILE_PATTERN.fullmatch(name)
+        if match is None:
+            raise KeyError(name)
+        if match["kind"] is None:  # results.npy / results.json
+            return self._existing(result, name)
+        prompt, sample = int(match["prompt"]), int(match["sample"])
+        if prompt >= len(result.motions) or sample >= len(result.motions[prompt]):
+            raise KeyError(name)
+        kind = match["kind"]
+        with result.lock:
+            path = result.folder / motion_file_name(prompt, sample, kind)
+            if not path.exists():
+                if not result.folder.is_dir():
+                    raise Expired(request_id)
+                write_motion_file(result.motions[prompt][sample], result.folder, kind, self.fps)
+        self.clean()
+        return self._existing(result, path.name)
+
+    def _existing(self, result: StoredResult, name: str) -> Path:
+        path = result.folder / name
+        if not path.is_file():
+            raise Expired(result.id)
+        return path
+
+    def clean(self) -> list[str]:
+        """Remove requests past their time, then the oldest while the files take more than
+        ``max_bytes`` (the newest request stays); returns the removed ids."""
+        now = time.time()
+        removed = []
+        with self._lock:
+            ordered = sorted(self._results.values(), key=lambda r: r.created)
+            sizes = {r.id: r.size() for r in ordered}
+            total = sum(sizes.values())
+            for result in ordered:
+                too_old = now - result.created > self.keep_seconds
+                too_big = total > self.max_bytes and result is not ordered[-1]
+                if not (too_old or too_big):
+                    continue
+                total -= sizes[result.id]
+                del self._results[result.id]
+                self._expired.add(result.id)
+                removed.append(result)
+        for result in removed:
+            with result.lock:  # not while a download of it is being written
+                shutil.rmtree(result.folder, ignore_errors=True)
+            logger.info("removed the files of request %s", result.id[:6])
+        return [r.id for r in removed]
+
+    def clean_every(self, seconds: float) -> threading.Thread:
+        """Start a thread that runs :meth:`clean` every ``seconds`` until :meth:`close`."""
+
+        def run() -> None:
+            while not self._closed.wait(seconds):
+                self.clean()
+
+        thread = threading.Thread(target=run, name="t2m-serve-cleanup", daemon=True)
+        thread.start()
+        return thread
+
+    def close(self) -> None:
+        """Remove every request's files, and the work folder when it is ours (the server
+        stops)."""
+        self._closed.set()
+        with self._lock:
+            results = list(self._results.values())
+            self._results.clear()
+        for result in results:
+            shutil.rmtree(result.folder, ignore_errors=True)
+        if self.remove_root:
+            shutil.rmtree(self.root, ignore_errors=True)
