@@ -26,9 +26,10 @@ PRESET ?= demo
 DATASET ?= data/demo
 CHECKPOINTS ?= checkpoints/$(call given,PRESET)
 TEXT ?= a person walks forward and then waves with the right hand
+PORT ?= 8000
 
 USER_VARIABLES := PYTHON VENV SOURCE INPUT OUT CLIPS SEED WORKERS ARGS DEMO_SOURCE PRESET \
-	DATASET CHECKPOINTS TEXT
+	DATASET CHECKPOINTS TEXT PORT
 # Not exported into the commands' environment: make would expand them to export them.
 unexport $(USER_VARIABLES)
 
@@ -51,7 +52,7 @@ STAMP := $(VENV_DIR)/.installed
 py = $(call quote,$(VENV_DIR)/bin/python)
 
 .PHONY: install test lint dataset contact-sheet train-ae train-len train-t2m train-eval train \
-	sample eval demo bench
+	sample eval demo bench serve
 
 install: $(STAMP)
 
@@ -108,3 +109,6 @@ demo: install
 
 bench: install
 	$(py) -m t2m.bench $(args)
+
+serve: install
+	$(py) -m t2m.serve --checkpoints $(call arg,CHECKPOINTS) --port $(call arg,PORT) $(args)

@@ -243,6 +243,7 @@ function bindPlayer() {
 
 window.addEventListener("DOMContentLoaded", async () => {
   state.viewer = new StickViewer($("view"));
+  window.t2mViewerFrame = () => state.viewer.framesDrawn;  // for the page's tests
   bindPlayer();
   $("generate-form").addEventListener("submit", generate);
   $("length-mode").addEventListener("change", (e) => {

@@ -1,0 +1,158 @@
+"""The web app in a real browser: headless Chromium (Debian's ``chromium`` and
+``chromium-driver``, installed by .ci/run) driven through selenium opens the page, generates, and
+the test checks the drawing, a download and an error message.
+
+Outside CI the test is skipped, saying why, when Chromium or its driver is not installed; in CI
+(``CI=true``) their absence is a failure.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from t2m.pipeline import TextToMotion
+from t2m.serve.server import make_server
+
+LEFT, RIGHT = (0x1F, 0x6F, 0xD1), (0xD6, 0x40, 0x2B)  # the renderings' limb colours
+
+
+def _browser_paths() -> tuple[str, str]:
+    browser = next(filter(None, map(shutil.which, ["chromium", "chromium-browser"])), None)
+    driver = shutil.which("chromedriver")
+    missing = [name for name, path in (("chromium", browser), ("chromedriver", driver)) if not path]
+    if missing:
+        reason = (
+            f"{' and '.join(missing)} not installed (Debian: apt-get install chromium "
+            "chromium-driver; .ci/run installs them)"
+        )
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"the browser test must run in CI: {reason}")
+        pytest.skip(reason)
+    return browser, driver
+
+
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory):
+    binary, driver_path = _browser_paths()
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is in the test extra")
+    from selenium.webdriver.chrome.service import Service
+
+    downloads = tmp_path_factory.mktemp("downloads")
+    options = webdriver.ChromeOptions()
+    options.binary_location = binary
+    for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu"):
+        options.add_argument(argument)
+    options.add_argument("--window-size=1400,1000")
+    options.add_experimental_option(
+        "prefs",
+        {"download.default_directory": str(downloads), "download.prompt_for_download": False},
+    )
+    driver = webdriver.Chrome(options=options, service=Service(driver_path))
+    driver.downloads = downloads
+    yield driver
+    driver.quit()
+
+
+@pytest.fixture(scope="module")
+def page(browser, tiny_run, tmp_path_factory):
+    pipe = TextToMotion.from_checkpoints(tiny_run, device="cpu")
+    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path_factory.mktemp("work"))
+    server.start_in_thread()
+    browser.get(server.url)
+    _wait(browser, "return document.body.dataset.ready === 'true'")
+    yield browser
+    server.shutdown_app()
+
+
+def _wait(driver, script: str, timeout: float = 30.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = driver.execute_script(script)
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for: {script}")
+
+
+def _canvas_pixels(driver) -> np.ndarray:
+    from PIL import Image
+
+    png = driver.find_element("id", "view").screenshot_as_png
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+
+
+def _colour_count(pixels: np.ndarray, colour: tuple[int, int, int], tolerance: int = 40) -> int:
+    return int((np.abs(pixels - np.array(colour)).sum(axis=-1) < tolerance).sum())
+
+
+def _generate(driver, prompts: str, samples: int = 3) -> None:
+    box = driver.find_element("id", "prompts")
+    box.clear()
+    box.send_keys(prompts)
+    count = driver.find_element("id", "samples")
+    count.clear()
+    count.send_keys(str(samples))
+    driver.execute_script("window.t2mTiming = null")
+    driver.find_element("id", "generate").click()
+
+
+def test_page_generates_and_draws_the_figures(page):
+    _generate(page, "a person walks forward")
+    timing = _wait(
+        page, "return window.t2mTiming && window.t2mTiming.firstFrame && window.t2mTiming"
+    )
+    assert timing["firstFrame"] >= timing["answered"] >= timing["clicked"]
+    assert not page.find_element("id", "error").is_displayed()
+    captions = page.find_element("id", "captions").text
+    assert captions.count("a person walks forward") == 3
+    first = _canvas_pixels(page)
+    assert first.std() > 5  # not blank
+    assert _colour_count(first, LEFT) > 200 and _colour_count(first, RIGHT) > 200
+    frame = page.execute_script("return window.t2mViewerFrame()")
+    _wait(page, f"return window.t2mViewerFrame() > {frame + 5}")
+    later = _canvas_pixels(page)
+    assert np.abs(later - first).sum(axis=-1).astype(bool).mean() > 0.001  # the figures moved
+    # one at a time: the layout menu lists the three motions and shows one
+    options = page.find_elements("css selector", "#layout option")
+    assert len(options) == 4
+    history = page.find_elements("css selector", "#history li button")
+    assert len(history) >= 1 and "a person walks forward" in history[0].text
+
+
+def test_page_bvh_download_reads_back(page):
+    from dataset_tools.sources.bvh import BvhOptions, load_bvh_motion
+
+    if not page.find_elements("css selector", "#downloads a[data-kind='bvh']"):
+        _generate(page, "a person walks forward")
+        _wait(page, "return document.querySelector(\"#downloads a[data-kind='bvh']\")")
+    link = page.find_element("css selector", "#downloads a[data-kind='bvh']")
+    link.click()
+    target = Path(page.downloads) / "sample00_rep00.bvh"
+    deadline = time.monotonic() + 30
+    while not target.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert target.exists(), f"no download in {list(Path(page.downloads).iterdir())}"
+    motion = load_bvh_motion(target, BvhOptions())
+    assert motion.joints.shape[1:] == (22, 3) and motion.fps == pytest.approx(20.0)
+    assert np.isfinite(motion.joints).all()
+
+
+@pytest.mark.parametrize(
+    ("prompts", "words"),
+    [("", "empty prompt"), ("qwzx blorf", "no known word"), ("a person walks#5", "out of range")],
+)
+def test_page_shows_errors_in_words(page, prompts, words):
+    _generate(page, prompts, samples=1)
+    text = _wait(
+        page,
+        "const e = document.getElementById('error'); return !e.hidden && e.textContent",
+    )
+    assert words in text
+    assert page.find_element("id", "generate").is_enabled()
