@@ -124,7 +124,7 @@ function show(answer) {
   layout.add(new Option("all side by side", "-1"));
   answer.motions.forEach((m, i) => layout.add(new Option(`${i + 1}: ${m.text.slice(0, 30)}`, String(i))));
   layout.value = "-1";
-  state.viewer.visible = -1;
+  state.viewer.show(-1);
   // captions, player, downloads
   const captions = $("captions");
   captions.innerHTML = "";
@@ -237,7 +237,7 @@ function bindPlayer() {
   $("speed").addEventListener("change", (e) => { viewer.speed = Number(e.target.value); });
   $("loop").addEventListener("change", (e) => { viewer.loop = e.target.checked; });
   $("follow").addEventListener("change", (e) => { viewer.follow = e.target.checked; viewer._dirty = true; });
-  $("layout").addEventListener("change", (e) => { viewer.visible = Number(e.target.value); viewer._dirty = true; });
+  $("layout").addEventListener("change", (e) => viewer.show(Number(e.target.value)));
   $("reset-camera").addEventListener("click", () => viewer.resetCamera());
 }
 

@@ -20,7 +20,7 @@ class StickViewer {
     this.loop = true;
     this.follow = true;
     this.visible = -1;          // -1: all side by side; else one motion's index
-    this.spacing = 1.2;         // metres between side-by-side motions
+    this.spacing = 0.6;         // metres between the X ranges of side-by-side motions
     this.floor = 0;
     this.resetCamera();
     this.onFrame = null;        // callback(frame) after every drawn frame
@@ -51,14 +51,25 @@ class StickViewer {
       index,
     }));
     this.jointCount = jointCount;
+    const names = skeleton.joint_names.map((name) => name.toLowerCase());
+    this.headJoint = Math.max(names.indexOf("head"), names.indexOf("bun"), 0);  // SMPL, KIT
     let floor = Infinity;
     for (const m of this.motions) {
       for (let i = 1; i < m.joints.length; i += 3) floor = Math.min(floor, m.joints[i]);
     }
     this.floor = Number.isFinite(floor) ? floor : 0;
+    this._layOut();
+    this.distance = Math.max(4.2, 1.1 * this.rowWidth);
     this.time = 0;
     this.framesDrawn = 0;
     this._firstPending = true;
+    this._dirty = true;
+  }
+
+  // Show every motion side by side (index -1) or one; the camera backs off to fit the row.
+  show(index) {
+    this.visible = index;
+    this.distance = index < 0 ? Math.max(4.2, 1.1 * this.rowWidth) : 4.2;
     this._dirty = true;
   }
 
@@ -80,9 +91,30 @@ class StickViewer {
     return [this.motions[this.visible]];
   }
 
-  // Where each shown motion is drawn: side by side along X, centred on the middle one.
-  _offset(slot, count) {
-    return this.visible < 0 ? (slot - (count - 1) / 2) * this.spacing : 0;
+  // Side by side: each motion is shifted along X so that the X ranges its joints sweep over the
+  // whole motion do not overlap (a gap of this.spacing between them), the row centred on 0.
+  _layOut() {
+    let edge = 0;
+    const ranges = this.motions.map((m) => {
+      let low = Infinity, high = -Infinity;
+      for (let i = 0; i < m.joints.length; i += 3) {
+        low = Math.min(low, m.joints[i]);
+        high = Math.max(high, m.joints[i]);
+      }
+      return [low, high];
+    });
+    this.offsets = ranges.map(([low, high]) => {
+      const offset = edge - low;
+      edge += high - low + this.spacing;
+      return offset;
+    });
+    this.rowWidth = Math.max(edge - this.spacing, 0);
+    this.offsets = this.offsets.map((o) => o - this.rowWidth / 2);
+  }
+
+  // Where each shown motion is drawn (one at a time: where it is).
+  _offset(motion) {
+    return this.visible < 0 ? this.offsets[motion.index] : 0;
   }
 
   _joint(motion, frame, joint, dx) {
@@ -112,20 +144,23 @@ class StickViewer {
 
   _camera() {
     const shown = this._shown();
-    let target = this.target;
+    let target = this.target, distance = this.distance;
     if (this.follow && shown.length) {
-      let x = 0, z = 0;
-      shown.forEach((m, slot) => {
-        const root = this._joint(m, this.frame, 0, this._offset(slot, shown.length));
-        x += root[0]; z += root[2];
+      // follow: aim at the middle of the roots' box at this frame, far enough to hold it
+      const low = [Infinity, Infinity], high = [-Infinity, -Infinity];
+      shown.forEach((m) => {
+        const root = this._joint(m, this.frame, 0, this._offset(m));
+        low[0] = Math.min(low[0], root[0]); high[0] = Math.max(high[0], root[0]);
+        low[1] = Math.min(low[1], root[2]); high[1] = Math.max(high[1], root[2]);
       });
-      target = [x / shown.length, 0.9, z / shown.length];
+      target = [(low[0] + high[0]) / 2, 0.9, (low[1] + high[1]) / 2];
+      distance = Math.max(distance, 1.1 * Math.max(high[0] - low[0], high[1] - low[1]) + 3);
     }
     const cp = Math.cos(this.pitch);
     const eye = [
-      target[0] + this.distance * cp * Math.sin(this.yaw),
-      target[1] + this.distance * Math.sin(this.pitch),
-      target[2] + this.distance * cp * Math.cos(this.yaw),
+      target[0] + distance * cp * Math.sin(this.yaw),
+      target[1] + distance * Math.sin(this.pitch),
+      target[2] + distance * cp * Math.cos(this.yaw),
     ];
     const forward = normalize(sub(target, eye));
     const right = normalize(cross(forward, [0, 1, 0]));
@@ -173,8 +208,8 @@ class StickViewer {
     const shown = this._shown();
     const frame = this.frame;
     const bones = [];
-    shown.forEach((m, slot) => {
-      const dx = this._offset(slot, shown.length);
+    shown.forEach((m) => {
+      const dx = this._offset(m);
       // 2. root trajectory on the floor, up to this frame
       c.strokeStyle = "#8a8a8a";
       c.lineWidth = 1.5;
@@ -208,6 +243,15 @@ class StickViewer {
       c.lineTo(bone.b[0], bone.b[1]);
       c.stroke();
     }
+    // 4. each motion's number (as in the captions) above its head
+    c.fillStyle = "#555";
+    c.font = "14px system-ui, sans-serif";
+    c.textAlign = "center";
+    shown.forEach((m) => {
+      const head = this._joint(m, frame, this.headJoint, this._offset(m));
+      const p = this._project(camera, [head[0], head[1] + 0.25, head[2]]);
+      if (p) c.fillText(String(m.index + 1), p[0], p[1]);
+    });
     this.framesDrawn += 1;
     if (this.onFrame) this.onFrame(frame);
     if (this._firstPending && this.motions.length) {

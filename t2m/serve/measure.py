@@ -1,0 +1,204 @@
+"""``python -m t2m.serve.measure --checkpoints DIR``: the web app's two speed numbers.
+
+1. Click to first frame: headless Chromium (selenium, the test extra) opens the page of a server
+   on 127.0.0.1, types a prompt, sets the samples, clicks Generate; the page records
+   ``performance.now()`` at the click and after the viewer's first drawn frame of the answer
+   (``window.t2mTiming``). One warm-up click, then ``--repeats`` clicks (seeds 1, 2, ...);
+   the median and the range are reported.
+2. Throughput: ``--clients`` threads each send ``--requests`` generate requests (one prompt,
+   ``--samples`` motions, automatic length, each its own seed) to a server that batches
+   waiting requests (``--batch-motions``) and to one that runs them one at a time
+   (``--batch-motions 1``), same models, rounds interleaved; motions per second of wall time.
+"""
+
+from __future__ import annotations
+
+import http.client
+import json
+import logging
+import statistics
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dataset_tools.command import CommandParser, command, option, parse_config
+
+logger = logging.getLogger("t2m.serve.measure")
+PROMPT = "a person walks forward and then waves with the right hand"
+
+
+@dataclass
+class MeasureConfig:
+    """``python -m t2m.serve.measure``."""
+
+    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
+    """run folder (or the original release's folder)"""
+    samples: int = 3
+    """motions per request"""
+    repeats: int = 5
+    """timed clicks in the browser"""
+    clients: int = 4
+    """concurrent clients for the throughput"""
+    requests: int = 3
+    """requests per client and round"""
+    rounds: int = 2
+    """interleaved rounds per server"""
+    batch_motions: int = 32
+    """the batching server's batch limit"""
+    threads: int = 0
+    """torch CPU threads (0: torch's choice)"""
+    out: Path | None = None
+    """also write the numbers as JSON here"""
+    screenshot: Path | None = None
+    """save the page after the last click here (PNG)"""
+
+
+def click_to_first_frame(url: str, samples: int, repeats: int, screenshot: Path | None) -> list:
+    """Seconds from the Generate click to the first drawn frame, ``repeats`` times."""
+    import shutil
+
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = shutil.which("chromium") or "chromium"
+    for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu"):
+        options.add_argument(argument)
+    options.add_argument("--window-size=1400,980")
+    driver = webdriver.Chrome(options=options, service=Service(shutil.which("chromedriver")))
+    timings = []
+    try:
+        driver.get(url)
+        while driver.execute_script("return document.body.dataset.ready") != "true":
+            time.sleep(0.05)
+        driver.find_element("id", "prompts").clear()
+        driver.find_element("id", "prompts").send_keys(PROMPT)
+        driver.find_element("id", "samples").clear()
+        driver.find_element("id", "samples").send_keys(str(samples))
+        for attempt in range(repeats + 1):  # the first is a warm-up
+            seed = driver.find_element("id", "seed")
+            seed.clear()
+            seed.send_keys(str(attempt))
+            driver.execute_script("window.t2mTiming = null")
+            driver.find_element("id", "generate").click()
+            timing = None
+            while not timing:
+                time.sleep(0.01)
+                timing = driver.execute_script(
+                    "const t = window.t2mTiming; return t && t.firstFrame && t"
+                )
+            if attempt:
+                timings.append(
+                    {
+                        "first_frame_s": (timing["firstFrame"] - timing["clicked"]) / 1000,
+                        "answer_s": (timing["answered"] - timing["clicked"]) / 1000,
+                        "server_s": timing["server"]["total_s"],
+                    }
+                )
+        if screenshot is not None:
+            time.sleep(1.2)
+            driver.save_screenshot(str(screenshot))
+    finally:
+        driver.quit()
+    return timings
+
+
+def throughput(url: str, clients: int, requests: int, samples: int, first_seed: int) -> float:
+    """Motions per second of ``clients`` threads sending ``requests`` requests each."""
+    host, port = url.split("//")[1].strip("/").rsplit(":", 1)
+    failures = []
+
+    def client(index: int) -> None:
+        connection = http.client.HTTPConnection(host, int(port), timeout=600)
+        for number in range(requests):
+            seed = first_seed + index * requests + number
+            body = json.dumps({"prompts": [PROMPT], "samples": samples, "seed": seed})
+            connection.request("POST", "/api/generate", body, {"Content-Type": "application/json"})
+            response = connection.getresponse()
+            response.read()
+            if response.status != 200:
+                failures.append(response.status)
+        connection.close()
+
+    threads = [threading.Thread(target=client, args=(i,)) for i in range(clients)]
+    start = time.perf_counter()
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    elapsed = time.perf_counter() - start
+    if failures:
+        raise RuntimeError(f"{len(failures)} requests failed: {failures[:3]}")
+    return clients * requests * samples / elapsed
+
+
+@command
+def main(argv: list[str] | None = None) -> int:
+    import torch
+
+    from t2m.pipeline import TextToMotion
+    from t2m.serve.server import make_server
+
+    parser = CommandParser(prog="python -m t2m.serve.measure", description=__doc__.split("\n")[0])
+    config = parse_config(parser, MeasureConfig, argv)
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    pipe = TextToMotion.from_checkpoints(config.checkpoints)
+    servers = {
+        "batched": make_server(pipe, str(config.checkpoints), port=0, max_batch_motions=32),
+        "one at a time": make_server(pipe, str(config.checkpoints), port=0, max_batch_motions=1),
+    }
+    for server in servers.values():
+        server.start_in_thread()
+    try:
+        timings = click_to_first_frame(
+            servers["batched"].url, config.samples, config.repeats, config.screenshot
+        )
+        first = [t["first_frame_s"] for t in timings]
+        logger.info(
+            "click -> first frame, %d samples: median %.3f s (%.3f .. %.3f), server part "
+            "median %.3f s",
+            config.samples,
+            statistics.median(first),
+            min(first),
+            max(first),
+            statistics.median(t["server_s"] for t in timings),
+        )
+        rates: dict[str, list[float]] = {name: [] for name in servers}
+        throughput(servers["batched"].url, 1, 1, config.samples, 10**6)  # warm-up
+        for round_number in range(config.rounds):
+            for name, server in servers.items():
+                seed = 1000 * round_number
+                rate = throughput(server.url, config.clients, config.requests, config.samples, seed)
+                rates[name].append(rate)
+                logger.info("round %d, %s: %.2f motions/s", round_number, name, rate)
+        summary = {
+            "checkpoints": str(config.checkpoints),
+            "torch_threads": torch.get_num_threads(),
+            "samples": config.samples,
+            "click_to_first_frame": timings,
+            "clients": config.clients,
+            "requests_per_client": config.requests,
+            "motions_per_second": rates,
+            "batched_speedup": statistics.median(rates["batched"])
+            / statistics.median(rates["one at a time"]),
+            "batches": servers["batched"].app.worker.batches,
+        }
+        logger.info(
+            "throughput with %d clients: batched %.2f, one at a time %.2f motions/s (x%.2f)",
+            config.clients,
+            statistics.median(rates["batched"]),
+            statistics.median(rates["one at a time"]),
+            summary["batched_speedup"],
+        )
+        if config.out:
+            config.out.write_text(json.dumps(summary, indent=2) + "\n")
+    finally:
+        for server in servers.values():
+            server.shutdown_app()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
