@@ -374,3 +374,12 @@ def test_limits_are_consistent():
     limits = api.Limits()
     assert limits.max_prompts * limits.max_samples >= limits.max_motions
     assert math.log2(limits.max_seed + 1) == 31
+
+
+@pytest.mark.parametrize("precision", ["bf16", "int8"])
+def test_reduced_precisions_are_served(server, precision):
+    body = {"prompts": ["a person walks forward#40"], "seed": 1, "precision": precision}
+    status, answer, _ = call(server, "POST", "/api/generate", body)
+    assert status == 200, answer
+    assert answer["precision"] == precision
+    assert np.isfinite(np.asarray(answer["motions"][0]["joints"])).all()

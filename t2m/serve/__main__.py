@@ -31,9 +31,9 @@ class ServeConfig:
     """auto, cpu, cuda or cuda:N (auto: CUDA when present)"""
     threads: int = field(default=0, metadata=option(metavar="N"))
     """torch CPU threads (0: torch's choice)"""
-    keep_minutes: float = 60.0
+    keep_minutes: float = field(default=60.0, metadata=option(metavar="M"))
     """generated files are removed this long after their request"""
-    max_disk_mb: float = 1024.0
+    max_disk_mb: float = field(default=1024.0, metadata=option(metavar="MIB"))
     """the generated files take at most this much; the oldest requests go first"""
     batch_motions: int = field(default=32, metadata=option(metavar="N"))
     """requests waiting together are generated in one batch of at most N motions (1: one

@@ -9,6 +9,8 @@
    ``--samples`` motions, automatic length, each its own seed) to a server that batches
    waiting requests (``--batch-motions``) and to one that runs them one at a time
    (``--batch-motions 1``), same models, rounds interleaved; motions per second of wall time.
+3. Batching alone, without HTTP and threads: ``--clients`` requests generated as one batch and
+   one after another, interleaved, ``3 * --rounds`` times; the median of the per-round ratios.
 """
 
 from __future__ import annotations
@@ -133,6 +135,34 @@ def throughput(url: str, clients: int, requests: int, samples: int, first_seed: 
     return clients * requests * samples / elapsed
 
 
+def batching_ratio(pipe, clients: int, samples: int, rounds: int) -> dict:
+    """Seconds to generate ``clients`` requests of ``samples`` motions (automatic lengths, own
+    seeds) as one batch and one after another, interleaved ``rounds`` times; medians."""
+    from t2m.serve.worker import GenerationJob, generate_jobs
+
+    def jobs(offset: int) -> list:
+        return [
+            GenerationJob([PROMPT], [None], samples, offset + i, "fp32") for i in range(clients)
+        ]
+
+    batched, alone = [], []
+    for number in range(rounds + 1):  # the first round warms up
+        start = time.perf_counter()
+        generate_jobs(pipe, jobs(100 * number))
+        middle = time.perf_counter()
+        for job in jobs(100 * number):
+            generate_jobs(pipe, [job])
+        end = time.perf_counter()
+        if number:
+            batched.append(middle - start)
+            alone.append(end - middle)
+    return {
+        "one_batch_s": statistics.median(batched),
+        "one_at_a_time_s": statistics.median(alone),
+        "speedup": statistics.median(a / b for a, b in zip(alone, batched)),
+    }
+
+
 @command
 def main(argv: list[str] | None = None) -> int:
     import torch
@@ -191,6 +221,18 @@ def main(argv: list[str] | None = None) -> int:
             statistics.median(rates["batched"]),
             statistics.median(rates["one at a time"]),
             summary["batched_speedup"],
+        )
+        summary["library_batching"] = batching_ratio(
+            pipe, config.clients, config.samples, 3 * config.rounds
+        )
+        logger.info(
+            "generation alone, %d requests of %d motions: one batch %.3f s, one at a time "
+            "%.3f s (x%.2f, median of the per-round ratios)",
+            config.clients,
+            config.samples,
+            summary["library_batching"]["one_batch_s"],
+            summary["library_batching"]["one_at_a_time_s"],
+            summary["library_batching"]["speedup"],
         )
         if config.out:
             config.out.write_text(json.dumps(summary, indent=2) + "\n")

@@ -1,6 +1,6 @@
 """The HTTP server of the web app: Python's standard ``http.server`` (ThreadingHTTPServer).
 
-Why the standard library: the app has six routes, JSON in and out, static files and downloads;
+Why the standard library: the app has seven routes, JSON in and out, static files and downloads;
 its one heavy part (the models) runs on one worker thread either way, so a framework would add
 an install and an event loop and remove almost nothing from this file. Each connection gets a
 thread; generate requests wait on the :class:`t2m.serve.worker.GenerationWorker` queue.
@@ -13,6 +13,7 @@ Routes (the README documents them):
     POST /api/generate              prompts -> motions (joints) and download links
     GET  /api/results/<id>          a request's answer again (the page's history)
     GET  /api/files/<id>/<name>     a download: sampleNN_repRR.npy|bvh|glb|mp4|gif, results.npy|json
+    POST /api/edit                  edit an uploaded motion (t2m.serve.editing)
 
 Requests whose Host header is not this machine's loopback name are refused while the server is
 bound to a loopback address (a web page elsewhere cannot reach it through DNS rebinding).
