@@ -119,9 +119,27 @@ def test_page_generates_and_draws_the_figures(page):
     _wait(page, f"return window.t2mViewerFrame() > {frame + 5}")
     later = _canvas_pixels(page)
     assert np.abs(later - first).sum(axis=-1).astype(bool).mean() > 0.001  # the figures moved
+    # pause: the picture stands still; scrub: it shows the chosen frame
+    page.find_element("id", "play").click()
+    paused = _wait(page, "return window.t2mViewerFrame()")
+    time.sleep(0.3)
+    still = _canvas_pixels(page)
+    assert np.array_equal(still, _canvas_pixels(page))
+    page.execute_script(
+        "const s = document.getElementById('scrub'); s.value = 0;"
+        "s.dispatchEvent(new Event('input'));"
+    )
+    _wait(page, f"return window.t2mViewerFrame() > {paused}")
+    assert page.find_element("id", "clock").text == "0.00 s"
     # one at a time: the layout menu lists the three motions and shows one
     options = page.find_elements("css selector", "#layout option")
     assert len(options) == 4
+    all_three = _colour_count(_canvas_pixels(page), LEFT)
+    options[1].click()
+    time.sleep(0.2)
+    assert _colour_count(_canvas_pixels(page), LEFT) < 0.8 * all_three
+    options[0].click()
+    page.find_element("id", "play").click()
     history = page.find_elements("css selector", "#history li button")
     assert len(history) >= 1 and "a person walks forward" in history[0].text
 

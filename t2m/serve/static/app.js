@@ -239,6 +239,16 @@ function bindPlayer() {
   $("follow").addEventListener("change", (e) => { viewer.follow = e.target.checked; viewer._dirty = true; });
   $("layout").addEventListener("change", (e) => viewer.show(Number(e.target.value)));
   $("reset-camera").addEventListener("click", () => viewer.resetCamera());
+  // keys on the view: space plays / pauses, the arrows step one frame
+  $("view").addEventListener("keydown", (e) => {
+    if (e.key === " ") $("play").click();
+    else if (e.key === "ArrowLeft" || e.key === "ArrowRight") {
+      viewer.playing = false;
+      const step = e.key === "ArrowLeft" ? -1 : 1;
+      viewer.seek(Math.max(0, Math.min(viewer.frameCount - 1, viewer.frame + step)));
+    } else return;
+    e.preventDefault();
+  });
 }
 
 window.addEventListener("DOMContentLoaded", async () => {

@@ -82,7 +82,7 @@ class StickViewer {
   }
 
   seek(frame) {
-    this.time = frame / this.fps;
+    this.time = (frame + 0.5) / this.fps;  // the middle of the frame: no rounding down
     this._dirty = true;
   }
 
