@@ -383,3 +383,14 @@ def test_reduced_precisions_are_served(server, precision):
     assert status == 200, answer
     assert answer["precision"] == precision
     assert np.isfinite(np.asarray(answer["motions"][0]["joints"])).all()
+
+
+def test_an_idle_connection_is_closed(server, monkeypatch):
+    import socket
+
+    monkeypatch.setattr(server.RequestHandlerClass, "timeout", 0.5)
+    with socket.create_connection(server.server_address[:2], timeout=10) as connection:
+        connection.sendall(b"POST /api/generate HTTP/1.1\r\nContent-Length: 100\r\n")
+        started = time.monotonic()
+        assert connection.recv(1024) == b""  # closed by the server, not by this test's timeout
+        assert time.monotonic() - started < 5

@@ -194,6 +194,7 @@ class Busy(RuntimeError):
 
 class Handler(BaseHTTPRequestHandler):
     server_version = "t2m-serve"
+    timeout = 60  # seconds a connection may sit idle or trickle (each holds a thread)
     app: App  # set on the subclass made by make_server
 
     def log_message(self, format: str, *args) -> None:  # noqa: A002 (the base class's name)
