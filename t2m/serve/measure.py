@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
             "motions_per_second": rates,
             "batched_speedup": statistics.median(rates["batched"])
             / statistics.median(rates["one at a time"]),
-            "batches": servers["batched"].app.worker.batches,
+            "batches": list(servers["batched"].app.worker.batches),
         }
         logger.info(
             "throughput with %d clients: batched %.2f, one at a time %.2f motions/s (x%.2f)",

@@ -16,6 +16,7 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -132,7 +133,7 @@ class GenerationWorker:
         self.max_batch_motions = max_batch_motions
         self.jobs: queue.Queue[GenerationJob] = queue.Queue(maxsize=max_queue)
         self._held: GenerationJob | None = None  # taken from the queue, left for the next batch
-        self.batches: list[int] = []  # jobs per batch run (for tests and measurements)
+        self.batches: deque[int] = deque(maxlen=1000)  # jobs per batch, the latest (measure.py)
         self._thread = threading.Thread(target=self._run, name="t2m-generation", daemon=True)
         self._stop = threading.Event()
         self._thread.start()
