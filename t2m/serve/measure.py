@@ -54,9 +54,13 @@ class MeasureConfig:
     """also write the numbers as JSON here"""
     screenshot: Path | None = None
     """save the page after the last click here (PNG)"""
+    screenshot_after: float = 1.2
+    """seconds of playing before the screenshot"""
 
 
-def click_to_first_frame(url: str, samples: int, repeats: int, screenshot: Path | None) -> list:
+def click_to_first_frame(
+    url: str, samples: int, repeats: int, screenshot: Path | None, screenshot_after: float = 1.2
+) -> list:
     """Seconds from the Generate click to the first drawn frame, ``repeats`` times."""
     import shutil
 
@@ -99,7 +103,7 @@ def click_to_first_frame(url: str, samples: int, repeats: int, screenshot: Path 
                     }
                 )
         if screenshot is not None:
-            time.sleep(1.2)
+            time.sleep(screenshot_after)
             driver.save_screenshot(str(screenshot))
     finally:
         driver.quit()
@@ -183,7 +187,11 @@ def main(argv: list[str] | None = None) -> int:
         server.start_in_thread()
     try:
         timings = click_to_first_frame(
-            servers["batched"].url, config.samples, config.repeats, config.screenshot
+            servers["batched"].url,
+            config.samples,
+            config.repeats,
+            config.screenshot,
+            config.screenshot_after,
         )
         first = [t["first_frame_s"] for t in timings]
         logger.info(
