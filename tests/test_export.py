@@ -278,10 +278,11 @@ def test_cli_help_lists_the_documented_options_with_their_docstrings(capsys):
     text = " ".join(capsys.readouterr().out.split())
     for expected in (
         "input output",
-        "--units cm|m length unit of the file's offsets and root positions (default: cm)",
+        "--units cm|m length unit of the BVH file's offsets and root positions (glTF is always "
+        "in metres) (default: cm)",
         "--fps FPS frames per second of the motion",
         "--template-rest-pose, --no-template-rest-pose use the template hips / collars",
-        ".bvh file to write",
+        ".bvh or .glb file to write",
     ):
         assert expected in text, expected
 
@@ -341,7 +342,7 @@ def test_cli_output_must_be_a_bvh_file(tmp_path, capsys):
 
     path = _bad(tmp_path, "good")
     assert main([str(path), str(tmp_path / "x.txt")]) == 2
-    assert capsys.readouterr().err == "error: output must end in .bvh, got 'x.txt'\n"
+    assert capsys.readouterr().err == "error: output must end in .bvh or .glb, got 'x.txt'\n"
     assert not (tmp_path / "x.txt").exists()
 
 
