@@ -58,6 +58,7 @@ class StoredResult:
     folder: Path
     motions: list[list[GeneratedMotion]]
     summary: dict
+    prompts: list[dict] = field(default_factory=list)  # what the model made of each prompt
     created: float = field(default_factory=time.time)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -73,6 +74,8 @@ class ResultStore:
         fps: frames per second of the motions (the models' dataset).
         keep_seconds: a request's files are removed this long after it was made.
         max_bytes: above this total, the oldest requests are removed first.
+        remove_root: remove ``root`` itself on :meth:`close` (a folder made for the server).
+        kinds: the per-motion downloads offered (BVH and glTF need the SMPL skeleton).
     """
 
     def __init__(
@@ -82,10 +85,12 @@ class ResultStore:
         keep_seconds: float,
         max_bytes: int,
         remove_root: bool = False,
+        kinds: tuple[str, ...] = DOWNLOAD_KINDS,
     ) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
         self.remove_root = remove_root
+        self.kinds = kinds
         self._closed = threading.Event()
         self.fps = fps
         self.keep_seconds = keep_seconds
@@ -133,6 +138,8 @@ class ResultStore:
         if prompt >= len(result.motions) or sample >= len(result.motions[prompt]):
             raise KeyError(name)
         kind = match["kind"]
+        if kind not in self.kinds:
+            raise KeyError(name)
         with result.lock:
             path = result.folder / motion_file_name(prompt, sample, kind)
             if not path.exists():

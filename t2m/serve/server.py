@@ -105,7 +105,7 @@ class App:
             "snippet_frames": spec.snippet_length,
             "automatic_length": self.pipe.length_model is not None,
             "precisions": [p for p in PRECISIONS if p != "int8" or self.pipe.device.type == "cpu"],
-            "downloads": list(DOWNLOAD_KINDS) if spec.num_joints == 22 else ["npy", "mp4", "gif"],
+            "downloads": list(self.store.kinds),
             "skeleton": {
                 "joint_names": list(skeleton.joint_names),
                 "parents": list(skeleton.parents),
@@ -152,27 +152,25 @@ class App:
         generated = time.perf_counter()
         extra = {"precision": request.precision, "checkpoints": Path(self.checkpoints).name}
         stored = self.store.add(motions, request.seed, extra)
-        answer = self.answer(stored.id)
-        answer["prompts"] = [
+        stored.prompts = [
             api.prompt_json(item, prompt.frames) for item, prompt in zip(prepared, request.prompts)
         ]
+        answer = self.answer(stored.id)
         answer["timing"] = {
             "queued_and_generated_s": round(generated - started, 4),
             "total_s": round(time.perf_counter() - started, 4),
         }
-        stored.summary["prompts"] = answer["prompts"]
         return answer
 
     def answer(self, request_id: str) -> dict:
         """A stored request as the generate answer (joints and links); GET /api/results/<id>."""
         stored = self.store.get(request_id)
         base = f"/api/files/{request_id}"
-        kinds = DOWNLOAD_KINDS if self.pipe.spec.num_joints == 22 else ("npy", "mp4", "gif")
         motions = []
         for row in stored.motions:
             for motion in row:
                 name = f"sample{motion.prompt_index:02d}_rep{motion.repetition:02d}"
-                links = {kind: f"{base}/{name}.{kind}" for kind in kinds}
+                links = {kind: f"{base}/{name}.{kind}" for kind in self.store.kinds}
                 motions.append(api.motion_json(motion, links))
         return {
             "id": request_id,
@@ -182,7 +180,7 @@ class App:
             "precision": stored.summary.get("precision"),
             "samples": stored.summary["num_samples"],
             "texts": stored.summary["texts"],
-            "prompts": stored.summary.get("prompts", []),
+            "prompts": stored.prompts,
             "motions": motions,
             "files": {name: f"{base}/{name}" for name in ("results.npy", "results.json")},
         }
@@ -365,7 +363,9 @@ def make_server(
     own_folder = work_dir is None
     if own_folder:
         work_dir = Path(tempfile.mkdtemp(prefix="t2m-serve-"))
-    store = ResultStore(work_dir, pipe.spec.fps, keep_seconds, max_bytes, remove_root=own_folder)
+    # BVH and glTF are written for the 22-joint SMPL skeleton only
+    kinds = DOWNLOAD_KINDS if pipe.spec.num_joints == 22 else ("npy", "mp4", "gif")
+    store = ResultStore(work_dir, pipe.spec.fps, keep_seconds, max_bytes, own_folder, kinds)
     worker = GenerationWorker(pipe, max_batch_motions=max_batch_motions, max_queue=max_queue)
     app = App(pipe, worker, store, limits, str(checkpoints), loopback_only=is_loopback(host))
     handler = type("BoundHandler", (Handler,), {"app": app})
