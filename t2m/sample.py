@@ -32,7 +32,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
@@ -330,31 +330,62 @@ def sample_to_folder(
     Raises UsageError (a ValueError) before any generation for an unusable ``out``, ``render``
     or ``bvh`` request.
     """
-    from dataset_tools.bvh import write_bvh
-    from dataset_tools.viz import render_animation
-
-    if render not in RENDER_CHOICES:
-        raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
-    fps = pipe.spec.fps
-    if bvh and pipe.spec.num_joints != 22:
-        raise UsageError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
-    out = Path(out).resolve()  # "." has no name to put a temp folder beside
-    # 1. where to write, and whether it fits (fails early, before any model work)
     longest = pipe.spec.max_frames
-    frames = [min(p.frames or longest, longest) for p in prompts]
-    check_resources(frames, num_samples, pipe.spec, out, render, bvh)
-    tmp = _prepare_out(out, overwrite)
-    try:
-        # 2. generate
-        texts = [p.text for p in prompts]
-        motions = pipe.generate(
-            texts,
+    return write_motions(
+        lambda: pipe.generate(
+            [p.text for p in prompts],
             num_samples=num_samples,
             lengths=[p.frames for p in prompts],
             seed=seed,
             batch_size=batch_size,
             progress=True,
-        )
+        ),
+        pipe.spec,
+        out,
+        frames=[min(p.frames or longest, longest) for p in prompts],
+        num_samples=num_samples,
+        seed=seed,
+        render=render,
+        bvh=bvh,
+        overwrite=overwrite,
+        extra_info=extra_info,
+    )
+
+
+def write_motions(
+    make: Callable[[], Sequence[Sequence[GeneratedMotion]]],
+    spec: DatasetSpec,
+    out: str | Path,
+    frames: Sequence[int],
+    num_samples: int = 1,
+    seed: int = 0,
+    render: str = "mp4",
+    bvh: bool = False,
+    overwrite: bool = False,
+    extra_info: dict | None = None,
+) -> Path:
+    """Check ``out`` and the resources, call ``make()`` for ``motions[prompt][sample]`` and write
+    every file of the output contract into ``out`` (the writer of ``t2m.sample`` and
+    ``t2m.edit``); returns ``out``. Nothing is left in ``out`` on error.
+
+    ``frames``: each prompt's longest possible length, for the resource estimate. A motion with
+    a ``kept`` (T, J) mask (an edit's) is rendered with the kept joints in another colour.
+    """
+    from dataset_tools.bvh import write_bvh
+    from dataset_tools.viz import render_animation
+
+    if render not in RENDER_CHOICES:
+        raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
+    fps = spec.fps
+    if bvh and spec.num_joints != 22:
+        raise UsageError("--bvh needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
+    out = Path(out).resolve()  # "." has no name to put a temp folder beside
+    # 1. where to write, and whether it fits (fails early, before any model work)
+    check_resources(frames, num_samples, spec, out, render, bvh)
+    tmp = _prepare_out(out, overwrite)
+    try:
+        # 2. generate
+        motions = make()
         _check_finite(motions)
         # 3. per-motion files
         files: list[str] = []
@@ -367,7 +398,10 @@ def sample_to_folder(
             _save_npy(tmp / f"{name}_feats.npy", motion.features)
             files += [f"{name}.npy", f"{name}_feats.npy"]
             if render != "none":
-                render_animation(motion.joints, tmp / f"{name}.{render}", motion.text, fps)
+                kept = getattr(motion, "kept", None)
+                render_animation(
+                    motion.joints, tmp / f"{name}.{render}", motion.text, fps, highlight=kept
+                )
                 files.append(f"{name}.{render}")
             if bvh:
                 write_bvh(motion.joints, tmp / f"{name}.bvh", fps=fps)
@@ -375,7 +409,7 @@ def sample_to_folder(
         # 4. the summaries
         _save_npy(tmp / "results.npy", mdm_results(motions, num_samples))
         summary = {
-            "texts": texts,
+            "texts": [row[0].text for row in motions],
             "lengths": [[m.num_frames for m in row] for row in motions],
             "seed": seed,
             "num_samples": num_samples,
