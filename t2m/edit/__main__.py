@@ -66,9 +66,9 @@ class EditConfig:
     """different results of the edit"""
     seed: int = 0
     """random seed: same seed, same bytes"""
-    method: Method = "posterior"
-    """posterior (read the kept start, best of the candidates), optimize (also optimise the
-    noise against the constraints; slower) or best_of_n (the baseline)"""
+    method: Method = "optimize"
+    """optimize (read the kept start with the posterior, optimise the noise against the
+    constraints past it), posterior (no optimisation: faster) or best_of_n (the baseline)"""
     candidates: int = field(default=8, metadata=option(metavar="N"))
     """noise draws per result, the closest to the constraints kept"""
     steps: int = field(default=20, metadata=option(metavar="N"))
@@ -88,7 +88,7 @@ class EditConfig:
     device: str = "auto"
     """auto, cpu, cuda or cuda:N"""
     threads: int = field(default=0, metadata=option(metavar="N"))
-    """torch CPU threads (0: torch's choice)"""
+    """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
     precision: Literal["fp32", "bf16", "int8"] = "fp32"
     """inference precision (int8 is CPU only and cannot optimise)"""
 

@@ -14,8 +14,9 @@ frame 0's root at the origin facing +Z):
    and runs the temporal VAE's posterior over them, teacher-forced (``prefix_state``): the state
    the model would be in after the kept start, had it made it (``use_posterior``);
 2. draws ``candidates`` noise sequences per result for the remaining snippets, in one batch;
-3. optimises the noise ``eps`` of the prior's ``z = mu + sigma * eps`` (``steps`` Adam steps)
-   through the generator, the movement decoder and the differentiable joint recovery
+3. where targets lie past the kept start's next snippet (an end to reach, a body part, a path,
+   keys), optimises the noise ``eps`` of the prior's ``z = mu + sigma * eps`` (``steps`` Adam
+   steps) through the generator, the movement decoder and the differentiable joint recovery
    (:mod:`t2m.edit.recover`) against the squared error on the finite ``target`` entries plus
    ``noise_weight * mean(eps^2)``, which keeps the noise likely under the prior;
 4. keeps the candidate with the smallest constraint error;
@@ -24,7 +25,8 @@ frame 0's root at the origin facing +Z):
    velocities stay continuous), and the root's heading and floor position are bent smoothly so
    that every later kept stretch and every root target is met exactly.
 
-Best-of-N (the baseline) is steps 0 without the posterior: N prior samples, the closest kept.
+Method ``posterior`` skips step 3; ``best_of_n`` (the baseline) skips steps 1 and 3: N prior
+samples, the closest kept. Both still hard-keep.
 """
 
 from __future__ import annotations
@@ -70,9 +72,9 @@ class SearchSettings:
     """How hard to search for a result that meets the constraints.
 
     Attributes:
-        method: "posterior" (read the kept start with the posterior, keep the best of the
-            candidates), "optimize" (also optimise the noise against the constraints) or
-            "best_of_n" (prior samples only; the baseline).
+        method: "optimize" (read the kept start with the posterior, optimise the noise against
+            constraints past it, keep the best candidate), "posterior" (the same without the
+            optimisation) or "best_of_n" (prior samples only, the closest kept: the baseline).
         candidates: noise draws per result, made in one batch.
         steps: Adam steps on the noise ("optimize" only; 0 keeps the draws as they are).
         learning_rate: Adam's step size on the noise.
@@ -80,7 +82,7 @@ class SearchSettings:
         blend_frames: frames over which a seam's offset is eased away.
     """
 
-    method: Method = "posterior"
+    method: Method = "optimize"
     candidates: int = 8
     steps: int = 20
     learning_rate: float = 0.1
@@ -127,6 +129,9 @@ def generate_plans(
     """Make every plan's result (plans of one length and prefix are batched together)."""
     unit = pipe.spec.snippet_length
     use_posterior = settings.method != "best_of_n"
+    if use_posterior and pipe.encoder is None:
+        logger.warning("no movement encoder loaded: the kept start is not read by the posterior")
+        use_posterior = False
     prefixes = [known_prefix_snippets(p, unit) if use_posterior else 0 for p in plans]
     steps = settings.steps if settings.method == "optimize" else 0
     if steps and pipe.precision == "int8":
@@ -209,7 +214,8 @@ def _search(
         error = ((joints - target) ** 2 * finite).flatten(1).sum(1) / count
         return features, error
 
-    if steps:
+    # The posterior has read the kept start; optimise only for constraints past its next snippet.
+    if steps and bool(finite[:, (known + 1) * unit :].any()):
         noise = _optimise(noise, decode, steps, settings)
     with torch.no_grad():
         features, error = decode(noise)
