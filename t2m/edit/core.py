@@ -326,12 +326,12 @@ def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 8) -> np.ndarr
             for start, stop in _runs(kept):
                 before, after = _seam_weights(start, stop, frames, blend)
                 rows = np.arange(start, stop)
-                if start > 0:
-                    offset = source[start - 1, columns] - generated[start - 1, columns]
-                    features[np.ix_(rows, columns)] += before[:, None] * offset
-                if stop < frames:
-                    offset = source[stop, columns] - generated[stop, columns]
-                    features[np.ix_(rows, columns)] += after[:, None] * offset
+                if start > 0:  # the kept frame before: meet its value and its rate of change
+                    correction = _seam_correction(source, generated, columns, start - 1, kept, +1)
+                    features[np.ix_(rows, columns)] += before[:, None] * correction(rows)
+                if stop < frames:  # the kept frame after
+                    correction = _seam_correction(source, generated, columns, stop, kept, -1)
+                    features[np.ix_(rows, columns)] += after[:, None] * correction(rows)
     # 2.-3. the root's heading and floor path
     anchors_yaw = plan.keep[:, 0] if plan.source_half_yaw is not None else np.zeros(frames, bool)
     root_xz = np.full((frames, 2), np.nan)
@@ -354,6 +354,35 @@ def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 8) -> np.ndarr
         local = yaw_rotate(torch.from_numpy(step), torch.from_numpy(2.0 * half_yaw[1:])).numpy()
         features[:-1, 1:3] = local[:, [0, 2]]
     return features
+
+
+def _seam_correction(
+    source: np.ndarray,
+    generated: np.ndarray,
+    columns: np.ndarray,
+    frame: int,
+    kept: np.ndarray,
+    direction: int,
+):
+    """The offset that makes the generated side of a seam meet kept ``frame`` in value and in
+    per-frame change: ``offset + change * (t - frame)`` for rows t on the free side (``direction``
+    +1: after ``frame``, -1: before it), to be eased out by the seam weights. The change is the
+    kept side's step next to the seam minus the generated one (zero when the kept side has one
+    frame only)."""
+    offset = source[frame, columns] - generated[frame, columns]
+    inner = frame - direction  # the kept neighbour on the far side of the seam
+    change = np.zeros_like(offset)
+    if 0 <= inner < len(kept) and kept[inner]:
+        kept_step = (source[frame, columns] - source[inner, columns]) * direction
+        generated_step = (
+            generated[frame + direction, columns] - generated[frame, columns]
+        ) * direction
+        change = kept_step - generated_step
+
+    def correction(rows: np.ndarray) -> np.ndarray:
+        return offset + change * (rows - frame)[:, None]
+
+    return correction
 
 
 def _bend(residual: np.ndarray) -> np.ndarray:
