@@ -258,3 +258,30 @@ def test_kept_parts_render_in_their_own_colour(tmp_path, walk):
     assert (np.abs(pixels.astype(int) - green).sum(-1) < 30).sum() > 50
     with pytest.raises(ValueError, match="highlight must be"):
         render_keyframes(walk[:20], tmp_path / "bad.png", highlight=highlight)
+
+
+@pytest.mark.parametrize("precision", ["bf16", "int8"])
+def test_reduced_precision_keeps_the_source(tiny_run, walk, precision):
+    from t2m.pipeline import TextToMotion
+
+    pipe = TextToMotion.from_checkpoints(tiny_run, precision=precision, need_length_model=False)
+    source = prepare_source(walk)
+    motion = edit(pipe, "a person walks forward", "inbetween", walk, seed=0, settings=FAST)[0]
+    assert np.isfinite(motion.joints).all()
+    np.testing.assert_allclose(motion.joints[:20], source.joints[:20], atol=1e-4)
+
+
+def test_the_original_release_edits_too(walk):
+    from conftest import SHARED
+
+    from t2m.pipeline import TextToMotion
+
+    release = SHARED / "reference" / "t2m-original"
+    if not release.is_dir():
+        pytest.skip("no release reference folder")
+    pipe = TextToMotion.from_checkpoints(release, need_length_model=False)
+    assert pipe.encoder is not None  # the release's movement encoder reads the kept start
+    source = prepare_source(walk)
+    motion = edit(pipe, "a person walks forward", "continue", walk, keep_seconds=1.0, seed=0,
+                  settings=FAST)[0]  # fmt: skip
+    np.testing.assert_allclose(motion.joints[:20], source.joints[:20], atol=1e-4)

@@ -134,9 +134,6 @@ def generate_plans(
         use_posterior = False
     prefixes = [known_prefix_snippets(p, unit) if use_posterior else 0 for p in plans]
     steps = settings.steps if settings.method == "optimize" else 0
-    if steps and pipe.precision == "int8":
-        logger.warning("int8 models cannot be optimised through: the edit keeps the best draw")
-        steps = 0
     results: list[PlanResult | None] = [None] * len(plans)
     groups: dict[tuple[int, int], list[int]] = {}
     for index, plan in enumerate(plans):
@@ -216,7 +213,10 @@ def _search(
 
     # The posterior has read the kept start; optimise only for constraints past its next snippet.
     if steps and bool(finite[:, (known + 1) * unit :].any()):
-        noise = _optimise(noise, decode, steps, settings)
+        if pipe.precision == "int8":  # dynamically quantised layers have no backward
+            logger.warning("int8 models cannot be optimised through: the edit keeps the best draw")
+        else:
+            noise = _optimise(noise, decode, steps, settings)
     with torch.no_grad():
         features, error = decode(noise)
     features = features.view(len(plans), draws, frames, -1).cpu().numpy()
