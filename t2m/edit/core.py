@@ -46,7 +46,7 @@ from t2m.edit.source import half_yaw_of
 
 logger = logging.getLogger(__name__)
 
-Method = Literal["posterior", "optimize", "best_of_n"]
+Method = Literal["optimize", "posterior", "best_of_n"]
 METHODS: tuple[str, ...] = get_args(Method)
 
 

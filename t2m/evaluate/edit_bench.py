@@ -24,14 +24,14 @@ Columns (per method):
 * ``seam acc / jerk``: at each join, the largest over the frames within 2 of it of the largest
   joint acceleration (m/s^2) and jerk (m/s^3) (second and third differences at 20 fps), median
   over joins; ``plain`` and ``real`` give the same statistic at random frames of plain
-  generation and of the real test motions;
+  generation and of the real test motions (the edits' sources; compose: its donors);
 * ``semantic``: fraction of regenerated parts whose donor label the corpus' detectors recover
   (body: the upper-body action, and the source's walk still detected; compose: every segment);
   ``plain`` gives the same for plain generation of the same captions and lengths;
 * ``skate``: the foot-skating ratio (feet 10 and 11; a frame skates when a foot is within 5 cm of
   the floor in two consecutive frames and its speed and its 5-frame mean speed both exceed
   0.5 m/s; skating frames / (T - 1), mean over motions) of the results, of plain generation and
-  of the real sources;
+  of the real motions (as for the seams);
 * ``R@3 / FID``: R-precision (top 3, batches of 32) and FID of the regenerated parts against
   the donors' real motions with the run's evaluator stage, beside plain generation (when the
   run has an evaluator and there are at least 32 items; else n/a);
@@ -117,6 +117,7 @@ class Item:
     labels: list[dict]  # the donor's (or source's) segment labels the part should show
     texts: list[humanml3d.Caption]  # caption(s) of the regenerated part(s)
     donors: list[str]  # clips whose real motions the parts are compared with
+    source: str | None = None  # the clip the edit starts from (or whose path it follows)
     seams: list[int] = field(default_factory=list)
     source_labels: list[dict] | None = None  # body: the source's labels, still expected
     plan: EditPlan | None = None  # the request's plan (not for compose)
@@ -179,20 +180,20 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
                                       keep_seconds=SECONDS["keep"],
                                       seconds=SECONDS["keep"] + SECONDS["part"])  # fmt: skip
                 items.append(Item(request, (keep, keep + part), donor[1] or [], [text],
-                                  [donor[0]], [keep]))  # fmt: skip
+                                  [donor[0]], source[0], [keep]))  # fmt: skip
             else:
                 end = int(SECONDS["end"] * fps)
                 request = EditRequest(mode, text.text, load(source[0]),
                                       keep_start=SECONDS["end"], keep_end=SECONDS["end"],
                                       seconds=2 * SECONDS["end"] + SECONDS["part"])  # fmt: skip
                 items.append(Item(request, (end, end + part), donor[1] or [], [text],
-                                  [donor[0]], [end, end + part]))  # fmt: skip
+                                  [donor[0]], source[0], [end, end + part]))  # fmt: skip
         elif mode == "body":
             source, donor = pick(walkers, True), pick(upper)
             text = donor[2][int(rng.integers(len(donor[2])))]
             motion = load(source[0])[: 196 + 1]
             request = EditRequest(mode, text.text, motion, part="lower")
-            items.append(Item(request, None, donor[1] or [], [text], [donor[0]],
+            items.append(Item(request, None, donor[1] or [], [text], [donor[0]], source[0],
                               source_labels=source[1]))  # fmt: skip
         elif mode in ("path", "keys"):
             source = pick(clips, True)
@@ -211,7 +212,7 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
                     keys[row, 0, [0, 2]] = prepared.joints[row, 0, [0, 2]]
                     keys[row, [20, 21]] = prepared.joints[row, [20, 21]]
                 request = EditRequest(mode, text.text, keys=keys)
-            items.append(Item(request, None, source[1] or [], [text], [source[0]]))
+            items.append(Item(request, None, source[1] or [], [text], [source[0]], source[0]))
         else:  # compose
             donors = [pick(single) for _ in range(3)]
             texts = [d[2][int(rng.integers(len(d[2])))] for d in donors]
@@ -222,7 +223,7 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
             request = EditRequest(mode, timeline=timeline)
             labels = [d[1][0] if d[1] else None for d in donors]
             items.append(Item(request, None, labels, texts, [d[0] for d in donors],
-                              [part, 2 * part]))  # fmt: skip
+                              seams=[part, 2 * part]))  # fmt: skip
     return items
 
 
@@ -262,18 +263,17 @@ def judge(item: Item, motion, fps: float) -> dict:
     request = item.request
     out: dict = {}
     # targets of the result: what was kept or given
-    if request.mode in ("path", "keys"):
-        plan = item.plan
-        target = plan.target
-        finite = np.isfinite(target).all(-1)
-    elif request.mode == "compose":
-        target, finite = None, None
+    if item.plan is not None:
+        target = item.plan.target
+        given = np.isfinite(target)  # (T, J, 3): a path gives x and z only
+        if request.mode not in ("path", "keys"):  # kept joints; "legs" etc. have no targets
+            given &= item.plan.keep[..., None]
+        finite = given.any(-1)
     else:
-        plan = item.plan
-        target = plan.target
-        finite = plan.keep & np.isfinite(target).all(-1)
+        target, finite = None, None
     if target is not None and finite.any():
-        distance = np.linalg.norm(motion.joints[finite] - target[finite], axis=-1)
+        difference = np.where(given, motion.joints - np.nan_to_num(target), 0.0)
+        distance = np.linalg.norm(difference, axis=-1)[finite]
         out.update(err_mean=float(distance.mean()), err_max=float(distance.max()),
                    miss_5=float((distance > 0.05).mean()), miss_20=float((distance > 0.2).mean()))  # fmt: skip
     out["before_keep"] = motion.constraint_error
@@ -347,7 +347,7 @@ def run_benchmark(config: EditBenchConfig) -> dict:
     # real reference
     rng = np.random.default_rng(config.seed + 1)
     real_seams, real_skate = [], []
-    sources = [item.donors[0] for item in items]
+    sources = [item.source or item.donors[0] for item in items]
     for name in sources:
         joints = humanml3d.read_joints(humanml3d.joints_path(config.dataset, name))
         real_skate.append(skating_ratio(joints, fps))
@@ -368,7 +368,13 @@ def run_benchmark(config: EditBenchConfig) -> dict:
             plain_labels.append(label)
     plain = pipe.generate(plain_texts, lengths=plain_frames, seed=config.seed)
     plain_motions = [row[0] for row in plain]
-    found = [_labels_found(m.joints, lab, fps) for m, lab in zip(plain_motions, plain_labels)]
+    if config.edit in ("path", "keys"):  # the source's own caption and labels (segments)
+        found = [
+            all(clip_matches(m.joints, fps, lab)) if lab else None
+            for m, lab in zip(plain_motions, plain_labels)
+        ]
+    else:
+        found = [_labels_found(m.joints, lab, fps) for m, lab in zip(plain_motions, plain_labels)]
     found = [f for f in found if f is not None]
     plain_seams = [
         seam_statistics(m.joints, int(rng.integers(3, len(m.joints) - 4)), fps)
