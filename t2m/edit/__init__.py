@@ -49,10 +49,11 @@ Results are in the model's frame: the source as the dataset's representation see
 frames equal :func:`t2m.edit.source.prepare_source`'s joints. ``kept`` marks what came from the
 source or the targets; renderings draw it in another colour.
 
-``settings`` (:class:`SearchSettings`): ``method`` ``optimize`` (default) or ``best_of_n``
-(the baseline), ``candidates``, ``steps``, ``learning_rate``, ``noise_weight``,
-``blend_frames``. Bad requests raise :class:`dataset_tools.command.UsageError` (a ValueError)
-with one line.
+``settings`` (:class:`SearchSettings`): ``method`` ``auto`` (default: ``optimize`` where some
+targets cannot be kept exactly, i.e. keys on joints other than the root's floor position,
+``posterior`` elsewhere), ``optimize``, ``posterior`` or ``best_of_n`` (the baseline);
+``candidates`` (8), ``steps`` (20), ``learning_rate``, ``noise_weight``, ``blend_frames``. Bad
+requests raise :class:`dataset_tools.command.UsageError` (a ValueError) with one line.
 """
 
 from __future__ import annotations

@@ -66,13 +66,15 @@ class EditConfig:
     """different results of the edit"""
     seed: int = 0
     """random seed: same seed, same bytes"""
-    method: Method = "optimize"
-    """optimize (read the kept start with the posterior, optimise the noise against the
-    constraints past it), posterior (no optimisation: faster) or best_of_n (the baseline)"""
+    method: Method = "auto"
+    """auto (optimize where targets cannot be kept exactly: keys; posterior elsewhere),
+    optimize (read the kept start with the posterior, optimise the noise against the
+    constraints past it: slower, the model reaches them itself), posterior (no optimisation)
+    or best_of_n (the baseline)"""
     candidates: int = field(default=8, metadata=option(metavar="N"))
     """noise draws per result, the closest to the constraints kept"""
     steps: int = field(default=20, metadata=option(metavar="N"))
-    """optimisation steps of --method optimize"""
+    """optimisation steps of --method optimize (and auto)"""
     checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
     """run folder, or the original T2M release's folder"""
     glove: Path | None = field(default=None, metadata=option(metavar="DIR"))

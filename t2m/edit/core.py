@@ -25,8 +25,9 @@ frame 0's root at the origin facing +Z):
    velocities stay continuous), and the root's heading and floor position are bent smoothly so
    that every later kept stretch and every root target is met exactly.
 
-Method ``posterior`` skips step 3; ``best_of_n`` (the baseline) skips steps 1 and 3: N prior
-samples, the closest kept. Both still hard-keep.
+Method ``posterior`` skips step 3; ``auto`` (the default) runs it only for plans with targets the
+hard keep cannot guarantee; ``best_of_n`` (the baseline) skips steps 1 and 3: N prior samples, the
+closest kept. All hard-keep.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ from t2m.edit.source import half_yaw_of
 
 logger = logging.getLogger(__name__)
 
-Method = Literal["optimize", "posterior", "best_of_n"]
+Method = Literal["auto", "optimize", "posterior", "best_of_n"]
 METHODS: tuple[str, ...] = get_args(Method)
 
 
@@ -74,7 +75,10 @@ class SearchSettings:
     Attributes:
         method: "optimize" (read the kept start with the posterior, optimise the noise against
             constraints past it, keep the best candidate), "posterior" (the same without the
-            optimisation) or "best_of_n" (prior samples only, the closest kept: the baseline).
+            optimisation), "auto" (optimize where the plan has targets the hard keep cannot
+            guarantee, :func:`has_soft_targets`: keys on joints other than the root's floor
+            position; posterior elsewhere) or "best_of_n" (prior samples only, the closest
+            kept: the baseline).
         candidates: noise draws per result, made in one batch.
         steps: Adam steps on the noise ("optimize" only; 0 keeps the draws as they are).
         learning_rate: Adam's step size on the noise.
@@ -82,7 +86,7 @@ class SearchSettings:
         blend_frames: frames over which a seam's offset is eased away.
     """
 
-    method: Method = "optimize"
+    method: Method = "auto"
     candidates: int = 8
     steps: int = 20
     learning_rate: float = 0.1
@@ -106,6 +110,14 @@ class PlanResult:
     joints: np.ndarray
     kept: np.ndarray
     soft_error: float
+
+
+def has_soft_targets(plan: EditPlan) -> bool:
+    """Whether the plan targets something the hard keep cannot guarantee: a joint that is not
+    kept from a source, other than the root's floor position (which the keep bends to)."""
+    given = np.isfinite(plan.target) & ~plan.keep[..., None]
+    given[:, 0, [0, 2]] = False
+    return bool(given.any())
 
 
 def known_prefix_snippets(plan: EditPlan, unit: int) -> int:
@@ -133,12 +145,15 @@ def generate_plans(
         logger.warning("no movement encoder loaded: the kept start is not read by the posterior")
         use_posterior = False
     prefixes = [known_prefix_snippets(p, unit) if use_posterior else 0 for p in plans]
-    steps = settings.steps if settings.method == "optimize" else 0
     results: list[PlanResult | None] = [None] * len(plans)
-    groups: dict[tuple[int, int], list[int]] = {}
+    groups: dict[tuple[int, int, int], list[int]] = {}
     for index, plan in enumerate(plans):
-        groups.setdefault((plan.num_frames, prefixes[index]), []).append(index)
-    for (frames, known), members in groups.items():
+        optimise = settings.method == "optimize" or (
+            settings.method == "auto" and has_soft_targets(plan)
+        )
+        steps = settings.steps if optimise else 0
+        groups.setdefault((plan.num_frames, prefixes[index], steps), []).append(index)
+    for (frames, known, steps), members in groups.items():
         found = _search(
             pipe, [plans[i] for i in members], frames, known, generator, settings, steps
         )

@@ -1,7 +1,8 @@
 """The edit benchmark: ``python -m t2m.evaluate --edit MODE --dataset DIR --checkpoints DIR``.
 
 Builds ``--items`` edits of one mode from the dataset's test split and runs each with every
-``--methods`` entry (``optimize``, ``posterior``, ``best_of_n``: :class:`t2m.edit.SearchSettings`),
+``--methods`` entry (``auto``, ``optimize``, ``posterior``, ``best_of_n``:
+:class:`t2m.edit.SearchSettings`),
 side by side, then writes ``results.md`` and ``results.json`` into ``--out``.
 
 The edits (seeded; sources are real test motions, "donor" captions come from test clips of one
@@ -57,7 +58,7 @@ from dataset_tools.command import CommandParser, UsageError, command, option, pa
 from dataset_tools.io import check_output_folder, write_json_atomic, write_text_atomic
 from dataset_tools.synth.detectors import clip_matches, detect_labels, label_matches
 from t2m.edit import EditRequest, SearchSettings, edit_batch
-from t2m.edit.core import EditPlan
+from t2m.edit.core import METHODS, EditPlan
 from t2m.edit.modes import Mode
 
 logger = logging.getLogger(__name__)
@@ -81,12 +82,14 @@ class EditBenchConfig:
     """output folder (default <checkpoints>/edit_results/<mode>)"""
     items: int = field(default=64, metadata=option(metavar="N"))
     """edits per method"""
-    methods: tuple[str, ...] = ("optimize", "posterior", "best_of_n")
+    methods: tuple[str, ...] = ("auto", "optimize", "posterior", "best_of_n")
     """search methods to compare (t2m.edit.SearchSettings.method)"""
     candidates: int = field(default=8, metadata=option(metavar="N"))
     """noise draws per edit"""
     steps: int = field(default=20, metadata=option(metavar="N"))
     """optimisation steps of the optimize method"""
+    noise_weight: float = field(default=SearchSettings.noise_weight, metadata=option(metavar="W"))
+    """weight of mean(eps^2) in the optimize method's loss"""
     latency_edits: int = field(default=5, metadata=option(metavar="N"))
     """single edits timed per method"""
     seed: int = 0
@@ -104,8 +107,8 @@ class EditBenchConfig:
                 "--items and --candidates must be >= 1, --steps and --latency-edits >= 0"
             )
         for method in self.methods:
-            if method not in ("optimize", "posterior", "best_of_n"):
-                raise UsageError(f"unknown method {method!r}; use optimize, posterior, best_of_n")
+            if method not in METHODS:
+                raise UsageError(f"unknown method {method!r}; use {', '.join(METHODS)}")
 
 
 @dataclass
@@ -398,7 +401,12 @@ def run_benchmark(config: EditBenchConfig) -> dict:
     # the methods
     results["methods"] = {}
     for method in config.methods:
-        settings = SearchSettings(method=method, candidates=config.candidates, steps=config.steps)
+        settings = SearchSettings(
+            method=method,
+            candidates=config.candidates,
+            steps=config.steps,
+            noise_weight=config.noise_weight,
+        )
         start = time.perf_counter()
         motions = [row[0] for row in edit_batch(pipe, requests, 1, config.seed, settings)]
         batch_seconds = time.perf_counter() - start
