@@ -53,6 +53,7 @@ class RenderConfig:
         caption_width: characters per line of the wrapped caption.
         mp4_quality: ffmpeg quality knob passed to imageio-ffmpeg (0..10, 10 is best).
         zoom: how much of the frame the 3D box fills (matplotlib leaves wide margins at 1).
+        highlight_color: colour of the bones a ``highlight`` mask marks (an edit's kept parts).
     """
 
     size_px: int = 480
@@ -68,6 +69,7 @@ class RenderConfig:
     caption_width: int = 44
     mp4_quality: float = 7.0
     zoom: float = 1.5
+    highlight_color: str = "#2ca02c"
 
 
 def _check_joints(joints: np.ndarray) -> np.ndarray:
@@ -116,8 +118,10 @@ class _StickFigure:
         skeleton: SkeletonSpec,
         config: RenderConfig,
         show_trajectory: bool = True,
+        highlight: np.ndarray | None = None,
     ) -> None:
         self.ax = ax
+        self.highlight = highlight
         self.joints = joints
         self.config = config
         self.floor = float(joints[..., 1].min())
@@ -159,15 +163,41 @@ class _StickFigure:
                 markersize=2.5,
             )
             self.chains.append((np.asarray(chain), line))
+        self.highlighted = []
+        if highlight is not None:
+            for _ in skeleton.chains:
+                (line,) = ax.plot(
+                    [],
+                    [],
+                    [],
+                    color=config.highlight_color,
+                    linewidth=config.line_width,
+                    solid_capstyle="round",
+                    marker="o",
+                    markersize=2.5,
+                )
+                self.highlighted.append(line)
 
     def update(self, frame: int) -> None:
         center = self.centers[frame]
         radius = self.radius
         pose = self.joints[frame].copy()
         pose[:, 1] -= self.floor
-        for chain, line in self.chains:
+        for index, (chain, line) in enumerate(self.chains):
             pts = y_up_to_z_up(pose[chain])
-            line.set_data_3d(pts[:, 0], pts[:, 1], pts[:, 2])
+            if self.highlight is None:
+                line.set_data_3d(pts[:, 0], pts[:, 1], pts[:, 2])
+                continue
+            # A bone is highlighted when both its ends are; each set is drawn as separate
+            # bones (NaN rows break the line between them).
+            kept = self.highlight[frame][chain]
+            bone_kept = kept[:-1] & kept[1:]
+            for lines, chosen in ((line, ~bone_kept), (self.highlighted[index], bone_kept)):
+                bones = np.flatnonzero(chosen)
+                segments = np.full((len(bones), 3, 3), np.nan)
+                segments[:, 0], segments[:, 1] = pts[bones], pts[bones + 1]
+                flat = segments.reshape(-1, 3)
+                lines.set_data_3d(flat[:, 0], flat[:, 1], flat[:, 2])
         self.grid.set_segments(_grid_segments(center, radius, self.config.grid_step))
         if self.trajectory is not None:
             past = self.joints[: frame + 1, 0].copy()
@@ -181,6 +211,16 @@ class _StickFigure:
         self.ax.set_ylim(plot_center[1] - radius, plot_center[1] + radius)
         # Lift the box so a standing body fills the middle of the frame rather than its bottom.
         self.ax.set_zlim(-0.55 * radius, 1.45 * radius)
+
+
+def _check_highlight(highlight: np.ndarray | None, joints: np.ndarray) -> np.ndarray | None:
+    """A (T, J) bool mask of the joints to draw in the highlight colour, or None."""
+    if highlight is None:
+        return None
+    highlight = np.asarray(highlight, dtype=bool)
+    if highlight.shape != joints.shape[:2]:
+        raise ValueError(f"highlight must be (T, J) = {joints.shape[:2]}, got {highlight.shape}")
+    return highlight
 
 
 def _prepare(joints: np.ndarray, skeleton: SkeletonSpec | None) -> tuple[np.ndarray, SkeletonSpec]:
@@ -200,15 +240,18 @@ def render_frames(
     fps: float = 20.0,
     skeleton: SkeletonSpec | None = None,
     config: RenderConfig | None = None,
+    highlight: np.ndarray | None = None,
 ) -> Iterator[np.ndarray]:
-    """Yield the animation of joints (T, J, 3) frame by frame as (H, W, 3) uint8 RGB images."""
+    """Yield the animation of joints (T, J, 3) frame by frame as (H, W, 3) uint8 RGB images
+    (``highlight``: (T, J) bool, bones between two marked joints in ``highlight_color``)."""
     joints, skeleton = _prepare(joints, skeleton)
+    highlight = _check_highlight(highlight, joints)
     config = config or RenderConfig()
     dpi = 100
     fig = Figure(figsize=(config.size_px / dpi, config.size_px / dpi), dpi=dpi)
     canvas = FigureCanvasAgg(fig)  # attaching the canvas is what lets the figure draw
     ax = fig.add_axes((0.0, 0.0, 1.0, 0.86 if caption else 0.95), projection="3d")
-    figure = _StickFigure(ax, joints, skeleton, config)
+    figure = _StickFigure(ax, joints, skeleton, config, highlight=highlight)
     wrapped = _wrap(caption, config.caption_width)
     if wrapped:
         fig.suptitle(wrapped, fontsize=10, y=0.985, va="top")
@@ -227,6 +270,7 @@ def render_animation(
     fps: float = 20.0,
     skeleton: SkeletonSpec | None = None,
     config: RenderConfig | None = None,
+    highlight: np.ndarray | None = None,
 ) -> Path:
     """Render joints (T, J, 3) as a stick-figure animation; the format comes from the suffix.
 
@@ -237,6 +281,8 @@ def render_animation(
         fps: frames per second of the motion and of the video.
         skeleton: the body; by default the one with J joints (SMPL for 22, KIT for 21).
         config: drawing options.
+        highlight: (T, J) bool; bones between two marked joints are drawn in the config's
+            ``highlight_color`` (an edit's kept parts).
 
     Returns:
         The path written.
@@ -251,7 +297,8 @@ def render_animation(
     config = config or RenderConfig()
     if config.size_px % 2:
         raise ValueError(f"size_px must be even for video encoding, got {config.size_px}")
-    frames = render_frames(joints, caption, fps, skeleton, config)
+    highlight = _check_highlight(highlight, joints)
+    frames = render_frames(joints, caption, fps, skeleton, config, highlight)
     with atomic_output(path) as tmp:
         if fmt == "mp4":
             _write_mp4(frames, str(tmp), fps, config)
@@ -327,13 +374,14 @@ def _draw_panels(
     fps: float,
     row: int = 0,
     rows: int = 1,
+    highlight: np.ndarray | None = None,
 ) -> None:
     """One row of key-frame panels: every panel the same camera centred on that frame's root,
     with the ground grid, the root trajectory so far and the time in seconds beneath it."""
     columns = len(frames)
     for column, frame in enumerate(frames):
         ax = fig.add_subplot(rows, columns, row * columns + column + 1, projection="3d")
-        _StickFigure(ax, joints, skeleton, config).update(int(frame))
+        _StickFigure(ax, joints, skeleton, config, highlight=highlight).update(int(frame))
         ax.set_title(f"{frame / fps:.2f} s", fontsize=9, y=0.0)
 
 
@@ -345,22 +393,31 @@ def render_keyframes(
     fps: float = 20.0,
     skeleton: SkeletonSpec | None = None,
     config: RenderConfig | None = None,
+    highlight: np.ndarray | None = None,
+    frames: Sequence[int] | None = None,
 ) -> Path:
     """Write a PNG strip of ``num_keyframes`` evenly spaced poses of joints (T, J, 3).
 
     Every panel uses the same camera centred on that frame's root, with the ground grid and the
     root trajectory so far, and the time in seconds beneath it. Written atomically.
+    ``highlight``: (T, J) bool, drawn as in :func:`render_animation`; ``frames``: the frames to
+    show instead of evenly spaced ones.
     """
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise ValueError(f"key-frame strips are PNG files, got {path.suffix!r}")
     joints, skeleton = _prepare(joints, skeleton)
-    frames = keyframe_indices(len(joints), num_keyframes)
+    highlight = _check_highlight(highlight, joints)
+    if frames is None:
+        frames = keyframe_indices(len(joints), num_keyframes)
+    frames = np.asarray(frames, dtype=int)
+    if frames.ndim != 1 or len(frames) == 0 or frames.min() < 0 or frames.max() >= len(joints):
+        raise ValueError(f"frames must be indices into the {len(joints)} frames")
     config = config or RenderConfig()
     panel = 2.4
     fig = Figure(figsize=(panel * len(frames), panel + (0.6 if caption else 0.2)), dpi=100)
     canvas = FigureCanvasAgg(fig)
-    _draw_panels(fig, joints, frames, skeleton, config, fps)
+    _draw_panels(fig, joints, frames, skeleton, config, fps, highlight=highlight)
     wrapped = _wrap(caption, config.caption_width * len(frames) // 2)
     if wrapped:
         fig.suptitle(wrapped, fontsize=10)

@@ -44,7 +44,12 @@ from dataset_tools.representation import recover_from_ric
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
-from t2m.models.autoencoder import MovementDecoder, check_snippet_length
+from t2m.models.autoencoder import (
+    CONTACT_DIMS,
+    MovementDecoder,
+    MovementEncoder,
+    check_snippet_length,
+)
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
 from t2m.quantize import quantize_int8
@@ -141,6 +146,8 @@ class TextToMotion:
             written before they were stored): the vocabulary's words.
         spacy_pos: tag prompts with spaCy 3's own POS instead of the published HumanML3D
             conventions (for models trained on a dataset built with ``--spacy-pos``).
+        encoder: the frozen movement encoder (features -> snippet codes), for edits that
+            continue from known frames (:meth:`edit`); None: edits search without it.
     """
 
     def __init__(
@@ -157,6 +164,7 @@ class TextToMotion:
         precision: str = "fp32",
         training_words: Collection[str] | None = None,
         spacy_pos: bool = False,
+        encoder: MovementEncoder | None = None,
     ) -> None:
         if precision not in PRECISIONS:
             raise ValueError(f"unknown precision {precision!r}; use one of {', '.join(PRECISIONS)}")
@@ -196,6 +204,8 @@ class TextToMotion:
         if self.decoder_dtype != torch.float32:
             decoder = copy.deepcopy(decoder).to(self.decoder_dtype)
         self.decoder = decoder
+        self.encoder = encoder.to(self.device).eval() if encoder is not None else None
+        self.encoder_input_size = self.spec.feature_dim - CONTACT_DIMS
         self.initial_code = initial_code.to(self.device, self.dtype)
         self.length_model = length_model.to(self.device).eval() if length_model else None
         self.length_vectorizer = length_vectorizer or vectorizer
@@ -223,6 +233,7 @@ class TextToMotion:
             precision=precision,
             training_words=self.training_words,
             spacy_pos=self.spacy_pos,
+            encoder=self.encoder,
         )
 
     # -- loading -----------------------------------------------------------------------------
@@ -261,6 +272,7 @@ class TextToMotion:
                 length_model=release.length_model,
                 device=resolve_device(device),
                 precision=precision,
+                encoder=release.encoder,
             )
         if not run_dir.is_dir():
             raise ValueError(
@@ -299,6 +311,11 @@ class TextToMotion:
                     f"{length.path} was trained on {length.spec.name}, {t2m.path} "
                     f"on {t2m.spec.name} (retrain with {retrain['length']})"
                 )
+        try:  # the frozen encoder of the autoencoder stage: only edits use it
+            encoder = load_stage(run_dir, "autoencoder", resolved, which).models["autoencoder"]
+            encoder = encoder.encoder
+        except ValueError:
+            encoder = None
         return cls(
             vae=t2m.models["vae"],
             decoder=t2m.models["decoder"],
@@ -311,6 +328,7 @@ class TextToMotion:
             device=resolved,
             precision=precision,
             training_words=t2m.extra.get("training_words"),
+            encoder=encoder,
         )
 
     # -- steps -------------------------------------------------------------------------------
@@ -514,3 +532,12 @@ class TextToMotion:
 
     def _clamp(self, frames: int) -> int:
         return frames_for(frames, self.spec)
+
+    def edit(self, text: str, mode: str, source=None, **options):
+        """Edit or compose motions: continue a source, fill in between, redo a body part, follow
+        a path or joint targets, or chain prompts on a timeline. Delegates to
+        :func:`t2m.edit.edit`, which documents the modes, options and the returned
+        :class:`t2m.edit.EditedMotion` list."""
+        from t2m.edit import edit
+
+        return edit(self, text, mode, source, **options)

@@ -33,7 +33,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
@@ -145,7 +145,9 @@ def write_motion_file(motion: GeneratedMotion, folder: Path, kind: str, fps: flo
     else:
         from dataset_tools.viz import render_animation
 
-        render_animation(motion.joints, path, motion.text, fps)
+        # an edit's kept joints (EditedMotion.kept, (T, J) bool) are drawn in another colour
+        kept = getattr(motion, "kept", None)
+        render_animation(motion.joints, path, motion.text, fps, highlight=kept)
     return name
 
 
@@ -403,29 +405,62 @@ def sample_to_folder(
     Raises UsageError (a ValueError) before any generation for an unusable ``out``, ``render``
     or ``bvh`` request.
     """
-    if render not in RENDER_CHOICES:
-        raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
-    fps = pipe.spec.fps
-    if (bvh or glb) and pipe.spec.num_joints != 22:
-        option = "--bvh" if bvh else "--glb"
-        raise UsageError(f"{option} needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
-    out = Path(out).resolve()  # "." has no name to put a temp folder beside
-    # 1. where to write, and whether it fits (fails early, before any model work)
     longest = pipe.spec.max_frames
-    frames = [min(p.frames or longest, longest) for p in prompts]
-    check_resources(frames, num_samples, pipe.spec, out, render, bvh, glb)
-    tmp = _prepare_out(out, overwrite)
-    try:
-        # 2. generate
-        texts = [p.text for p in prompts]
-        motions = pipe.generate(
-            texts,
+    return write_motions(
+        lambda: pipe.generate(
+            [p.text for p in prompts],
             num_samples=num_samples,
             lengths=[p.frames for p in prompts],
             seed=seed,
             batch_size=batch_size,
             progress=True,
-        )
+        ),
+        pipe.spec,
+        out,
+        frames=[min(p.frames or longest, longest) for p in prompts],
+        num_samples=num_samples,
+        seed=seed,
+        render=render,
+        bvh=bvh,
+        overwrite=overwrite,
+        extra_info=extra_info,
+        glb=glb,
+    )
+
+
+def write_motions(
+    make: Callable[[], Sequence[Sequence[GeneratedMotion]]],
+    spec: DatasetSpec,
+    out: str | Path,
+    frames: Sequence[int],
+    num_samples: int = 1,
+    seed: int = 0,
+    render: str = "mp4",
+    bvh: bool = False,
+    overwrite: bool = False,
+    extra_info: dict | None = None,
+    glb: bool = False,
+) -> Path:
+    """Check ``out`` and the resources, call ``make()`` for ``motions[prompt][sample]`` and write
+    every file of the output contract into ``out`` (the writer of ``t2m.sample`` and
+    ``t2m.edit``); returns ``out``. Nothing is left in ``out`` on error.
+
+    ``frames``: each prompt's longest possible length, for the resource estimate. A motion with
+    a ``kept`` (T, J) mask (an edit's) is rendered with the kept joints in another colour.
+    """
+    if render not in RENDER_CHOICES:
+        raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
+    fps = spec.fps
+    if (bvh or glb) and spec.num_joints != 22:
+        option = "--bvh" if bvh else "--glb"
+        raise UsageError(f"{option} needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
+    out = Path(out).resolve()  # "." has no name to put a temp folder beside
+    # 1. where to write, and whether it fits (fails early, before any model work)
+    check_resources(frames, num_samples, spec, out, render, bvh, glb)
+    tmp = _prepare_out(out, overwrite)
+    try:
+        # 2. generate
+        motions = make()
         _check_finite(motions)
         # 3. per-motion files
         files: list[str] = []

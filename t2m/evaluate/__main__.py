@@ -58,7 +58,8 @@ def parser() -> CommandParser:
         prog="python -m t2m.evaluate",
         description="Evaluate trained stages with the protocol of Guo et al. 2022 (Table 2): "
         "R-precision, FID, MM-Dist, Diversity, MultiModality, mean ±95% interval over "
-        "replications. Writes results.md and results.json into --out.",
+        "replications. Writes results.md and results.json into --out. With --edit MODE: the "
+        "edit benchmark (python -m t2m.evaluate --edit MODE --help).",
     )
     add_config_options(result, EvalFolders)
     add_config_options(result, EvalConfig, defaults=dict.fromkeys(QUICK_SETTINGS))
@@ -79,8 +80,13 @@ def eval_config(arguments: argparse.Namespace) -> EvalConfig:
 @command
 def main(argv: list[str] | None = None) -> int:
     """``python -m t2m.evaluate``; exit status 0 on success, 2 with a one-line reason on bad
-    input."""
-    arguments = parser().parse_args(sys.argv[1:] if argv is None else argv)
+    input. ``--edit MODE`` runs the edit benchmark instead (:mod:`t2m.evaluate.edit_bench`)."""
+    argv = sys.argv[1:] if argv is None else argv
+    if any(arg == "--edit" or arg.startswith("--edit=") for arg in argv):
+        from t2m.evaluate.edit_bench import main as edit_benchmark
+
+        return edit_benchmark(argv)
+    arguments = parser().parse_args(argv)
     configure_logging(arguments.verbose)
     folders = config_from_args(EvalFolders, arguments)
     config = eval_config(arguments)

@@ -1,0 +1,311 @@
+"""Editing and composition: continue a motion, fill in between, redo a body part, follow a path
+or joint targets, chain prompts on a timeline. One mechanism serves every mode
+(:mod:`t2m.edit.core`); ``python -m t2m.edit`` is the command over it.
+
+API::
+
+    from t2m.pipeline import TextToMotion
+    from t2m.edit import load_source, SearchSettings
+
+    pipe = TextToMotion.from_checkpoints("checkpoints/demo")
+    motions = pipe.edit("a person waves both hands", "body", "walk.bvh", part="lower",
+                        num_samples=3, seed=0)           # == t2m.edit.edit(pipe, ...)
+    motions[0].joints    # (T, 22, 3) float32, metres, y-up, at pipe.spec.fps (20)
+    motions[0].features  # (T, 263) float32, de-normalised
+    motions[0].kept      # (T, 22) bool: copied from the source or given as a target
+    motions[0].text, motions[0].repetition, motions[0].mode
+
+``TextToMotion.edit(text, mode, source=None, **options)`` and ``edit(pipe, text, mode, source=None,
+*, num_samples=1, seed=0, settings=None, progress=False, **request)`` return
+``list[EditedMotion]``, one per sample; ``edit_batch(pipe, requests, num_samples=1, seed=0,
+settings=None)`` takes many :class:`EditRequest` and returns ``motions[request][sample]``.
+
+``source``: a joints array (T, 22, 3) (y-up metres at the model's frame rate) or a file for
+:func:`load_source` (``.npy`` joints (T, 22, 3), ``sampleNN_repRR.npy`` of ``t2m.sample``
+included, or ``.bvh`` through the dataset importer; options ``mapping`` and ``source_fps``).
+:func:`load_source(path, spec=HUMANML3D, mapping=None, fps=None) -> (T, 22, 3) float32`.
+
+Modes and their options (:class:`EditRequest` fields; seconds):
+
+* ``continue``: ``keep_seconds`` (default 2.0) of the source's start are kept, the rest is
+  generated; ``seconds``: the result's length (default: the source's, at most 9.8 s).
+* ``inbetween``: ``keep_start`` / ``keep_end`` (default 1.0 each; one frame, 0.05, for single
+  key poses): the source's first and last seconds at the result's start and end, the middle
+  generated; ``seconds`` (default: the source's length).
+* ``body``: ``part`` in ``lower`` (root path + legs, default), ``legs``, ``upper``, ``arms``,
+  ``left_arm``, ``right_arm`` is kept on every frame, the rest regenerated from the text.
+* ``path``: ``path``: (K, 3) rows ``seconds, x, z`` or a CSV / JSON file; the root passes
+  through each floor point at its time (the motion starts at (0, 0) facing +Z);
+  ``seconds`` (default: the last point's time).
+* ``keys``: ``keys``: (T, 22, 3) joint targets, NaN where free (or a ``.npy``); the root's floor
+  position is met exactly, other joints as closely as the search gets.
+* ``compose``: ``timeline``: lines ``text#start#end`` or ``text#seconds`` (a list, a string or
+  a file); one motion as long as the timeline (any length; windows of at most 9.8 s chained,
+  each continuing from the last 2 s made), each stretch following its own prompt; ``text``
+  and ``source`` unused.
+
+Results are in the model's frame: the source as the dataset's representation sees it
+(retargeted to the model's skeleton, on the floor, frame 0 at the origin facing +Z), so kept
+frames equal :func:`t2m.edit.source.prepare_source`'s joints. ``kept`` marks what came from the
+source or the targets; renderings draw it in another colour.
+
+``settings`` (:class:`SearchSettings`): ``method`` ``auto`` (default: ``optimize`` where some
+targets cannot be kept exactly, i.e. keys on joints other than the root's floor position,
+``posterior`` elsewhere), ``optimize``, ``posterior`` or ``best_of_n`` (the baseline);
+``candidates`` (8), ``steps`` (20), ``learning_rate``, ``noise_weight``, ``blend_frames``. Bad
+requests raise :class:`dataset_tools.command.UsageError` (a ValueError) with one line.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dataset_tools.command import UsageError
+from t2m.edit.core import EditPlan, PlanResult, SearchSettings, generate_plans
+from t2m.edit.modes import (
+    BODY_PARTS,
+    MODES,
+    plan_body,
+    plan_continue,
+    plan_inbetween,
+    plan_keys,
+    plan_path,
+    read_path,
+    read_timeline,
+)
+from t2m.edit.source import PreparedSource, half_yaw_of, load_source, prepare_source
+from t2m.pipeline import GeneratedMotion
+
+logger = logging.getLogger(__name__)
+
+COMPOSE_CONTEXT_SECONDS = 2.0
+"""Compose: each window continues from this much of what was made before it."""
+
+
+@dataclass(frozen=True)
+class EditedMotion(GeneratedMotion):
+    """A :class:`t2m.pipeline.GeneratedMotion` made by an edit.
+
+    Attributes (besides text, prompt_index, repetition, joints (T, J, 3), features (T, D)):
+        kept: (T, J) bool, True where the joint came from the source or met a given target.
+        mode: the edit mode.
+        constraint_error: root mean square distance in metres from the kept / targeted joints
+            before the hard keep (how close the model got on its own; NaN without constraints).
+    """
+
+    kept: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
+    mode: str = ""
+    constraint_error: float = float("nan")
+
+
+@dataclass(frozen=True)
+class EditRequest:
+    """One edit (see the module docstring for the modes and their options)."""
+
+    mode: str
+    text: str = ""
+    source: str | Path | np.ndarray | None = None
+    seconds: float | None = None
+    keep_seconds: float = 2.0
+    keep_start: float = 1.0
+    keep_end: float = 1.0
+    part: str = "lower"
+    path: str | Path | np.ndarray | None = None
+    keys: str | Path | np.ndarray | None = None
+    timeline: str | Path | Sequence[str] | None = None
+    mapping: str | None = None
+    source_fps: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise UsageError(f"unknown mode {self.mode!r}; choose one of {', '.join(MODES)}")
+        needs_source = self.mode in ("continue", "inbetween", "body")
+        if needs_source and self.source is None:
+            raise UsageError(f"--mode {self.mode} needs a --source motion")
+        if self.mode in ("path", "keys", "compose") and self.source is not None:
+            raise UsageError(f"--mode {self.mode} takes no --source")
+        if self.mode == "compose":
+            if self.timeline is None:
+                raise UsageError("--mode compose needs a --timeline")
+        elif not self.text or not self.text.strip():
+            raise UsageError("empty --text: give a sentence describing the motion")
+        if self.mode == "path" and self.path is None:
+            raise UsageError("--mode path needs --path (rows 'seconds,x,z')")
+        if self.mode == "keys" and self.keys is None:
+            raise UsageError("--mode keys needs --keys (a (T, 22, 3) .npy with NaN for free)")
+        if self.mode == "body" and self.part not in BODY_PARTS:
+            raise UsageError(f"unknown --part {self.part!r}; choose one of {', '.join(BODY_PARTS)}")
+
+    def prepared_source(self, spec) -> PreparedSource:
+        joints = self.source
+        if isinstance(joints, (str, Path)):
+            joints = load_source(joints, spec, self.mapping, self.source_fps)
+        return prepare_source(np.asarray(joints), spec)
+
+    def plan(self, spec) -> EditPlan:
+        """This request as a plan (not for compose, which chains several)."""
+        mode = self.mode
+        if mode == "continue":
+            source = self.prepared_source(spec)
+            return plan_continue(self.text, source, spec, self.keep_seconds, self.seconds)
+        if mode == "inbetween":
+            source = self.prepared_source(spec)
+            return plan_inbetween(
+                self.text, source, spec, self.keep_start, self.keep_end, self.seconds
+            )
+        if mode == "body":
+            return plan_body(self.text, self.prepared_source(spec), spec, self.part)
+        if mode == "path":
+            return plan_path(self.text, read_path(self.path), spec, self.seconds)
+        if mode == "keys":
+            keys = self.keys
+            if isinstance(keys, (str, Path)):
+                from dataset_tools.io import load_npy
+
+                keys = load_npy(keys, finite=False)
+            return plan_keys(self.text, keys, spec)
+        raise ValueError(f"{mode} has no single plan")
+
+
+def edit(
+    pipe,
+    text: str,
+    mode: str,
+    source: str | Path | np.ndarray | None = None,
+    *,
+    num_samples: int = 1,
+    seed: int = 0,
+    settings: SearchSettings | None = None,
+    **request,
+) -> list[EditedMotion]:
+    """One edit, ``num_samples`` results (see the module docstring)."""
+    requested = EditRequest(mode=mode, text=text, source=source, **request)
+    return edit_batch(pipe, [requested], num_samples, seed, settings)[0]
+
+
+def edit_batch(
+    pipe,
+    requests: Sequence[EditRequest],
+    num_samples: int = 1,
+    seed: int = 0,
+    settings: SearchSettings | None = None,
+) -> list[list[EditedMotion]]:
+    """Many edits, ``num_samples`` results each: ``motions[request][sample]``. Every request is
+    checked (and its source read) before any generation; plain edits are batched together,
+    compose timelines run window by window. One generator seeded by ``seed`` makes every draw."""
+    settings = settings or SearchSettings()
+    if num_samples < 1:
+        raise UsageError(f"num_samples must be >= 1, got {num_samples}")
+    plans: list[EditPlan | None] = []
+    timelines = []
+    for request in requests:
+        if request.mode == "compose":
+            plans.append(None)
+            timelines.append(read_timeline(request.timeline, pipe.spec))
+        else:
+            plans.append(request.plan(pipe.spec))
+            timelines.append(None)
+    generator = torch.Generator(pipe.device).manual_seed(seed)
+    flat = [(i, r) for i, plan in enumerate(plans) if plan is not None for r in range(num_samples)]
+    made = generate_plans(pipe, [plans[i] for i, _ in flat], generator, settings)
+    results: dict[tuple[int, int], EditedMotion] = {}
+    for (i, r), result in zip(flat, made):
+        results[(i, r)] = _motion(requests[i], plans[i].text, i, r, result)
+    for i, timeline in enumerate(timelines):
+        if timeline is None:
+            continue
+        text = " / ".join(segment.text for segment in timeline)
+        for r, result in enumerate(compose(pipe, timeline, num_samples, generator, settings)):
+            results[(i, r)] = _motion(requests[i], text, i, r, result)
+    return [[results[(i, r)] for r in range(num_samples)] for i in range(len(requests))]
+
+
+def _motion(request: EditRequest, text: str, index: int, rep: int, result: PlanResult):
+    return EditedMotion(
+        text=text,
+        prompt_index=index,
+        repetition=rep,
+        joints=result.joints,
+        features=result.features,
+        kept=result.kept,
+        mode=request.mode,
+        constraint_error=result.soft_error,
+    )
+
+
+def compose(
+    pipe, timeline, num_samples: int, generator, settings: SearchSettings
+) -> list[PlanResult]:
+    """Chain the timeline's segments into one motion per sample: windows of at most the
+    model's longest motion, each continuing (as ``continue`` does) from the last
+    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes."""
+    spec = pipe.spec
+    unit = spec.snippet_length
+    context = int(round(COMPOSE_CONTEXT_SECONDS * spec.fps)) // unit * unit
+    chunks = []  # (text, frames)
+    for segment in timeline:
+        left = segment.stop - segment.start
+        while left > 0:
+            first = not chunks
+            room = spec.max_frames - (0 if first else context)
+            size = min(left, room // unit * unit)
+            chunks.append((segment.text, size))
+            left -= size
+    features: list[np.ndarray | None] = [None] * num_samples
+    for text, size in chunks:
+        plans = []
+        for r in range(num_samples):
+            if features[r] is None:
+                frames = max(size, unit)
+                target = np.full((frames, spec.num_joints, 3), np.nan)
+                plans.append(EditPlan(text, frames, target, np.zeros(target.shape[:2], bool)))
+                continue
+            tail = features[r][-context:]
+            have = len(tail)
+            frames = have + size
+            target = np.full((frames, spec.num_joints, 3), np.nan)
+            keep = np.zeros((frames, spec.num_joints), bool)
+            keep[:have] = True
+            from dataset_tools.representation import recover_from_ric
+
+            target[:have] = recover_from_ric(tail, spec.num_joints)
+            source = np.full((frames, tail.shape[1]), np.nan)
+            source[:have] = tail
+            yaw = np.full(frames, np.nan)
+            yaw[:have] = half_yaw_of(tail)
+            plans.append(EditPlan(text, frames, target, keep, source, yaw))
+        made = generate_plans(pipe, plans, generator, settings)
+        for r, result in enumerate(made):
+            if features[r] is None:
+                features[r] = result.features
+            else:
+                features[r] = np.concatenate(
+                    [features[r], result.features[len(features[r][-context:]) :]]
+                )
+    from dataset_tools.representation import recover_from_ric
+
+    out = []
+    for r in range(num_samples):
+        whole = features[r].astype(np.float32)
+        joints = recover_from_ric(whole, spec.num_joints).astype(np.float32)
+        out.append(PlanResult(whole, joints, np.zeros(joints.shape[:2], bool), float("nan")))
+    return out
+
+
+__all__ = [
+    "BODY_PARTS",
+    "MODES",
+    "EditRequest",
+    "EditedMotion",
+    "SearchSettings",
+    "edit",
+    "edit_batch",
+    "load_source",
+    "prepare_source",
+]

@@ -1,0 +1,192 @@
+"""Command line: edit or compose motions (``python -m t2m.edit --help``).
+
+Examples::
+
+    python -m t2m.edit --source walk.npy --text "a person sits down" --mode continue --keep-seconds 2
+    python -m t2m.edit --source take.bvh --text "a person jumps" --mode inbetween --keep-start 1 --keep-end 1
+    python -m t2m.edit --source walk.npy --text "a person waves both hands" --mode body --part lower
+    python -m t2m.edit --text "a person walks" --mode path --path path.csv
+    python -m t2m.edit --text "a person raises the left hand" --mode keys --keys targets.npy
+    python -m t2m.edit --mode compose --timeline "a person walks forward#0#4" "a person waves#4#7"
+
+Writes what ``python -m t2m.sample`` writes (``sampleNN_repRR.npy``, ``_feats.npy``, mp4/gif
+with the kept joints in green, BVH with ``--bvh``, ``results.npy``, ``results.json``), all or
+nothing. Exit status 2 with a one-line message on bad input.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
+from t2m.config import check_seed, check_threads
+from t2m.edit.core import Method, SearchSettings
+from t2m.edit.modes import Mode, Part
+from t2m.sample import RENDER_CHOICES, Render, check_out, write_motions
+
+logger = logging.getLogger("t2m.edit")
+
+
+@dataclass
+class EditConfig:
+    """``python -m t2m.edit``: which edit, from which checkpoints, into which folder."""
+
+    mode: Mode = field(metadata=option(metavar="MODE"))
+    """continue | inbetween | body | path | keys | compose"""
+    text: str | None = None
+    """what the generated part does, e.g. "a person waves both hands" (not for compose)"""
+    source: Path | None = field(default=None, metadata=option(metavar="FILE"))
+    """the motion to edit: joints .npy (T, 22, 3) (a sampleNN_repRR.npy too) or .bvh"""
+    mapping: str | None = field(default=None, metadata=option(metavar="NAME|FILE"))
+    """BVH joint mapping (bandai, cmu_cc, smpl or a JSON file; default: detected)"""
+    source_fps: float | None = field(default=None, metadata=option(metavar="F"))
+    """frame rate of a .npy source (default: the model's, 20)"""
+    seconds: float | None = field(default=None, metadata=option(metavar="S"))
+    """length of the result (default: the source's, or up to the last path point)"""
+    keep_seconds: float = field(default=2.0, metadata=option(metavar="S"))
+    """continue: seconds of the source's start that are kept"""
+    keep_start: float = field(default=1.0, metadata=option(metavar="S"))
+    """inbetween: seconds of the source's start kept at the result's start (0.05: one pose)"""
+    keep_end: float = field(default=1.0, metadata=option(metavar="S"))
+    """inbetween: seconds of the source's end kept at the result's end"""
+    part: Part = "lower"
+    """body: the part kept from the source (lower keeps the root path and the legs)"""
+    path: Path | None = field(default=None, metadata=option(metavar="FILE"))
+    """path: CSV or JSON of floor points 'seconds,x,z' (metres; start at 0,0 facing +z)"""
+    keys: Path | None = field(default=None, metadata=option(metavar="NPY"))
+    """keys: joint targets (T, 22, 3), NaN where free"""
+    timeline: tuple[str, ...] = field(default=(), metadata=option(metavar="LINE"))
+    """compose: lines 'text#start#end' (seconds) or 'text#seconds', or one file of them"""
+    num_samples: int = field(default=1, metadata=option(metavar="N"))
+    """different results of the edit"""
+    seed: int = 0
+    """random seed: same seed, same bytes"""
+    method: Method = "auto"
+    """auto (optimize where targets cannot be kept exactly: keys; posterior elsewhere),
+    optimize (read the kept start with the posterior, optimise the noise against the
+    constraints past it: slower, the model reaches them itself), posterior (no optimisation)
+    or best_of_n (the baseline)"""
+    candidates: int = field(default=8, metadata=option(metavar="N"))
+    """noise draws per result, the closest to the constraints kept"""
+    steps: int = field(default=20, metadata=option(metavar="N"))
+    """optimisation steps of --method optimize (and auto)"""
+    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
+    """run folder, or the original T2M release's folder"""
+    glove: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """the release's GloVe subset (default: glove/ beside the release's checkpoints/)"""
+    out: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """output folder (default outputs/edit-<timestamp>/)"""
+    overwrite: bool = False
+    """replace a non-empty --out written by an earlier run"""
+    render: Render = "mp4"
+    """stick-figure animation format (kept joints in green), or none"""
+    bvh: bool = False
+    """also write a BVH file per motion"""
+    device: str = "auto"
+    """auto, cpu, cuda or cuda:N"""
+    threads: int = field(default=0, metadata=option(metavar="N"))
+    """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
+    precision: Literal["fp32", "bf16", "int8"] = "fp32"
+    """inference precision (int8 is CPU only and cannot optimise)"""
+
+    def __post_init__(self) -> None:
+        if self.num_samples < 1 or self.candidates < 1 or self.steps < 0:
+            raise UsageError("--num-samples and --candidates must be >= 1, --steps >= 0")
+        check_threads(self.threads)
+        check_seed(self.seed)
+        if self.render not in RENDER_CHOICES:
+            raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}")
+
+    def request(self):
+        """The :class:`t2m.edit.EditRequest` (checked: missing or extra inputs for the mode)."""
+        from t2m.edit import EditRequest
+
+        timeline = self.timeline
+        if len(timeline) == 1 and "#" not in timeline[0]:
+            timeline = Path(timeline[0])
+        return EditRequest(
+            mode=self.mode,
+            text=self.text or "",
+            source=self.source,
+            seconds=self.seconds,
+            keep_seconds=self.keep_seconds,
+            keep_start=self.keep_start,
+            keep_end=self.keep_end,
+            part=self.part,
+            path=self.path,
+            keys=self.keys,
+            timeline=timeline or None,
+            mapping=self.mapping,
+            source_fps=self.source_fps,
+        )
+
+
+@command(interrupted="interrupted; nothing was written")
+def main(argv: list[str] | None = None) -> int:
+    from t2m.edit import edit_batch
+    from t2m.pipeline import TextToMotion
+    from t2m.train.runtime import inference_device
+
+    parser = CommandParser(
+        prog="python -m t2m.edit",
+        description="Edit a motion or compose several prompts with trained T2M checkpoints.",
+    )
+    config = parse_config(parser, EditConfig, argv)
+    # 1. everything the user gave, checked before any model is loaded
+    request = config.request()
+    settings = SearchSettings(
+        method=config.method, candidates=config.candidates, steps=config.steps
+    )
+    out = config.out or Path("outputs") / time.strftime("edit-%Y-%m-%d_%H-%M-%S")
+    check_out(out, config.overwrite)
+    if config.threads:
+        import torch
+
+        torch.set_num_threads(config.threads)
+    # 2. the models
+    device = inference_device(config.device, config.precision)
+    try:
+        pipe = TextToMotion.from_checkpoints(
+            config.checkpoints,
+            device=device,
+            precision=config.precision,
+            need_length_model=False,
+            glove_dir=config.glove,
+        )
+        if request.mode == "compose":
+            from t2m.edit.modes import read_timeline
+
+            frames = [read_timeline(request.timeline, pipe.spec)[-1].stop]
+        else:
+            frames = [request.plan(pipe.spec).num_frames]
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    # 3. edit and write
+    write_motions(
+        lambda: edit_batch(pipe, [request], config.num_samples, config.seed, settings),
+        pipe.spec,
+        out,
+        frames=frames,
+        num_samples=config.num_samples,
+        seed=config.seed,
+        render=config.render,
+        bvh=config.bvh,
+        overwrite=config.overwrite,
+        extra_info={
+            "mode": config.mode,
+            "checkpoints": str(config.checkpoints),
+            "precision": config.precision,
+            "search": asdict(settings),
+        },
+    )
+    logger.info("wrote %s", out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,366 @@
+"""Each edit mode as an :class:`t2m.edit.core.EditPlan`: what is kept, what is targeted.
+
+All lengths are in frames of the models' dataset (``spec``), results are whole snippets and at
+most ``spec.max_frames`` long (compose chains windows to go longer). Bad requests raise
+UsageError with one line.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, get_args
+
+import numpy as np
+
+from dataset_tools.command import UsageError
+from dataset_tools.skeleton import DatasetSpec
+from t2m.edit.core import EditPlan
+from t2m.edit.source import PreparedSource
+
+logger = logging.getLogger(__name__)
+
+Mode = Literal["continue", "inbetween", "body", "path", "keys", "compose"]
+MODES: tuple[str, ...] = get_args(Mode)
+Part = Literal["lower", "legs", "upper", "arms", "left_arm", "right_arm"]
+
+# SMPL joint indices (dataset_tools.skeleton.SMPL_JOINT_NAMES).
+_LEGS = (1, 2, 4, 5, 7, 8, 10, 11)
+_LEFT_ARM = (13, 16, 18, 20)
+_RIGHT_ARM = (14, 17, 19, 21)
+BODY_PARTS: dict[str, tuple[int, ...]] = {
+    "lower": (0, *_LEGS),
+    "legs": _LEGS,
+    "upper": (3, 6, 9, 12, 15, *_LEFT_ARM, *_RIGHT_ARM),
+    "arms": (*_LEFT_ARM, *_RIGHT_ARM),
+    "left_arm": _LEFT_ARM,
+    "right_arm": _RIGHT_ARM,
+}
+"""Named groups of the 22-joint body. ``lower`` keeps the root's path and the legs; ``legs``
+keeps the legs' pose relative to a regenerated root path; the others keep their joints relative
+to the root (the pelvis), which keeps its source path only in ``lower``."""
+
+MAX_ROOT_SPEED = 6.0
+"""Metres per second between path points or kept poses beyond which the body cannot get there
+in time (a sprint is about 10, the HumanML3D captures stay under 5)."""
+
+
+def _frames(seconds: float, spec: DatasetSpec, what: str) -> int:
+    if not math.isfinite(seconds):
+        raise UsageError(f"{what} must be a finite number of seconds, got {seconds}")
+    return int(round(seconds * spec.fps))
+
+
+def _whole_snippets(frames: int, spec: DatasetSpec, what: str) -> int:
+    """``frames`` rounded down to whole snippets, refused outside 1 snippet .. max_frames."""
+    unit = spec.snippet_length
+    rounded = frames // unit * unit
+    if rounded < unit:
+        raise UsageError(f"{what} is shorter than one snippet ({unit / spec.fps:.2f} s)")
+    if rounded > spec.max_frames:
+        raise UsageError(
+            f"{what} is {rounded / spec.fps:.1f} s; one edit makes at most "
+            f"{spec.max_frames / spec.fps:.1f} s (use --mode compose for longer motions)"
+        )
+    return rounded
+
+
+def _empty(frames: int, spec: DatasetSpec) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.full((frames, spec.num_joints, 3), np.nan),
+        np.zeros((frames, spec.num_joints), dtype=bool),
+    )
+
+
+def _on_timeline(values: np.ndarray, rows: np.ndarray, source_rows: np.ndarray, frames: int):
+    out = np.full((frames,) + values.shape[1:], np.nan)
+    out[rows] = values[source_rows]
+    return out
+
+
+def check_reachable(times: np.ndarray, points: np.ndarray, what: str) -> None:
+    """UsageError when consecutive floor points (K, 2) at ``times`` (K,) seconds ask for more
+    than :data:`MAX_ROOT_SPEED`."""
+    if len(times) < 2:
+        return
+    gaps = np.diff(times)
+    distances = np.linalg.norm(np.diff(points, axis=0), axis=-1)
+    speeds = distances / np.maximum(gaps, 1e-9)
+    worst = int(np.argmax(speeds))
+    if speeds[worst] > MAX_ROOT_SPEED:
+        raise UsageError(
+            f"{what}: {distances[worst]:.2f} m in {gaps[worst]:.2f} s at {times[worst + 1]:.2f} s "
+            f"needs {speeds[worst]:.1f} m/s; the body cannot get there in time "
+            f"(at most {MAX_ROOT_SPEED:g} m/s)"
+        )
+
+
+def plan_continue(
+    text: str, source: PreparedSource, spec: DatasetSpec, keep_seconds: float, seconds: float | None
+) -> EditPlan:
+    """Keep the first ``keep_seconds`` of the source; the result lasts ``seconds`` (default: as
+    long as the source)."""
+    kept = _frames(keep_seconds, spec, "--keep-seconds")
+    if kept < 1:
+        raise UsageError("--keep-seconds keeps nothing of the source (give more than one frame)")
+    if kept > source.num_frames:
+        raise UsageError(
+            f"--keep-seconds {keep_seconds:g} is past the source's end "
+            f"({source.num_frames / spec.fps:.2f} s)"
+        )
+    total = source.num_frames if seconds is None else _frames(seconds, spec, "--seconds")
+    frames = _whole_snippets(
+        min(total, spec.max_frames) if seconds is None else total, spec, "the result"
+    )
+    if kept >= frames:
+        raise UsageError(
+            f"--keep-seconds {keep_seconds:g} keeps the whole {frames / spec.fps:.2f} s result: "
+            "nothing is left to generate (lengthen it with --seconds)"
+        )
+    rows = np.arange(kept)
+    target, keep = _empty(frames, spec)
+    target[rows] = source.joints[rows]
+    keep[rows] = True
+    return EditPlan(
+        text,
+        frames,
+        target,
+        keep,
+        _on_timeline(source.features, rows, rows, frames),
+        _on_timeline(source.half_yaw, rows, rows, frames),
+    )
+
+
+def plan_inbetween(
+    text: str,
+    source: PreparedSource,
+    spec: DatasetSpec,
+    keep_start: float,
+    keep_end: float,
+    seconds: float | None,
+) -> EditPlan:
+    """Keep the source's first ``keep_start`` and last ``keep_end`` seconds (one frame each for
+    single key poses) at the result's start and end; generate the middle. The result lasts
+    ``seconds`` (default: as long as the source)."""
+    start = _frames(keep_start, spec, "--keep-start")
+    end = _frames(keep_end, spec, "--keep-end")
+    if start < 1 or end < 1:
+        raise UsageError("inbetween keeps a start and an end: --keep-start and --keep-end > 0")
+    if start + end > source.num_frames:
+        raise UsageError(
+            f"--keep-start {keep_start:g} + --keep-end {keep_end:g} s is more than the source "
+            f"({source.num_frames / spec.fps:.2f} s)"
+        )
+    total = source.num_frames if seconds is None else _frames(seconds, spec, "--seconds")
+    frames = _whole_snippets(total, spec, "the result")
+    if start + end >= frames:
+        raise UsageError(
+            f"the kept {(start + end) / spec.fps:.2f} s fill the {frames / spec.fps:.2f} s "
+            "result: nothing is left to generate (lengthen it with --seconds)"
+        )
+    head = np.arange(start)
+    tail_rows = np.arange(frames - end, frames)
+    tail_source = np.arange(source.num_frames - end, source.num_frames)
+    rows = np.concatenate([head, tail_rows])
+    source_rows = np.concatenate([head, tail_source])
+    target, keep = _empty(frames, spec)
+    target[rows] = source.joints[source_rows]
+    keep[rows] = True
+    gap = (frames - end - (start - 1)) / spec.fps
+    check_reachable(
+        np.array([0.0, gap]),
+        source.joints[[start - 1, source.num_frames - end], 0][:, [0, 2]],
+        "inbetween",
+    )
+    return EditPlan(
+        text,
+        frames,
+        target,
+        keep,
+        _on_timeline(source.features, rows, source_rows, frames),
+        _on_timeline(source.half_yaw, rows, source_rows, frames),
+    )
+
+
+def plan_body(text: str, source: PreparedSource, spec: DatasetSpec, part: str) -> EditPlan:
+    """Keep the joints of ``part`` (:data:`BODY_PARTS`) on every frame; regenerate the rest."""
+    if spec.num_joints != 22:
+        raise UsageError("body edits name SMPL joints: they need a 22-joint (HumanML3D) model")
+    if part not in BODY_PARTS:
+        raise UsageError(f"unknown --part {part!r}; choose one of {', '.join(BODY_PARTS)}")
+    frames = source.num_frames
+    if frames > spec.max_frames:
+        logger.warning(
+            "the source is %.1f s; body edits keep its first %.1f s",
+            frames / spec.fps,
+            spec.max_frames / spec.fps,
+        )
+        frames = spec.max_frames
+    frames = _whole_snippets(frames, spec, "the source")
+    joints = list(BODY_PARTS[part])
+    target, keep = _empty(frames, spec)
+    keep[:, joints] = True
+    if 0 in joints:  # absolute positions are targets only where the root path is kept
+        target[:, joints] = source.joints[:frames, joints]
+    rows = np.arange(frames)
+    return EditPlan(
+        text,
+        frames,
+        target,
+        keep,
+        _on_timeline(source.features, rows, rows, frames),
+        _on_timeline(source.half_yaw, rows, rows, frames),
+    )
+
+
+def read_path(path: str | Path | np.ndarray | Sequence) -> np.ndarray:
+    """Path points (K, 3) rows ``seconds, x, z`` (floor coordinates in metres, the model's frame:
+    the motion starts at the origin facing +Z) from an array, a CSV file (optional header line)
+    or a JSON file (a list of ``[seconds, x, z]`` or of ``{"t": .., "x": .., "z": ..}``)."""
+    if isinstance(path, (str, Path)):
+        file = Path(path)
+        try:
+            text = file.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as error:
+            raise UsageError(f"cannot read --path {file}: {error}") from None
+        try:
+            if file.suffix.lower() == ".json":
+                data = json.loads(text)
+                data = data.get("points", data) if isinstance(data, dict) else data
+                rows = [[p["t"], p["x"], p["z"]] if isinstance(p, dict) else p for p in data]
+            else:
+                lines = [ln for ln in text.splitlines() if ln.strip()]
+                if lines and re.search(r"[A-Za-z]", lines[0]):
+                    lines = lines[1:]  # a header
+                rows = [[float(v) for v in re.split(r"[,;\s]+", ln.strip())] for ln in lines]
+            points = np.asarray(rows, dtype=np.float64)
+        except (ValueError, KeyError, TypeError):
+            raise UsageError(f"--path {file}: give rows 'seconds,x,z'") from None
+    else:
+        points = np.asarray(path, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        raise UsageError(f"a path is rows of (seconds, x, z), got shape {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise UsageError("the path contains NaN or infinite values")
+    if np.any(np.diff(points[:, 0]) <= 0) or points[0, 0] < 0:
+        raise UsageError("path times must be >= 0 and increasing")
+    return points
+
+
+def plan_path(text: str, points: np.ndarray, spec: DatasetSpec, seconds: float | None) -> EditPlan:
+    """The root passes through the floor points (``seconds, x, z`` rows) at their times; the
+    result lasts ``seconds`` (default: up to the last point)."""
+    last = float(points[-1, 0])
+    total = _frames(seconds if seconds is not None else last, spec, "--seconds")
+    unit = spec.snippet_length
+    frames = _whole_snippets(
+        -(-max(total, int(round(last * spec.fps)) + 1) // unit) * unit, spec, "the path"
+    )
+    times = np.concatenate([[0.0], points[:, 0]])
+    floor = np.concatenate([[[0.0, 0.0]], points[:, 1:]])
+    check_reachable(times, floor, "--path")
+    target, keep = _empty(frames, spec)
+    for t, x, z in points:
+        row = min(int(round(t * spec.fps)), frames - 1)
+        target[row, 0, 0], target[row, 0, 2] = x, z
+    if np.isfinite(target[0, 0]).any() and np.abs(np.nan_to_num(target[0, 0])).max() > 1e-6:
+        raise UsageError("the path's point at 0 s must be (0, 0): every motion starts there")
+    return EditPlan(text, frames, target, keep)
+
+
+def plan_keys(text: str, keys: np.ndarray, spec: DatasetSpec) -> EditPlan:
+    """Joint targets (T, J, 3), NaN where free, in the model's frame; the root's floor position
+    is met exactly, other targets as closely as the search gets."""
+    keys = np.asarray(keys, dtype=np.float64)
+    if keys.ndim != 3 or keys.shape[1:] != (spec.num_joints, 3):
+        raise UsageError(
+            f"--keys must be (T, {spec.num_joints}, 3) with NaN for free, got {keys.shape}"
+        )
+    finite = np.isfinite(keys)
+    if not finite.any():
+        raise UsageError("--keys constrains nothing (all NaN)")
+    if np.isinf(keys).any():
+        raise UsageError("--keys contains infinite values (use NaN for free)")
+    frames = _whole_snippets(
+        -(-len(keys) // spec.snippet_length) * spec.snippet_length, spec, "--keys"
+    )
+    target, keep = _empty(frames, spec)
+    target[: len(keys)] = keys
+    rows = np.flatnonzero(np.isfinite(target[:, 0, [0, 2]]).all(-1))
+    if len(rows):
+        check_reachable(
+            np.concatenate([[0.0], rows / spec.fps]),
+            np.concatenate([[[0.0, 0.0]], target[rows, 0][:, [0, 2]]]),
+            "--keys",
+        )
+    return EditPlan(text, frames, target, keep)
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One timeline entry: its prompt and its frames on the result's timeline."""
+
+    text: str
+    start: int
+    stop: int
+
+
+def read_timeline(lines: str | Path | Sequence[str], spec: DatasetSpec) -> list[Segment]:
+    """Timeline lines ``text#start#end`` (seconds) or ``text#seconds`` (starting where the
+    previous one ends), or a file of them; blank lines skipped. Segments must follow each other
+    without gaps or overlaps (within half a frame) from 0 s; boundaries are rounded to whole
+    snippets."""
+    if isinstance(lines, Path) or (
+        isinstance(lines, str) and "\n" not in lines and "#" not in lines
+    ):
+        try:
+            lines = Path(lines).read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as error:
+            raise UsageError(f"cannot read --timeline {lines}: {error}") from None
+    elif isinstance(lines, str):
+        lines = lines.splitlines()
+    entries: list[tuple[str, float, float]] = []
+    cursor = 0.0
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        parts = [p.strip() for p in line.split("#")]
+        try:
+            if len(parts) == 3:
+                text, start, end = parts[0], float(parts[1]), float(parts[2])
+            elif len(parts) == 2:
+                text, start = parts[0], cursor
+                end = start + float(parts[1])
+            else:
+                raise ValueError
+        except ValueError:
+            raise UsageError(
+                f"timeline line {number}: give 'text#start#end' or 'text#seconds'"
+            ) from None
+        if not text or not (math.isfinite(start) and math.isfinite(end)) or end <= start:
+            raise UsageError(f"timeline line {number}: an empty prompt or end <= start")
+        half = 0.5 / spec.fps
+        if abs(start - cursor) > half:
+            kind = "a gap" if start > cursor else "an overlap"
+            raise UsageError(
+                f"timeline line {number}: starts at {start:g} s, the previous ends at "
+                f"{cursor:g} s ({kind}); segments must follow each other"
+            )
+        entries.append((text, start, end))
+        cursor = end
+    if not entries:
+        raise UsageError("the timeline holds no segment")
+    unit = spec.snippet_length
+    segments = []
+    for number, (text, start, end) in enumerate(entries, start=1):
+        first = int(round(start * spec.fps / unit)) * unit
+        last = int(round(end * spec.fps / unit)) * unit
+        if last <= first:
+            raise UsageError(f"timeline segment {number} is shorter than one snippet")
+        segments.append(Segment(text, first, last))
+    return segments

@@ -1,0 +1,553 @@
+"""The edit benchmark: ``python -m t2m.evaluate --edit MODE --dataset DIR --checkpoints DIR``.
+
+Builds ``--items`` edits of one mode from the dataset's test split and runs each with every
+``--methods`` entry (``auto``, ``optimize``, ``posterior``, ``best_of_n``:
+:class:`t2m.edit.SearchSettings`),
+side by side, then writes ``results.md`` and ``results.json`` into ``--out``.
+
+The edits (seeded; sources are real test motions, "donor" captions come from test clips of one
+labelled action, so the corpus' detectors can check the regenerated part):
+
+* continue: keep 2 s of a source, 4 s from a donor's caption (regenerated: frames 40..120);
+* inbetween: keep 1 s at each end of a source, 4 s from a donor's caption in the middle;
+* body: keep the lower body of a walking or running source, the rest from a donor's caption of
+  an upper-body action (wave, raise, punch, clap);
+* path: the root path of a source (a point every second) with the source's own caption;
+* keys: the source's root floor position and both wrists at three frames, its own caption;
+* compose: three donors' captions, 4 s each (12 s, two joins).
+
+Columns (per method):
+
+* ``err mean / max``: distance (m) of the result's kept or targeted joints from their targets,
+  mean over entries and items / largest; ``before keep``: the same (root mean square per item,
+  averaged) of the model's own output before the hard keep; ``miss >5 / >20 cm``: fraction of
+  targeted entries farther than that (keys: the wrists are soft targets);
+* ``seam acc / jerk``: at each join, the largest over the frames within 2 of it of the largest
+  joint acceleration (m/s^2) and jerk (m/s^3) (second and third differences at 20 fps), median
+  over joins; ``plain`` and ``real`` give the same statistic at random frames of plain
+  generation and of the real test motions (the edits' sources; compose: its donors);
+* ``semantic``: fraction of regenerated parts whose donor label the corpus' detectors recover
+  (body: the upper-body action, and the source's walk still detected; compose: every segment);
+  ``plain`` gives the same for plain generation of the same captions and lengths;
+* ``skate``: the foot-skating ratio (feet 10 and 11; a frame skates when a foot is within 5 cm of
+  the floor in two consecutive frames and its speed and its 5-frame mean speed both exceed
+  0.5 m/s; skating frames / (T - 1), mean over motions) of the results, of plain generation and
+  of the real motions (as for the seams);
+* ``R@3 / FID``: R-precision (top 3, batches of 32) and FID of the regenerated parts against
+  the donors' real motions with the run's evaluator stage, beside plain generation (when the
+  run has an evaluator and there are at least 32 items; else n/a);
+* ``ms / edit``: median wall time of single edits (one result; ``--latency-edits`` of them,
+  after a warm-up), and the process' peak resident memory.
+"""
+
+from __future__ import annotations
+
+import logging
+import resource
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+from dataset_tools import humanml3d
+from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
+from dataset_tools.io import check_output_folder, write_json_atomic, write_text_atomic
+from dataset_tools.synth.detectors import clip_matches, detect_labels, label_matches
+from t2m.edit import EditRequest, SearchSettings, edit_batch
+from t2m.edit.core import METHODS, EditPlan
+from t2m.edit.modes import Mode
+
+logger = logging.getLogger(__name__)
+
+UPPER_ACTIONS = ("wave", "raise", "punch", "clap")
+LOWER_ACTIONS = ("walk", "run")
+SECONDS = {"part": 4.0, "keep": 2.0, "end": 1.0, "segment": 4.0}
+
+
+@dataclass
+class EditBenchConfig:
+    """``python -m t2m.evaluate --edit MODE``: the edit benchmark."""
+
+    edit: Mode = field(metadata=option(metavar="MODE"))
+    """the edit mode to measure"""
+    dataset: Path = field(metadata=option(metavar="DIR"))
+    """HumanML3D-layout dataset folder (its test split; the demo corpus for semantic scores)"""
+    checkpoints: Path = field(metadata=option(metavar="DIR"))
+    """run folder (or the original release's folder)"""
+    out: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """output folder (default <checkpoints>/edit_results/<mode>)"""
+    items: int = field(default=64, metadata=option(metavar="N"))
+    """edits per method"""
+    methods: tuple[str, ...] = ("auto", "optimize", "posterior", "best_of_n")
+    """search methods to compare (t2m.edit.SearchSettings.method)"""
+    candidates: int = field(default=8, metadata=option(metavar="N"))
+    """noise draws per edit"""
+    steps: int = field(default=20, metadata=option(metavar="N"))
+    """optimisation steps of the optimize method"""
+    noise_weight: float = field(default=SearchSettings.noise_weight, metadata=option(metavar="W"))
+    """weight of mean(eps^2) in the optimize method's loss"""
+    latency_edits: int = field(default=5, metadata=option(metavar="N"))
+    """single edits timed per method"""
+    seed: int = 0
+    """seeds the choice of items and the edits"""
+    threads: int = field(default=1, metadata=option(metavar="N"))
+    """torch CPU threads"""
+    device: str = "cpu"
+    """cpu, cuda or auto"""
+    precision: Literal["fp32", "bf16", "int8"] = "fp32"
+    """inference precision"""
+
+    def __post_init__(self) -> None:
+        if self.items < 1 or self.candidates < 1 or self.steps < 0 or self.latency_edits < 0:
+            raise UsageError(
+                "--items and --candidates must be >= 1, --steps and --latency-edits >= 0"
+            )
+        for method in self.methods:
+            if method not in METHODS:
+                raise UsageError(f"unknown method {method!r}; use {', '.join(METHODS)}")
+
+
+@dataclass
+class Item:
+    """One benchmark edit: the request, what it regenerates and how it is judged."""
+
+    request: EditRequest
+    part: tuple[int, int] | None  # regenerated frames to judge [a, b), None: the whole motion
+    labels: list[dict]  # the donor's (or source's) segment labels the part should show
+    texts: list[humanml3d.Caption]  # caption(s) of the regenerated part(s)
+    donors: list[str]  # clips whose real motions the parts are compared with
+    source: str | None = None  # the clip the edit starts from (or whose path it follows)
+    seams: list[int] = field(default_factory=list)
+    source_labels: list[dict] | None = None  # body: the source's labels, still expected
+    plan: EditPlan | None = None  # the request's plan (not for compose)
+
+
+# ---------------------------------------------------------------------------- items
+
+
+def _whole_captions(dataset: Path, name: str) -> list[humanml3d.Caption]:
+    return [c for c in humanml3d.read_texts(dataset, name) if c.whole_clip and c.tokens]
+
+
+def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
+    """Seeded edits of ``config.edit`` from the test split (see the module docstring)."""
+    from dataset_tools.synth.scoring import scorer_for
+
+    dataset = config.dataset
+    scorer = scorer_for(dataset)
+    names = humanml3d.read_split(dataset, "test")
+    rng = np.random.default_rng(config.seed)
+    joints = {}
+    clips = []
+    for name in names:
+        segments = scorer.segments_for(name) if scorer else None
+        captions = _whole_captions(dataset, name)
+        if not captions:
+            continue
+        clips.append((name, segments, captions))
+
+    def load(name: str) -> np.ndarray:
+        if name not in joints:
+            joints[name] = humanml3d.read_joints(humanml3d.joints_path(dataset, name))
+        return joints[name]
+
+    single = [c for c in clips if c[1] is not None and len(c[1]) == 1]
+    upper = [c for c in single if c[1][0]["action"] in UPPER_ACTIONS]
+    walkers = [
+        c for c in clips if c[1] is not None and all(s["action"] in LOWER_ACTIONS for s in c[1])
+    ]
+    if scorer is None:  # not the demo corpus: captions only, no labels
+        single = upper = walkers = clips
+    mode = config.edit
+    shortest = int(2.5 * fps)  # every source: at least 2.5 s (2 s kept + some, or both ends)
+
+    def pick(pool, source=False):
+        while True:
+            clip = pool[int(rng.integers(len(pool)))]
+            if not source or len(load(clip[0])) >= shortest:
+                return clip
+
+    items = []
+    part = int(SECONDS["part"] * fps)
+    while len(items) < config.items:
+        if mode in ("continue", "inbetween"):
+            source, donor = pick(clips, True), pick(single)
+            text = donor[2][int(rng.integers(len(donor[2])))]
+            if mode == "continue":
+                keep = int(SECONDS["keep"] * fps)
+                request = EditRequest(mode, text.text, load(source[0]),
+                                      keep_seconds=SECONDS["keep"],
+                                      seconds=SECONDS["keep"] + SECONDS["part"])  # fmt: skip
+                items.append(Item(request, (keep, keep + part), donor[1] or [], [text],
+                                  [donor[0]], source[0], [keep]))  # fmt: skip
+            else:
+                end = int(SECONDS["end"] * fps)
+                request = EditRequest(mode, text.text, load(source[0]),
+                                      keep_start=SECONDS["end"], keep_end=SECONDS["end"],
+                                      seconds=2 * SECONDS["end"] + SECONDS["part"])  # fmt: skip
+                items.append(Item(request, (end, end + part), donor[1] or [], [text],
+                                  [donor[0]], source[0], [end, end + part]))  # fmt: skip
+        elif mode == "body":
+            source, donor = pick(walkers, True), pick(upper)
+            text = donor[2][int(rng.integers(len(donor[2])))]
+            motion = load(source[0])[: 196 + 1]
+            request = EditRequest(mode, text.text, motion, part="lower")
+            items.append(Item(request, None, donor[1] or [], [text], [donor[0]], source[0],
+                              source_labels=source[1]))  # fmt: skip
+        elif mode in ("path", "keys"):
+            source = pick(clips, True)
+            text = source[2][int(rng.integers(len(source[2])))]
+            from t2m.edit.source import prepare_source
+
+            prepared = prepare_source(load(source[0])[: 196 + 1])
+            frames = prepared.num_frames // 4 * 4
+            if mode == "path":
+                rows = np.arange(int(fps), frames, int(fps))
+                points = np.stack([rows / fps, *prepared.joints[rows, 0][:, [0, 2]].T], axis=-1)
+                request = EditRequest(mode, text.text, path=points, seconds=frames / fps)
+            else:
+                keys = np.full((frames, 22, 3), np.nan)
+                for row in (frames // 4, frames // 2, frames - 1):
+                    keys[row, 0, [0, 2]] = prepared.joints[row, 0, [0, 2]]
+                    keys[row, [20, 21]] = prepared.joints[row, [20, 21]]
+                request = EditRequest(mode, text.text, keys=keys)
+            items.append(Item(request, None, source[1] or [], [text], [source[0]], source[0]))
+        else:  # compose
+            donors = [pick(single) for _ in range(3)]
+            texts = [d[2][int(rng.integers(len(d[2])))] for d in donors]
+            length = SECONDS["segment"]
+            timeline = [
+                f"{t.text}#{i * length:g}#{(i + 1) * length:g}" for i, t in enumerate(texts)
+            ]
+            request = EditRequest(mode, timeline=timeline)
+            labels = [d[1][0] if d[1] else None for d in donors]
+            items.append(Item(request, None, labels, texts, [d[0] for d in donors],
+                              seams=[part, 2 * part]))  # fmt: skip
+    return items
+
+
+# ---------------------------------------------------------------------------- statistics
+
+
+def skating_ratio(joints: np.ndarray, fps: float) -> float:
+    """Foot-skating ratio of joints (T, 22, 3) (the definition in the module docstring)."""
+    feet = joints[:, [10, 11]]  # (T, 2, 3)
+    speed = np.linalg.norm(np.diff(feet[..., [0, 2]], axis=0), axis=-1) * fps  # (T-1, 2)
+    kernel = np.ones(5) / 5
+    windowed = np.stack([np.convolve(speed[:, k], kernel, mode="same") for k in range(2)], axis=-1)
+    low = feet[..., 1] < 0.05
+    grounded = low[1:] & low[:-1]
+    skating = (grounded & (speed > 0.5) & (windowed > 0.5)).any(axis=-1)
+    return float(skating.sum() / max(len(joints) - 1, 1))
+
+
+def seam_statistics(joints: np.ndarray, frame: int, fps: float) -> tuple[float, float]:
+    """(acceleration m/s^2, jerk m/s^3): the largest joint's, largest within 2 frames of ``frame``."""
+    lo, hi = max(frame - 3, 0), min(frame + 4, len(joints))
+    window = joints[lo:hi]
+    acc = np.linalg.norm(np.diff(window, 2, axis=0), axis=-1).max() * fps**2
+    jerk = np.linalg.norm(np.diff(window, 3, axis=0), axis=-1).max() * fps**3
+    return float(acc), float(jerk)
+
+
+def _labels_found(joints: np.ndarray, labels: list[dict], fps: float) -> bool | None:
+    if not labels:
+        return None
+    facts = detect_labels(joints, fps)
+    return all(label_matches(facts, label) for label in labels)
+
+
+def judge(item: Item, motion, fps: float) -> dict:
+    """Every per-edit number of one result."""
+    request = item.request
+    out: dict = {}
+    # targets of the result: what was kept or given
+    if item.plan is not None:
+        target = item.plan.target
+        given = np.isfinite(target)  # (T, J, 3): a path gives x and z only
+        if request.mode not in ("path", "keys"):  # kept joints; "legs" etc. have no targets
+            given &= item.plan.keep[..., None]
+        finite = given.any(-1)
+    else:
+        target, finite = None, None
+    if target is not None and finite.any():
+        difference = np.where(given, motion.joints - np.nan_to_num(target), 0.0)
+        distance = np.linalg.norm(difference, axis=-1)[finite]
+        out.update(err_mean=float(distance.mean()), err_max=float(distance.max()),
+                   miss_5=float((distance > 0.05).mean()), miss_20=float((distance > 0.2).mean()))  # fmt: skip
+    out["before_keep"] = motion.constraint_error
+    out["seams"] = [seam_statistics(motion.joints, s, fps) for s in item.seams]
+    out["skate"] = skating_ratio(motion.joints, fps)
+    # semantic
+    if request.mode == "compose":
+        found = []
+        step = len(motion.joints) // 3
+        for index, label in enumerate(item.labels):
+            if label is not None:
+                found.append(
+                    _labels_found(motion.joints[index * step : (index + 1) * step], [label], fps)
+                )
+        out["semantic"] = all(found) if found else None
+    else:
+        a, b = item.part or (0, len(motion.joints))
+        part = motion.joints[a:b]
+        if request.mode in ("path", "keys") and item.labels:
+            out["semantic"] = all(clip_matches(part, fps, item.labels))
+        else:
+            out["semantic"] = _labels_found(part, item.labels, fps)
+        if item.source_labels:
+            out["semantic"] = out["semantic"] and all(
+                clip_matches(motion.joints, fps, item.source_labels)
+            )
+    return out
+
+
+# ---------------------------------------------------------------------------- the run
+
+
+def _plans(items: list[Item], spec) -> None:
+    for item in items:
+        if item.request.mode != "compose":
+            item.plan = item.request.plan(spec)
+
+
+def _parts(item: Item, motion) -> list[np.ndarray]:
+    """The regenerated features the evaluator embeds (whole snippets)."""
+    if item.request.mode == "compose":
+        step = len(motion.features) // 3
+        return [motion.features[i * step : (i + 1) * step] for i in range(3)]
+    a, b = item.part or (0, len(motion.features) // 4 * 4)
+    return [motion.features[a:b]]
+
+
+def run_benchmark(config: EditBenchConfig) -> dict:
+    from t2m.pipeline import TextToMotion
+    from t2m.train.runtime import inference_device
+
+    torch.set_num_threads(config.threads)
+    device = inference_device(config.device, config.precision)
+    pipe = TextToMotion.from_checkpoints(
+        config.checkpoints, device=device, precision=config.precision, need_length_model=False
+    )
+    fps = pipe.spec.fps
+    items = build_items(config, fps)
+    _plans(items, pipe.spec)
+    requests = [item.request for item in items]
+    logger.info("%d %s edits", len(items), config.edit)
+    # the evaluator (optional)
+    backend = None
+    try:
+        from t2m.evaluate.backend import CheckpointBackend, Embedder
+
+        backend = CheckpointBackend(Embedder.load(config.checkpoints, device), pipe)
+    except (ValueError, OSError) as error:
+        logger.warning("no evaluator (%s): R-precision and FID are n/a", error)
+    results: dict = {"mode": config.edit, "items": len(items), "config": _jsonable(asdict(config))}
+    # real reference
+    rng = np.random.default_rng(config.seed + 1)
+    real_seams, real_skate = [], []
+    sources = [item.source or item.donors[0] for item in items]
+    for name in sources:
+        joints = humanml3d.read_joints(humanml3d.joints_path(config.dataset, name))
+        real_skate.append(skating_ratio(joints, fps))
+        if len(joints) > 8:
+            real_seams.append(seam_statistics(joints, int(rng.integers(3, len(joints) - 4)), fps))
+    results["real"] = {
+        "seam_acc": float(np.median([s[0] for s in real_seams])),
+        "seam_jerk": float(np.median([s[1] for s in real_seams])),
+        "skate": float(np.mean(real_skate)),
+    }
+    # plain generation of the same captions and lengths
+    plain_texts, plain_frames, plain_labels = [], [], []
+    for item in items:
+        frames = _part_frames(item, fps)
+        for caption, label in zip(item.texts, _label_rows(item)):
+            plain_texts.append(caption.text)
+            plain_frames.append(frames)
+            plain_labels.append(label)
+    plain = pipe.generate(plain_texts, lengths=plain_frames, seed=config.seed)
+    plain_motions = [row[0] for row in plain]
+    if config.edit in ("path", "keys"):  # the source's own caption and labels (segments)
+        found = [
+            all(clip_matches(m.joints, fps, lab)) if lab else None
+            for m, lab in zip(plain_motions, plain_labels)
+        ]
+    else:
+        found = [_labels_found(m.joints, lab, fps) for m, lab in zip(plain_motions, plain_labels)]
+    found = [f for f in found if f is not None]
+    plain_seams = [
+        seam_statistics(m.joints, int(rng.integers(3, len(m.joints) - 4)), fps)
+        for m in plain_motions
+    ]
+    results["plain"] = {
+        "seam_acc": float(np.median([s[0] for s in plain_seams])),
+        "seam_jerk": float(np.median([s[1] for s in plain_seams])),
+        "semantic": float(np.mean(found)) if found else None,
+        "skate": float(np.mean([skating_ratio(m.joints, fps) for m in plain_motions])),
+    }
+    captions = [c for item in items for c in item.texts]
+    real_features = [
+        _real_features(config.dataset, donor) for item in items for donor in item.donors
+    ]
+    if backend is not None:
+        results["plain"].update(
+            _rprec_fid(backend, captions, [m.features for m in plain_motions], real_features)
+        )
+        results["real"].update(_rprec_fid(backend, captions, real_features, real_features))
+    # the methods
+    results["methods"] = {}
+    for method in config.methods:
+        settings = SearchSettings(
+            method=method,
+            candidates=config.candidates,
+            steps=config.steps,
+            noise_weight=config.noise_weight,
+        )
+        start = time.perf_counter()
+        motions = [row[0] for row in edit_batch(pipe, requests, 1, config.seed, settings)]
+        batch_seconds = time.perf_counter() - start
+        judged = [judge(item, motion, fps) for item, motion in zip(items, motions)]
+        row = _summarise(judged)
+        row["batch_s"] = batch_seconds
+        row.update(_latency(pipe, requests[: config.latency_edits], settings, config.seed))
+        if backend is not None:
+            parts = [p for item, m in zip(items, motions) for p in _parts(item, m)]
+            row.update(_rprec_fid(backend, captions, parts, real_features))
+        results["methods"][method] = row
+        logger.info("%s: %s", method, {k: v for k, v in row.items() if not isinstance(v, list)})
+    results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return results
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return str(value) if isinstance(value, Path) else value
+
+
+def _part_frames(item: Item, fps: float) -> int:
+    if item.part is not None:
+        return item.part[1] - item.part[0]
+    if item.request.mode == "compose":
+        return int(SECONDS["segment"] * fps)
+    return item.plan.num_frames
+
+
+def _label_rows(item: Item) -> list[list[dict]]:
+    if item.request.mode == "compose":
+        return [[label] if label else [] for label in item.labels]
+    return [item.labels]
+
+
+def _real_features(dataset: Path, name: str) -> np.ndarray:
+    from dataset_tools.io import load_npy
+
+    features = load_npy(humanml3d.features_path(dataset, name)).astype(np.float32)
+    return features[: len(features) // 4 * 4][:196]
+
+
+def _rprec_fid(backend, captions, motions, reference) -> dict:
+    from t2m.evaluate.metrics import fid, r_precision
+
+    if len(captions) < 32:
+        return {}
+    texts = backend.embed_texts(captions)
+    embedded = backend.embed_motions([m[: len(m) // 4 * 4] for m in motions])
+    real = backend.embed_motions(reference)
+    return {"r_precision_3": float(r_precision(texts, embedded)[2]), "fid": fid(real, embedded)}
+
+
+def _latency(pipe, requests, settings: SearchSettings, seed: int) -> dict:
+    if not requests:
+        return {}
+    edit_batch(pipe, requests[:1], 1, seed, settings)  # warm-up (spaCy, first allocations)
+    times = []
+    for request in requests:
+        start = time.perf_counter()
+        edit_batch(pipe, [request], 1, seed, settings)
+        times.append(time.perf_counter() - start)
+    return {"ms_per_edit": 1000 * float(np.median(times))}
+
+
+def _summarise(judged: list[dict]) -> dict:
+    def mean(key):
+        values = [j[key] for j in judged if key in j and j[key] is not None and np.isfinite(j[key])]
+        return float(np.mean(values)) if values else None
+
+    row = {key: mean(key) for key in ("err_mean", "miss_5", "miss_20", "before_keep", "skate")}
+    maxima = [j["err_max"] for j in judged if "err_max" in j]
+    row["err_max"] = float(np.max(maxima)) if maxima else None
+    seams = [s for j in judged for s in j["seams"]]
+    row["seam_acc"] = float(np.median([s[0] for s in seams])) if seams else None
+    row["seam_jerk"] = float(np.median([s[1] for s in seams])) if seams else None
+    semantic = [j["semantic"] for j in judged if j["semantic"] is not None]
+    row["semantic"] = float(np.mean(semantic)) if semantic else None
+    return row
+
+
+# ---------------------------------------------------------------------------- the report
+
+
+def format_table(results: dict) -> str:
+    def f(value, digits=3):
+        return "n/a" if value is None else f"{value:.{digits}f}"
+
+    real, plain = results["real"], results["plain"]
+    lines = [
+        f"# Edit benchmark: {results['mode']} ({results['items']} edits per method)",
+        "",
+        "| method | err mean (m) | err max (m) | before keep (m) | miss >5 cm | miss >20 cm | "
+        "seam acc (m/s²) | seam jerk (m/s³) | semantic | skate | R@3 | FID | ms / edit |",
+        "| --- | " + " | ".join(["---"] * 12) + " |",
+    ]
+    for method, row in results["methods"].items():
+        lines.append(
+            f"| {method} | {f(row['err_mean'], 4)} | {f(row['err_max'], 4)} | "
+            f"{f(row['before_keep'])} | {f(row['miss_5'])} | {f(row['miss_20'])} | "
+            f"{f(row['seam_acc'], 1)} | {f(row['seam_jerk'], 0)} | {f(row['semantic'], 2)} | "
+            f"{f(row['skate'])} | {f(row.get('r_precision_3'))} | {f(row.get('fid'), 2)} | "
+            f"{f(row.get('ms_per_edit'), 0)} |"
+        )
+    lines.append(
+        f"| plain generation | | | | | | {f(plain['seam_acc'], 1)} | {f(plain['seam_jerk'], 0)} | "
+        f"{f(plain['semantic'], 2)} | {f(plain['skate'])} | "
+        f"{f(plain.get('r_precision_3'))} | {f(plain.get('fid'), 2)} | |"
+    )
+    lines.append(
+        f"| real motions | | | | | | {f(real['seam_acc'], 1)} | {f(real['seam_jerk'], 0)} | | "
+        f"{f(real['skate'])} | {f(real.get('r_precision_3'))} | {f(real.get('fid'), 2)} | |"
+    )
+    lines += ["", f"Peak resident memory of the process: {results['peak_rss_mb']:.0f} MB."]
+    return "\n".join(lines) + "\n"
+
+
+@command
+def main(argv: list[str] | None = None) -> int:
+    parser = CommandParser(
+        prog="python -m t2m.evaluate --edit MODE",
+        description="Measure one edit mode: constraint errors, seams, semantics, skating, "
+        "R-precision/FID, latency; methods side by side.",
+    )
+    config = parse_config(parser, EditBenchConfig, argv)
+    humanml3d.require_dataset(config.dataset)
+    out = check_output_folder(
+        config.out or config.checkpoints / "edit_results" / config.edit, "--out"
+    )
+    results = run_benchmark(config)
+    out.mkdir(parents=True, exist_ok=True)
+    table = format_table(results)
+    write_text_atomic(out / "results.md", table)
+    write_json_atomic(out / "results.json", results)
+    print(table)
+    print(f"wrote {out / 'results.md'} and {out / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
