@@ -36,6 +36,12 @@ class Limits:
     """prompts times samples"""
     max_seed: int = 2**31 - 1
     """seeds are 0 .. this"""
+    max_edit_body_bytes: int = 6 * 2**20
+    """bytes of one edit request's JSON body (it may carry an uploaded motion)"""
+
+
+class Busy(RuntimeError):
+    """The queue is full or the wait too long (HTTP 503)."""
 
 
 @dataclass(frozen=True)
@@ -48,7 +54,7 @@ class GenerateRequest:
     precision: str
 
 
-def _integer(payload: dict, key: str, default: int, low: int, high: int) -> int:
+def integer_field(payload: dict, key: str, default: int, low: int, high: int) -> int:
     value = payload.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int):
         raise UsageError(f"{key} must be a whole number from {low} to {high}, got {value!r}")
@@ -122,13 +128,13 @@ def parse_generate(
             )
         checked.append(Prompt(prompt.text, frames))
     # 3. samples, seed, precision
-    samples = _integer(payload, "samples", 1, 1, limits.max_samples)
+    samples = integer_field(payload, "samples", 1, 1, limits.max_samples)
     if len(checked) * samples > limits.max_motions:
         raise UsageError(
             f"{len(checked)} prompts x {samples} samples = {len(checked) * samples} motions; at "
             f"most {limits.max_motions} in one request"
         )
-    seed = _integer(payload, "seed", 0, 0, limits.max_seed)
+    seed = integer_field(payload, "seed", 0, 0, limits.max_seed)
     precision = payload.get("precision", "fp32")
     if precision not in PRECISIONS:
         raise UsageError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
@@ -138,9 +144,10 @@ def parse_generate(
 
 
 def motion_json(motion: GeneratedMotion, links: dict[str, str], decimals: int = 4) -> dict:
-    """One motion in an answer: its joints (T frames of J * 3 numbers, metres, y-up) and links."""
+    """One motion in an answer: its joints (T frames of J * 3 numbers, metres, y-up), links and,
+    for an edit, ``kept``: per frame a string of J '0' / '1' (the joint came from the source)."""
     joints = motion.joints.reshape(motion.num_frames, -1).astype(np.float64).round(decimals)
-    return {
+    answer = {
         "prompt": motion.prompt_index,
         "sample": motion.repetition,
         "text": motion.text,
@@ -148,6 +155,10 @@ def motion_json(motion: GeneratedMotion, links: dict[str, str], decimals: int = 
         "joints": joints.tolist(),
         "files": links,
     }
+    kept = getattr(motion, "kept", None)  # an edit's: (T, J) bool, from the source or targets
+    if kept is not None and kept.shape == motion.joints.shape[:2]:
+        answer["kept"] = ["".join("1" if k else "0" for k in row) for row in kept]
+    return answer
 
 
 def prompt_json(prepared: PreparedText, frames: int | None) -> dict:

@@ -1,13 +1,61 @@
-"""The page's edit panel and ``POST /api/edit``: motion editing through ``t2m.edit`` when this
-build has it (the editing issue); otherwise the panel is shown disabled, saying so."""
+"""The page's edit panel and ``POST /api/edit``: motion editing through :mod:`t2m.edit`
+(continue, inbetween, body, path, keys, compose) on the server's one model thread.
+
+A request names its source motion either as an upload (a BVH or a joints ``.npy``, base64 in the
+JSON) or as a motion this server generated (a live request id and the motion's index). Every
+value is checked here, and only arrays and lists reach ``t2m.edit`` (a string there would be read
+as a file name): an upload is written to a private file under the server's work folder, read
+by :func:`t2m.edit.load_source` (our BVH importer, the header-checked ``.npy`` reader) and
+removed.
+
+Request (JSON): ``mode``; ``text`` (not for compose); ``source``: ``{"upload": {"name":
+"walk.bvh", "base64": ...}}`` or ``{"result": id, "motion": index}`` (continue, inbetween,
+body); ``keep_seconds`` (continue), ``keep_start`` / ``keep_end`` (inbetween), ``seconds``
+(continue, inbetween, path: the result's length), ``part`` (body), ``path``: ``[[seconds, x,
+z], ...]``, ``keys``: ``{"upload": {"name": "targets.npy", "base64": ...}}`` ((T, 22, 3), NaN
+where free), ``timeline``: ``["text#start#end" or "text#seconds", ...]`` (compose); ``samples``,
+``seed``, ``precision`` as for generate.
+"""
 
 from __future__ import annotations
 
+import base64
+import binascii
 import importlib.util
+import math
+import queue
+import secrets
+import unicodedata
+from pathlib import Path
+
+import numpy as np
 
 from dataset_tools.command import UsageError
 
-UNAVAILABLE = "editing needs t2m.edit (the editing modes), which this build does not have yet"
+UNAVAILABLE = "editing needs t2m.edit (the editing modes), which this build does not have"
+EDIT_KEYS = {
+    "mode",
+    "text",
+    "source",
+    "keep_seconds",
+    "keep_start",
+    "keep_end",
+    "seconds",
+    "part",
+    "path",
+    "keys",
+    "timeline",
+    "samples",
+    "seed",
+    "precision",
+}
+MAX_UPLOAD_BYTES = 4 * 2**20
+"""bytes of an uploaded file (a 10 s BVH at 120 fps is about 1.5 MB)"""
+MAX_PATH_POINTS = 100
+MAX_TIMELINE_LINES = 8
+MAX_TIMELINE_SECONDS = 30.0
+MAX_EDIT_SECONDS = 30.0
+"""keep / result lengths given in seconds are at most this"""
 
 
 def edit_available() -> bool:
@@ -18,9 +66,225 @@ def edit_info() -> dict:
     """What GET /api/info says about editing."""
     if not edit_available():
         return {"available": False, "reason": UNAVAILABLE}
-    return {"available": False, "reason": "t2m.edit exists but the web app is not wired to it"}
+    from dataset_tools.viz import RenderConfig
+    from t2m.edit import BODY_PARTS, MODES, EditRequest
+
+    defaults = EditRequest(mode="continue", text="x", source=np.zeros((1, 22, 3)))
+    return {
+        "available": True,
+        "modes": list(MODES),
+        "parts": list(BODY_PARTS),
+        "defaults": {
+            "keep_seconds": defaults.keep_seconds,
+            "keep_start": defaults.keep_start,
+            "keep_end": defaults.keep_end,
+            "part": defaults.part,
+        },
+        "highlight_color": RenderConfig().highlight_color,
+        "limits": {
+            "max_upload_bytes": MAX_UPLOAD_BYTES,
+            "max_path_points": MAX_PATH_POINTS,
+            "max_timeline_lines": MAX_TIMELINE_LINES,
+            "max_timeline_seconds": MAX_TIMELINE_SECONDS,
+        },
+    }
+
+
+def _seconds(payload: dict, key: str, optional: bool = False) -> float | None:
+    value = payload.get(key)
+    if value is None and optional:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise UsageError(f"{key} must be a number of seconds, got {value!r}")
+    if not 0 <= value <= MAX_EDIT_SECONDS:
+        raise UsageError(f"{key} must be from 0 to {MAX_EDIT_SECONDS:g} seconds, got {value:g}")
+    return float(value)
+
+
+def _text(value: object, what: str, limit: int) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise UsageError(f"empty {what}: type a sentence describing the motion")
+    if len(value) > limit:
+        raise UsageError(f"{what} has {len(value)} characters; at most {limit}")
+    if any(unicodedata.category(c).startswith("C") for c in value):
+        raise UsageError(f"{what} contains control characters")
+    return value.strip()
+
+
+def _upload(value: object, what: str, suffixes: tuple[str, ...], folder: Path) -> tuple[Path, str]:
+    """An uploaded file written to a private file in ``folder``: (its path, the name given)."""
+    if not isinstance(value, dict) or not isinstance(value.get("upload"), dict):
+        raise UsageError(f"{what} must be an uploaded file")
+    upload = value["upload"]
+    name, data = upload.get("name"), upload.get("base64")
+    if not isinstance(name, str) or not isinstance(data, str):
+        raise UsageError(f"{what}: the upload needs a name and base64 data")
+    suffix = Path(name).suffix.lower()
+    if suffix not in suffixes:
+        raise UsageError(f"{what} must be a {' or '.join(suffixes)} file, got {name[:80]!r}")
+    if len(data) > MAX_UPLOAD_BYTES * 4 // 3 + 4:
+        raise UsageError(f"{what} is larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
+    try:
+        content = base64.b64decode(data, validate=True)
+    except (binascii.Error, ValueError):
+        raise UsageError(f"{what}: the upload is not valid base64") from None
+    path = folder / f".upload-{secrets.token_urlsafe(12)}{suffix}"
+    path.write_bytes(content)
+    return path, name[:80]
+
+
+def _source(app, value: object, folder: Path) -> tuple[np.ndarray, str]:
+    """The source joints (T, J, 3) at the model's frame rate, and how to name it."""
+    from t2m.edit import load_source
+
+    if isinstance(value, dict) and "result" in value:
+        request_id, index = value.get("result"), value.get("motion")
+        if not isinstance(request_id, str) or isinstance(index, bool) or not isinstance(index, int):
+            raise UsageError("source: give a request id and a motion index")
+        try:
+            stored = app.store.get(request_id)
+        except KeyError:
+            raise UsageError("source: no such generated motion on this server") from None
+        flat = [motion for row in stored.motions for motion in row]
+        if not 0 <= index < len(flat):
+            raise UsageError(f"source: that request has motions 0 to {len(flat) - 1}")
+        return flat[index].joints, f"motion {index + 1} of an earlier request"
+    path, name = _upload(value, "source", (".bvh", ".npy"), folder)
+    try:
+        return load_source(path, app.pipe.spec), name
+    except UsageError as error:
+        message = str(error).replace(f"--source {path}", f"the uploaded {name}")
+        raise UsageError(message.replace(str(path), f"the uploaded {name}")) from None
+    finally:
+        path.unlink(missing_ok=True)
+
+
+def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]:
+    """Check an edit request; returns (``t2m.edit.edit`` keyword arguments, samples, seed,
+    precision). Uploads are read (and their files removed) here."""
+    from dataset_tools.io import load_npy
+    from t2m.edit import BODY_PARTS, MODES
+    from t2m.pipeline import PRECISIONS
+    from t2m.serve.api import integer_field
+
+    limits = app.limits
+    if not isinstance(payload, dict):
+        raise UsageError("the request must be a JSON object")
+    unknown = sorted(set(payload) - EDIT_KEYS)
+    if unknown:
+        raise UsageError(f"unknown field {unknown[0]!r}; use {', '.join(sorted(EDIT_KEYS))}")
+    mode = payload.get("mode")
+    if mode not in MODES:
+        raise UsageError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
+    options: dict = {"mode": mode, "text": ""}
+    if mode != "compose":
+        options["text"] = _text(payload.get("text"), "edit text", limits.max_prompt_chars)
+    if mode in ("continue", "inbetween", "body"):
+        if payload.get("source") is None:
+            raise UsageError(f"{mode} edits a motion: upload a BVH or .npy, or pick a motion")
+        options["source"], options["source_name"] = _source(app, payload["source"], folder)
+    elif payload.get("source") is not None:
+        raise UsageError(f"{mode} makes a new motion and takes no source")
+    if mode == "continue" and "keep_seconds" in payload:
+        options["keep_seconds"] = _seconds(payload, "keep_seconds")
+    if mode == "inbetween":
+        for key in ("keep_start", "keep_end"):
+            if key in payload:
+                options[key] = _seconds(payload, key)
+    if mode in ("continue", "inbetween", "path"):
+        options["seconds"] = _seconds(payload, "seconds", optional=True)
+    if mode == "body":
+        part = payload.get("part", "lower")
+        if part not in BODY_PARTS:
+            raise UsageError(f"part must be one of {', '.join(BODY_PARTS)}, got {part!r}")
+        options["part"] = part
+    if mode == "path":
+        points = payload.get("path")
+        if not isinstance(points, list) or not 0 < len(points) <= MAX_PATH_POINTS:
+            raise UsageError(f"path must be 1 to {MAX_PATH_POINTS} rows [seconds, x, z]")
+        if not all(
+            isinstance(row, list)
+            and len(row) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row)
+            for row in points
+        ):
+            raise UsageError("path must be rows of three numbers [seconds, x, z]")
+        options["path"] = np.asarray(points, dtype=np.float64)
+    if mode == "keys":
+        path, name = _upload(payload.get("keys"), "keys", (".npy",), folder)
+        try:
+            options["keys"] = load_npy(path, finite=False)
+        except UsageError as error:
+            raise UsageError(str(error).replace(str(path), f"the uploaded {name}")) from None
+        finally:
+            path.unlink(missing_ok=True)
+    if mode == "compose":
+        from t2m.edit.modes import read_timeline
+
+        lines = payload.get("timeline")
+        if isinstance(lines, str):
+            lines = lines.splitlines()
+        if not isinstance(lines, list) or not all(isinstance(line, str) for line in lines):
+            raise UsageError("timeline must be lines 'text#start#end' or 'text#seconds'")
+        lines = [line for line in lines if line.strip()]
+        if not 0 < len(lines) <= MAX_TIMELINE_LINES:
+            raise UsageError(f"the timeline needs 1 to {MAX_TIMELINE_LINES} lines")
+        for number, line in enumerate(lines, start=1):
+            _text(line, f"timeline line {number}", limits.max_prompt_chars)
+        segments = read_timeline(list(lines), app.pipe.spec)  # a list: never read as a file
+        if segments[-1].stop > MAX_TIMELINE_SECONDS * app.pipe.spec.fps:
+            raise UsageError(f"the timeline is longer than {MAX_TIMELINE_SECONDS:g} s")
+        options["timeline"] = list(lines)
+    samples = integer_field(payload, "samples", 1, 1, limits.max_samples)
+    seed = integer_field(payload, "seed", 0, 0, limits.max_seed)
+    precision = payload.get("precision", "fp32")
+    if precision not in PRECISIONS:
+        raise UsageError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "int8" and app.pipe.device.type != "cpu":
+        raise UsageError("int8 runs on the CPU only; this server runs on a GPU (use bf16)")
+    return options, samples, seed, precision
 
 
 def edit(app, payload: object) -> dict:
-    """POST /api/edit."""
-    raise UsageError(edit_info()["reason"])
+    """POST /api/edit: check, run on the model thread, store, answer as generate does."""
+    if not edit_available():
+        raise UsageError(UNAVAILABLE)
+    from t2m.edit import edit as run_edit
+    from t2m.serve.api import Busy, prompt_json
+    from t2m.serve.worker import ModelCall
+
+    options, samples, seed, precision = parse_edit(app, payload, app.store.root)
+    source_name = options.pop("source_name", None)
+    mode, text = options.pop("mode"), options.pop("text")
+
+    def work(pipe) -> tuple[list, list]:
+        # the words first: a prompt with no known word is refused, unknown ones are named
+        prepared = pipe.prepare([text]) if text else []
+        motions = run_edit(pipe, text, mode, num_samples=samples, seed=seed, **options)
+        return motions, prepared
+
+    call = ModelCall(work, precision)
+    try:
+        app.worker.submit(call)
+    except queue.Full:
+        raise Busy("the server is busy with other requests; try again in a moment") from None
+    if not call.done.wait(app.generate_timeout):
+        raise Busy("the edit took too long; try fewer samples")
+    if call.error is not None:
+        if isinstance(call.error, ValueError):
+            raise UsageError(str(call.error)) from None
+        raise call.error
+    motions, prepared = call.result
+    extra = {"precision": precision, "mode": mode, "source": source_name}
+    stored = app.store.add([list(motions)], seed, extra)
+    stored.prompts = [prompt_json(item, None) for item in prepared] or [
+        {
+            "text": motions[0].text,
+            "frames_requested": None,
+            "unknown_words": [],
+            "dropped_words": [],
+        }
+    ]
+    answer = app.answer(stored.id)
+    answer["edit"] = {"mode": mode, "source": source_name}
+    return answer

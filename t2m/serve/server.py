@@ -52,6 +52,7 @@ STATIC_FILES = {
     "style.css": "text/css; charset=utf-8",
     "app.js": "text/javascript; charset=utf-8",
     "viewer.js": "text/javascript; charset=utf-8",
+    "edit.js": "text/javascript; charset=utf-8",
 }
 LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
 SECURITY_HEADERS = {
@@ -141,9 +142,11 @@ class App:
         try:
             self.worker.submit(job)
         except queue.Full:
-            raise Busy("the server is busy with other requests; try again in a moment") from None
+            raise api.Busy(
+                "the server is busy with other requests; try again in a moment"
+            ) from None
         if not job.done.wait(self.generate_timeout):
-            raise Busy("generation took too long; try fewer motions")
+            raise api.Busy("generation took too long; try fewer motions")
         if job.error is not None:
             if isinstance(job.error, ValueError):
                 raise UsageError(str(job.error)) from None
@@ -184,10 +187,6 @@ class App:
             "motions": motions,
             "files": {name: f"{base}/{name}" for name in ("results.npy", "results.json")},
         }
-
-
-class Busy(RuntimeError):
-    """The queue is full or the wait too long (HTTP 503)."""
 
 
 class Handler(BaseHTTPRequestHandler):
@@ -252,6 +251,8 @@ class Handler(BaseHTTPRequestHandler):
         try:
             if method == "GET" and path in ("/", "/index.html"):
                 self._static("index.html")
+            elif method == "GET" and path == "/favicon.ico":  # none: say so without an error
+                self._send(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
             elif method == "GET" and len(parts) == 2 and parts[0] == "static":
                 self._static(parts[1])
             elif method == "GET" and path == "/api/info":
@@ -259,7 +260,8 @@ class Handler(BaseHTTPRequestHandler):
             elif method == "POST" and path == "/api/generate":
                 self._json(HTTPStatus.OK, self.app.generate(self._read_json()))
             elif method == "POST" and path == "/api/edit":
-                self._json(HTTPStatus.OK, edit(self.app, self._read_json()))
+                limit = self.app.limits.max_edit_body_bytes
+                self._json(HTTPStatus.OK, edit(self.app, self._read_json(limit)))
             elif method == "GET" and len(parts) == 3 and parts[:2] == ["api", "results"]:
                 self._json(HTTPStatus.OK, self.app.answer(parts[2]))
             elif method == "GET" and len(parts) == 4 and parts[:2] == ["api", "files"]:
@@ -278,7 +280,7 @@ class Handler(BaseHTTPRequestHandler):
             )
         except KeyError:
             self._error(HTTPStatus.NOT_FOUND, "no such request or file")
-        except Busy as error:
+        except api.Busy as error:
             self._error(HTTPStatus.SERVICE_UNAVAILABLE, str(error))
         except (BrokenPipeError, ConnectionResetError):
             pass
@@ -291,14 +293,13 @@ class Handler(BaseHTTPRequestHandler):
             raise KeyError(name)
         self._file(STATIC / name, STATIC_FILES[name])
 
-    def _read_json(self) -> object:
+    def _read_json(self, limit: int | None = None) -> object:
+        limit = limit or self.app.limits.max_body_bytes
         length = self.headers.get("Content-Length")
         if length is None or not length.isdigit():
             raise UsageError("the request needs a Content-Length")
-        if int(length) > self.app.limits.max_body_bytes:
-            raise UsageError(
-                f"the request is {int(length)} bytes; at most {self.app.limits.max_body_bytes}"
-            )
+        if int(length) > limit:
+            raise UsageError(f"the request is {int(length)} bytes; at most {limit}")
         content_type = self.headers.get("Content-Type", "").split(";")[0].strip()
         if content_type != "application/json":
             raise UsageError("send the request as JSON (Content-Type: application/json)")

@@ -17,6 +17,7 @@ import queue
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,6 +48,19 @@ class GenerationJob:
     @property
     def num_motions(self) -> int:
         return len(self.texts) * self.num_samples
+
+
+@dataclass
+class ModelCall:
+    """Other model work for the worker thread (an edit): ``function(pipe)`` runs alone, never
+    batched; its return value is ``result``, or its exception ``error``, before ``done``."""
+
+    function: Callable[[TextToMotion], object]
+    precision: str
+    done: threading.Event = field(default_factory=threading.Event)
+    result: object = None
+    error: BaseException | None = None
+    num_motions: int = 0
 
 
 @dataclass
@@ -143,7 +157,7 @@ class GenerationWorker:
             self.pipes[precision] = self.pipes["fp32"].with_precision(precision)
         return self.pipes[precision]
 
-    def submit(self, job: GenerationJob) -> None:
+    def submit(self, job: GenerationJob | ModelCall) -> None:
         """Queue ``job``; raises queue.Full when too many wait."""
         self.jobs.put_nowait(job)
 
@@ -151,19 +165,22 @@ class GenerationWorker:
         self._stop.set()
         self._thread.join(timeout=10)
 
-    def _next_batch(self) -> list[GenerationJob]:
+    def _next_batch(self) -> list[GenerationJob | ModelCall]:
         """The first waiting job and those queued behind it with its precision, up to
-        ``max_batch_motions`` motions (a job that does not fit waits for the next batch)."""
+        ``max_batch_motions`` motions (a job that does not fit waits for the next batch); a
+        :class:`ModelCall` runs alone."""
         first = self._held or self.jobs.get(timeout=0.2)
         self._held = None
         batch, motions = [first], first.num_motions
-        while True:
+        while not isinstance(first, ModelCall):
             try:
                 job = self.jobs.get_nowait()
             except queue.Empty:
                 break
-            if job.precision != first.precision or motions + job.num_motions > (
-                self.max_batch_motions
+            if (
+                isinstance(job, ModelCall)
+                or job.precision != first.precision
+                or motions + job.num_motions > self.max_batch_motions
             ):
                 self._held = job
                 break
@@ -172,18 +189,25 @@ class GenerationWorker:
         return batch
 
     def _run(self) -> None:
-        with torch.inference_mode():
-            while not self._stop.is_set():
-                try:
-                    batch = self._next_batch()
-                except queue.Empty:
-                    continue
-                self.batches.append(len(batch))
-                try:
-                    generate_jobs(self.pipe_for(batch[0].precision), batch)
-                except Exception as error:  # a model failure: every job of the batch hears it
-                    logger.exception("generation failed")
-                    for job in batch:
-                        job.error = job.error or error
+        while not self._stop.is_set():
+            try:
+                batch = self._next_batch()
+            except queue.Empty:
+                continue
+            self.batches.append(len(batch))
+            try:
+                pipe = self.pipe_for(batch[0].precision)
+                if isinstance(batch[0], ModelCall):  # may need gradients (an edit's search)
+                    try:
+                        batch[0].result = batch[0].function(pipe)
+                    except ValueError as error:  # UsageError: a bad request
+                        batch[0].error = error
+                else:
+                    with torch.inference_mode():
+                        generate_jobs(pipe, batch)
+            except Exception as error:  # a model failure: every job of the batch hears it
+                logger.exception("generation failed")
                 for job in batch:
-                    job.done.set()
+                    job.error = job.error or error
+            for job in batch:
+                job.done.set()

@@ -70,23 +70,26 @@ function request() {
   return body;
 }
 
-async function generate(event) {
-  event.preventDefault();
+// Send a request whose answer is motions (generate, edit) and show them; the button shows
+// progress, errors are shown in words.
+async function runRequest(url, makeBody, busyText) {
   const clicked = performance.now();
   showError("");
   showWarnings([]);
-  const button = $("generate"), progress = $("progress");
-  button.disabled = true;
+  const progress = $("progress");
+  const buttons = [$("generate"), $("edit-run")];
+  buttons.forEach((b) => { b.dataset.wasDisabled = b.disabled; b.disabled = true; });
   progress.className = "busy";
-  progress.textContent = "generating…";
+  progress.textContent = `${busyText}…`;
   const ticker = setInterval(() => {
-    progress.textContent = `generating… ${((performance.now() - clicked) / 1000).toFixed(1)} s`;
+    progress.textContent = `${busyText}… ${((performance.now() - clicked) / 1000).toFixed(1)} s`;
   }, 100);
   try {
-    const answer = await callApi("/api/generate", {
+    const body = await makeBody();
+    const answer = await callApi(url, {
       method: "POST",
       headers: { "Content-Type": "application/json" },
-      body: JSON.stringify(request()),
+      body: JSON.stringify(body),
     });
     const answered = performance.now();
     window.t2mTiming = { clicked, answered, firstFrame: null, server: answer.timing };
@@ -104,14 +107,25 @@ async function generate(event) {
   } finally {
     clearInterval(ticker);
     progress.className = "";
-    button.disabled = false;
+    buttons.forEach((b) => { b.disabled = b.dataset.wasDisabled === "true"; });
   }
 }
+
+function generate(event) {
+  event.preventDefault();
+  return runRequest("/api/generate", async () => request(), "generating");
+}
+window.t2mRunRequest = runRequest;
+window.t2mFormSettings = () => {
+  const body = request();
+  return { samples: body.samples, seed: body.seed, precision: body.precision };
+};
 
 function show(answer) {
   state.current = answer;
   const info = state.info;
   state.viewer.setMotions(answer.motions, answer.fps, info.skeleton);
+  state.viewer.highlightColor = info.edit.highlight_color || "#2ca02c";
   state.viewer.playing = true;
   const unknown = answer.prompts.filter((p) => p.unknown_words.length).map(
     (p) => `"${p.text}": the model was not trained on ${p.unknown_words.join(", ")}.`);
@@ -167,12 +181,13 @@ function show(answer) {
   }
   $("downloads-section").hidden = false;
   renderHistory();
+  document.dispatchEvent(new CustomEvent("t2m-shown", { detail: answer }));
 }
 
 function remember(answer) {
   state.history.unshift({
     id: answer.id,
-    texts: answer.texts,
+    texts: answer.edit ? [`${answer.edit.mode}: ${answer.texts.join(" / ")}`] : answer.texts,
     samples: answer.samples,
     seed: answer.seed,
     time: new Date().toLocaleTimeString(),
@@ -212,7 +227,7 @@ function renderHistory() {
 
 function setUpEditPanel(edit) {
   $("edit-status").textContent = edit.available
-    ? "Upload a motion, choose what to keep and what to change, and describe the change."
+    ? "Pick a motion (uploaded, or one in the view), what to keep and what to change, and describe the change."
     : `Not available: ${edit.reason}.`;
   $("edit-fields").disabled = !edit.available;
   if (window.t2mEditPanel && edit.available) window.t2mEditPanel(edit, state);

@@ -22,6 +22,7 @@ class StickViewer {
     this.visible = -1;          // -1: all side by side; else one motion's index
     this.spacing = 0.6;         // metres between the X ranges of side-by-side motions
     this.floor = 0;
+    this.highlightColor = "#2ca02c";
     this.resetCamera();
     this.onFrame = null;        // callback(frame) after every drawn frame
     this.onFirstFrame = null;   // callback() after the first frame of new motions is drawn
@@ -46,6 +47,7 @@ class StickViewer {
     const jointCount = skeleton.parents.length;
     this.motions = motions.map((m, index) => ({
       joints: Float32Array.from(m.joints.flat()),
+      kept: m.kept || null,     // an edit's: per frame a string of '0' / '1' per joint
       frames: m.frames,
       text: m.text,
       index,
@@ -226,10 +228,14 @@ class StickViewer {
       // 3. the skeleton's bones, collected for drawing far to near
       this.skeleton.chains.forEach((chain, k) => {
         const color = this.skeleton.colors[this.skeleton.sides[k]];
+        const kept = m.kept ? m.kept[Math.min(frame, m.frames - 1)] : null;
         for (let i = 1; i < chain.length; i++) {
           const a = this._project(camera, this._joint(m, frame, chain[i - 1], dx));
           const b = this._project(camera, this._joint(m, frame, chain[i], dx));
-          if (a && b) bones.push({ a, b, color, depth: (a[2] + b[2]) / 2 });
+          // a bone between two kept joints (from an edit's source) in the highlight colour
+          const both = kept && kept[chain[i - 1]] === "1" && kept[chain[i]] === "1";
+          const shade = both ? this.highlightColor : color;
+          if (a && b) bones.push({ a, b, color: shade, depth: (a[2] + b[2]) / 2 });
         }
       });
     });
