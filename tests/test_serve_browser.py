@@ -21,6 +21,7 @@ from t2m.pipeline import TextToMotion
 from t2m.serve.server import make_server
 
 LEFT, RIGHT = (0x1F, 0x6F, 0xD1), (0xD6, 0x40, 0x2B)  # the renderings' limb colours
+HIGHLIGHT = (0x2C, 0xA0, 0x2C)  # an edit's kept joints
 
 
 def _browser_paths() -> tuple[str, str]:
@@ -174,3 +175,27 @@ def test_page_shows_errors_in_words(page, prompts, words):
     )
     assert words in text
     assert page.find_element("id", "generate").is_enabled()
+
+
+def test_page_edits_a_motion_in_the_view(page):
+    from selenium.webdriver.support.ui import Select
+
+    _generate(page, "a person walks forward#80", samples=1)
+    _wait(page, "return window.t2mTiming && window.t2mTiming.firstFrame")
+    Select(page.find_element("id", "edit-source-kind")).select_by_value("current")
+    Select(page.find_element("id", "edit-mode")).select_by_value("continue")
+    page.find_element("id", "edit-text").send_keys("a person jumps up and down")
+    page.execute_script("window.t2mTiming = null")
+    page.find_element("id", "edit-run").click()
+    _wait(page, "return window.t2mTiming && window.t2mTiming.firstFrame")
+    assert not page.find_element("id", "error").is_displayed()
+    page.find_element("id", "play").click()  # pause on the first frames: the kept start
+    page.execute_script(
+        "const s = document.getElementById('scrub'); s.value = 5; s.dispatchEvent(new Event('input'));"
+    )
+    time.sleep(0.2)
+    kept = _colour_count(_canvas_pixels(page), HIGHLIGHT)
+    assert kept > 200  # the kept start is drawn in the highlight colour
+    history = page.find_elements("css selector", "#history li button")
+    assert history[0].text.split(": ", 1)[1].startswith("continue: a person jumps up and down")
+    page.find_element("id", "play").click()

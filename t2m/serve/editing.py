@@ -133,6 +133,13 @@ def _upload(value: object, what: str, suffixes: tuple[str, ...], folder: Path) -
     return path, name[:80]
 
 
+def _named(message: str, path: Path, name: str) -> str:
+    """A reader's message about the private copy of an upload, naming the upload instead."""
+    for private in (f"--source {path}", str(path), f"{path.name}: ", path.name):
+        message = message.replace(private, "" if private.endswith(": ") else f"the uploaded {name}")
+    return message
+
+
 def _source(app, value: object, folder: Path) -> tuple[np.ndarray, str]:
     """The source joints (T, J, 3) at the model's frame rate, and how to name it."""
     from t2m.edit import load_source
@@ -153,8 +160,7 @@ def _source(app, value: object, folder: Path) -> tuple[np.ndarray, str]:
     try:
         return load_source(path, app.pipe.spec), name
     except UsageError as error:
-        message = str(error).replace(f"--source {path}", f"the uploaded {name}")
-        raise UsageError(message.replace(str(path), f"the uploaded {name}")) from None
+        raise UsageError(_named(str(error), path, name)) from None
     finally:
         path.unlink(missing_ok=True)
 
@@ -215,7 +221,7 @@ def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]
         try:
             options["keys"] = load_npy(path, finite=False)
         except UsageError as error:
-            raise UsageError(str(error).replace(str(path), f"the uploaded {name}")) from None
+            raise UsageError(_named(str(error), path, name)) from None
         finally:
             path.unlink(missing_ok=True)
     if mode == "compose":
