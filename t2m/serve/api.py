@@ -63,6 +63,18 @@ def integer_field(payload: dict, key: str, default: int, low: int, high: int) ->
     return value
 
 
+def check_text(value: object, what: str, limit: int) -> str:
+    """A prompt-like text: a non-empty string of at most ``limit`` characters, no control
+    characters; returned stripped."""
+    if not isinstance(value, str) or not value.strip():
+        raise UsageError(f"empty {what}: type a sentence describing the motion")
+    if len(value) > limit:
+        raise UsageError(f"{what} has {len(value)} characters; at most {limit}")
+    if any(unicodedata.category(c).startswith("C") for c in value):
+        raise UsageError(f"{what} contains control characters")
+    return value.strip()
+
+
 def _check_frames(frames: float, spec: DatasetSpec, what: str) -> int:
     """A length in frames inside the model's limits, rounded to whole snippets."""
     if not spec.min_frames <= frames <= spec.max_frames:
@@ -98,13 +110,7 @@ def parse_generate(
     prompts = []
     for number, line in enumerate(lines, start=1):
         where = f"prompt {number}"
-        if len(line) > limits.max_prompt_chars:
-            raise UsageError(
-                f"{where} has {len(line)} characters; at most {limits.max_prompt_chars}"
-            )
-        if any(unicodedata.category(c).startswith("C") for c in line):
-            raise UsageError(f"{where} contains control characters")
-        prompts.append(parse_prompt_line(line, where))
+        prompts.append(parse_prompt_line(check_text(line, where, limits.max_prompt_chars), where))
     # 2. lengths: "#FRAMES" per prompt, else "seconds" for all, else drawn by text2length
     seconds = payload.get("seconds")
     default_frames = None

@@ -25,7 +25,6 @@ import importlib.util
 import math
 import queue
 import secrets
-import unicodedata
 from pathlib import Path
 
 import numpy as np
@@ -101,16 +100,6 @@ def _seconds(payload: dict, key: str, optional: bool = False) -> float | None:
     return float(value)
 
 
-def _text(value: object, what: str, limit: int) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise UsageError(f"empty {what}: type a sentence describing the motion")
-    if len(value) > limit:
-        raise UsageError(f"{what} has {len(value)} characters; at most {limit}")
-    if any(unicodedata.category(c).startswith("C") for c in value):
-        raise UsageError(f"{what} contains control characters")
-    return value.strip()
-
-
 def _upload(value: object, what: str, suffixes: tuple[str, ...], folder: Path) -> tuple[Path, str]:
     """An uploaded file written to a private file in ``folder``: (its path, the name given)."""
     if not isinstance(value, dict) or not isinstance(value.get("upload"), dict):
@@ -119,9 +108,10 @@ def _upload(value: object, what: str, suffixes: tuple[str, ...], folder: Path) -
     name, data = upload.get("name"), upload.get("base64")
     if not isinstance(name, str) or not isinstance(data, str):
         raise UsageError(f"{what}: the upload needs a name and base64 data")
+    name = "".join(c for c in name if c.isprintable())[:80]  # it is shown in messages
     suffix = Path(name).suffix.lower()
     if suffix not in suffixes:
-        raise UsageError(f"{what} must be a {' or '.join(suffixes)} file, got {name[:80]!r}")
+        raise UsageError(f"{what} must be a {' or '.join(suffixes)} file, got {name!r}")
     if len(data) > MAX_UPLOAD_BYTES * 4 // 3 + 4:
         raise UsageError(f"{what} is larger than {MAX_UPLOAD_BYTES // 2**20} MiB")
     try:
@@ -130,7 +120,7 @@ def _upload(value: object, what: str, suffixes: tuple[str, ...], folder: Path) -
         raise UsageError(f"{what}: the upload is not valid base64") from None
     path = folder / f".upload-{secrets.token_urlsafe(12)}{suffix}"
     path.write_bytes(content)
-    return path, name[:80]
+    return path, name
 
 
 def _named(message: str, path: Path, name: str) -> str:
@@ -171,7 +161,7 @@ def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]
     from dataset_tools.io import load_npy
     from t2m.edit import BODY_PARTS, MODES
     from t2m.pipeline import PRECISIONS
-    from t2m.serve.api import integer_field
+    from t2m.serve.api import check_text, integer_field
 
     limits = app.limits
     if not isinstance(payload, dict):
@@ -184,7 +174,7 @@ def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]
         raise UsageError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     options: dict = {"mode": mode, "text": ""}
     if mode != "compose":
-        options["text"] = _text(payload.get("text"), "edit text", limits.max_prompt_chars)
+        options["text"] = check_text(payload.get("text"), "edit text", limits.max_prompt_chars)
     if mode in ("continue", "inbetween", "body"):
         if payload.get("source") is None:
             raise UsageError(f"{mode} edits a motion: upload a BVH or .npy, or pick a motion")
@@ -236,7 +226,7 @@ def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]
         if not 0 < len(lines) <= MAX_TIMELINE_LINES:
             raise UsageError(f"the timeline needs 1 to {MAX_TIMELINE_LINES} lines")
         for number, line in enumerate(lines, start=1):
-            _text(line, f"timeline line {number}", limits.max_prompt_chars)
+            check_text(line, f"timeline line {number}", limits.max_prompt_chars)
         segments = read_timeline(list(lines), app.pipe.spec)  # a list: never read as a file
         if segments[-1].stop > MAX_TIMELINE_SECONDS * app.pipe.spec.fps:
             raise UsageError(f"the timeline is longer than {MAX_TIMELINE_SECONDS:g} s")
