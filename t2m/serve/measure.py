@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from dataset_tools.command import CommandParser, command, option, parse_config
+from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
 
 logger = logging.getLogger("t2m.serve.measure")
 PROMPT = "a person walks forward and then waves with the right hand"
@@ -64,15 +64,23 @@ def click_to_first_frame(
     """Seconds from the Generate click to the first drawn frame, ``repeats`` times."""
     import shutil
 
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
+    browser, driver_path = shutil.which("chromium"), shutil.which("chromedriver")
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        browser = None
+    if not (browser and driver_path):
+        raise UsageError(
+            "the click timing needs Debian's chromium and chromium-driver and the selenium "
+            "package (pip install -e '.[test]')"
+        )
     options = webdriver.ChromeOptions()
-    options.binary_location = shutil.which("chromium") or "chromium"
+    options.binary_location = browser
     for argument in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu"):
         options.add_argument(argument)
     options.add_argument("--window-size=1400,980")
-    driver = webdriver.Chrome(options=options, service=Service(shutil.which("chromedriver")))
+    driver = webdriver.Chrome(options=options, service=Service(driver_path))
     timings = []
     try:
         driver.get(url)
