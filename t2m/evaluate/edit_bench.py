@@ -37,7 +37,7 @@ Columns (per method):
   the donors' real motions with the run's evaluator stage, beside plain generation (when the
   run has an evaluator and there are at least 32 items; else n/a);
 * ``ms / edit``: median wall time of single edits (one result; ``--latency-edits`` of them,
-  after a warm-up), and the process' peak resident memory.
+  after a warm-up; the methods take turns on each edit), and the process' peak resident memory.
 """
 
 from __future__ import annotations
@@ -400,25 +400,30 @@ def run_benchmark(config: EditBenchConfig) -> dict:
         results["real"].update(_rprec_fid(backend, captions, real_features, real_features))
     # the methods
     results["methods"] = {}
-    for method in config.methods:
-        settings = SearchSettings(
+    all_settings = {
+        method: SearchSettings(
             method=method,
             candidates=config.candidates,
             steps=config.steps,
             noise_weight=config.noise_weight,
         )
+        for method in config.methods
+    }
+    for method, settings in all_settings.items():
         start = time.perf_counter()
         motions = [row[0] for row in edit_batch(pipe, requests, 1, config.seed, settings)]
         batch_seconds = time.perf_counter() - start
         judged = [judge(item, motion, fps) for item, motion in zip(items, motions)]
         row = _summarise(judged)
         row["batch_s"] = batch_seconds
-        row.update(_latency(pipe, requests[: config.latency_edits], settings, config.seed))
         if backend is not None:
             parts = [p for item, m in zip(items, motions) for p in _parts(item, m)]
             row.update(_rprec_fid(backend, captions, parts, real_features))
         results["methods"][method] = row
         logger.info("%s: %s", method, {k: v for k, v in row.items() if not isinstance(v, list)})
+    latency = _latency(pipe, requests[: config.latency_edits], all_settings, config.seed)
+    for method, milliseconds in latency.items():
+        results["methods"][method]["ms_per_edit"] = milliseconds
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return results
 
@@ -463,16 +468,20 @@ def _rprec_fid(backend, captions, motions, reference) -> dict:
     return {"r_precision_3": float(r_precision(texts, embedded)[2]), "fid": fid(real, embedded)}
 
 
-def _latency(pipe, requests, settings: SearchSettings, seed: int) -> dict:
+def _latency(pipe, requests, methods: dict[str, SearchSettings], seed: int) -> dict:
+    """Median milliseconds of a single edit per method; the methods take turns on each edit
+    (interleaved, so that load from other processes falls on all of them alike)."""
     if not requests:
         return {}
-    edit_batch(pipe, requests[:1], 1, seed, settings)  # warm-up (spaCy, first allocations)
-    times = []
+    for settings in methods.values():  # warm-up (spaCy, first allocations)
+        edit_batch(pipe, requests[:1], 1, seed, settings)
+    times: dict[str, list[float]] = {method: [] for method in methods}
     for request in requests:
-        start = time.perf_counter()
-        edit_batch(pipe, [request], 1, seed, settings)
-        times.append(time.perf_counter() - start)
-    return {"ms_per_edit": 1000 * float(np.median(times))}
+        for method, settings in methods.items():
+            start = time.perf_counter()
+            edit_batch(pipe, [request], 1, seed, settings)
+            times[method].append(time.perf_counter() - start)
+    return {method: 1000 * float(np.median(values)) for method, values in times.items()}
 
 
 def _summarise(judged: list[dict]) -> dict:
