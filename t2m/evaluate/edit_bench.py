@@ -92,6 +92,8 @@ class EditBenchConfig:
     """weight of mean(eps^2) in the optimize method's loss"""
     latency_edits: int = field(default=5, metadata=option(metavar="N"))
     """single edits timed per method"""
+    paper_latency: bool = False
+    """also time single edits of the same requests with paper-sized random-weight models"""
     seed: int = 0
     """seeds the choice of items and the edits"""
     threads: int = field(default=1, metadata=option(metavar="N"))
@@ -424,6 +426,11 @@ def run_benchmark(config: EditBenchConfig) -> dict:
     latency = _latency(pipe, requests[: config.latency_edits], all_settings, config.seed)
     for method, milliseconds in latency.items():
         results["methods"][method]["ms_per_edit"] = milliseconds
+    if config.paper_latency and config.latency_edits:
+        paper = _latency(
+            _paper_pipeline(), requests[: config.latency_edits], all_settings, config.seed
+        )
+        results["paper_ms_per_edit"] = paper
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return results
 
@@ -466,6 +473,22 @@ def _rprec_fid(backend, captions, motions, reference) -> dict:
     embedded = backend.embed_motions([m[: len(m) // 4 * 4] for m in motions])
     real = backend.embed_motions(reference)
     return {"r_precision_3": float(r_precision(texts, embedded)[2]), "fid": fid(real, embedded)}
+
+
+def _paper_pipeline():
+    """Paper-sized models with random weights (as ``t2m.benchmarks.sample`` times sampling), with
+    a movement encoder: for latency only."""
+    from t2m.benchmarks.sample import _paper_pipeline as sampling_pipeline
+    from t2m.config import paper
+    from t2m.models.autoencoder import CONTACT_DIMS, MovementEncoder
+    from t2m.pipeline import TextToMotion
+
+    pipe, (vae, decoder, initial_code) = sampling_pipeline("fp32")
+    torch.manual_seed(0)
+    encoder = MovementEncoder(pipe.spec.feature_dim - CONTACT_DIMS, paper().autoencoder.model)
+    return TextToMotion(
+        vae, decoder, pipe.normalizer, pipe.vectorizer, initial_code, encoder=encoder.eval()
+    )
 
 
 def _latency(pipe, requests, methods: dict[str, SearchSettings], seed: int) -> dict:
@@ -533,6 +556,9 @@ def format_table(results: dict) -> str:
         f"{f(real['skate'])} | {f(real.get('r_precision_3'))} | {f(real.get('fid'), 2)} | |"
     )
     lines += ["", f"Peak resident memory of the process: {results['peak_rss_mb']:.0f} MB."]
+    if "paper_ms_per_edit" in results:
+        timed = ", ".join(f"{m} {v:.0f}" for m, v in results["paper_ms_per_edit"].items())
+        lines.append(f"Paper-size models (random weights), ms per edit: {timed}.")
     return "\n".join(lines) + "\n"
 
 
