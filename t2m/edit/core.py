@@ -103,8 +103,8 @@ class SearchSettings:
 @dataclass(frozen=True)
 class PlanResult:
     """One result: features (T, D), joints (T, J, 3), kept (T, J) bool and the constraint error
-    of the chosen candidate before the hard keep (metres, root mean square; NaN without
-    constraints)."""
+    of the chosen candidate before the hard keep (metres, root mean square over the targets on
+    the frames the search can change; NaN without constraints)."""
 
     features: np.ndarray
     joints: np.ndarray
