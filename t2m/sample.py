@@ -369,7 +369,8 @@ def write_motions(
     ``t2m.edit``); returns ``out``. Nothing is left in ``out`` on error.
 
     ``frames``: each prompt's longest possible length, for the resource estimate. A motion with
-    a ``kept`` (T, J) mask (an edit's) is rendered with the kept joints in another colour.
+    a ``kept`` (T, J) mask (an edit's) is rendered with the kept joints in another colour, and
+    the mask is written as ``sampleNN_repRR_kept.npy``.
     """
     from dataset_tools.bvh import write_bvh
     from dataset_tools.viz import render_animation
@@ -397,8 +398,11 @@ def write_motions(
             _save_npy(tmp / f"{name}.npy", motion.joints)
             _save_npy(tmp / f"{name}_feats.npy", motion.features)
             files += [f"{name}.npy", f"{name}_feats.npy"]
+            kept = getattr(motion, "kept", None)
+            if kept is not None:  # an edit's: which joints came from the source or targets
+                _save_npy(tmp / f"{name}_kept.npy", kept)
+                files.append(f"{name}_kept.npy")
             if render != "none":
-                kept = getattr(motion, "kept", None)
                 render_animation(
                     motion.joints, tmp / f"{name}.{render}", motion.text, fps, highlight=kept
                 )

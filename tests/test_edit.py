@@ -207,7 +207,9 @@ def test_command_writes_what_sample_writes(tiny_run, tmp_path, walk):
     assert main(argv(out)) == 0
     names = sorted(p.name for p in out.iterdir())
     for stem in ("sample00_rep00", "sample00_rep01"):
-        assert {f"{stem}.npy", f"{stem}_feats.npy", f"{stem}.bvh"} <= set(names)
+        assert {f"{stem}.npy", f"{stem}_feats.npy", f"{stem}_kept.npy", f"{stem}.bvh"} <= set(names)
+        kept = np.load(out / f"{stem}_kept.npy")
+        assert kept.shape == (100, 22) and kept[:20].all() and not kept[20:].any()
     summary = json.loads((out / "results.json").read_text())
     assert summary["modes"] == ["continue"] and summary["lengths"] == [[100, 100]]
     results = np.load(out / "results.npy", allow_pickle=True).item()
@@ -281,6 +283,10 @@ def test_kept_parts_render_in_their_own_colour(tmp_path, walk):
     pixels = np.asarray(Image.open(path).convert("RGB")).reshape(-1, 3)
     green = np.array([int(RenderConfig().highlight_color[i : i + 2], 16) for i in (1, 3, 5)])
     assert (np.abs(pixels.astype(int) - green).sum(-1) < 30).sum() > 50
+    from dataset_tools.viz import render_animation
+
+    render_animation(walk[:4], tmp_path / "k.gif", highlight=highlight[:4])
+    assert (tmp_path / "k.gif").stat().st_size > 0
     with pytest.raises(ValueError, match="highlight must be"):
         render_keyframes(walk[:20], tmp_path / "bad.png", highlight=highlight)
 
