@@ -113,8 +113,9 @@ def _save_npy(path: Path, array) -> None:
     atomic_write(path, lambda handle: np.save(handle, array, allow_pickle=isinstance(array, dict)))
 
 
-MOTION_FILE_KINDS = ("npy", "feats", "bvh", "glb", "mp4", "gif")
-"""The per-motion files :func:`write_motion_file` writes (``feats``: ``<stem>_feats.npy``)."""
+MOTION_FILE_KINDS = ("npy", "feats", "kept", "bvh", "glb", "mp4", "gif")
+"""The per-motion files :func:`write_motion_file` writes (``feats``: ``<stem>_feats.npy``,
+``kept``: ``<stem>_kept.npy``, an edit's (T, J) bool mask of the joints from its source)."""
 
 
 def motion_file_name(prompt: int, repetition: int, kind: str) -> str:
@@ -122,7 +123,7 @@ def motion_file_name(prompt: int, repetition: int, kind: str) -> str:
     if kind not in MOTION_FILE_KINDS:
         raise ValueError(f"unknown motion file kind {kind!r}; use one of {MOTION_FILE_KINDS}")
     name = stem(prompt, repetition)
-    return f"{name}_feats.npy" if kind == "feats" else f"{name}.{kind}"
+    return f"{name}_{kind}.npy" if kind in ("feats", "kept") else f"{name}.{kind}"
 
 
 def write_motion_file(motion: GeneratedMotion, folder: Path, kind: str, fps: float) -> str:
@@ -134,6 +135,8 @@ def write_motion_file(motion: GeneratedMotion, folder: Path, kind: str, fps: flo
         _save_npy(path, motion.joints)
     elif kind == "feats":
         _save_npy(path, motion.features)
+    elif kind == "kept":
+        _save_npy(path, motion.kept)
     elif kind == "bvh":
         from dataset_tools.bvh import write_bvh
 
@@ -446,7 +449,8 @@ def write_motions(
     ``t2m.edit``); returns ``out``. Nothing is left in ``out`` on error.
 
     ``frames``: each prompt's longest possible length, for the resource estimate. A motion with
-    a ``kept`` (T, J) mask (an edit's) is rendered with the kept joints in another colour.
+    a ``kept`` (T, J) mask (an edit's) is rendered with the kept joints in another colour, and
+    the mask is written as ``sampleNN_repRR_kept.npy``.
     """
     if render not in RENDER_CHOICES:
         raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
@@ -469,7 +473,10 @@ def write_motions(
 
         kinds = ["npy", "feats"] + [render] * (render != "none") + ["bvh"] * bvh + ["glb"] * glb
         for motion in tqdm(flat, desc="writing", unit="motion", disable=len(flat) < 2):
-            files += [write_motion_file(motion, tmp, kind, fps) for kind in kinds]
+            # an edit's motion also has its kept mask: which joints came from the source
+            extra = ["kept"] if getattr(motion, "kept", None) is not None else []
+            for kind in kinds[:2] + extra + kinds[2:]:
+                files.append(write_motion_file(motion, tmp, kind, fps))
         # 4. the summaries
         summary = write_summaries(motions, tmp, seed, fps, files, extra_info)
         _write_marker(tmp, summary["files"])

@@ -207,15 +207,42 @@ def test_command_writes_what_sample_writes(tiny_run, tmp_path, walk):
     assert main(argv(out)) == 0
     names = sorted(p.name for p in out.iterdir())
     for stem in ("sample00_rep00", "sample00_rep01"):
-        assert {f"{stem}.npy", f"{stem}_feats.npy", f"{stem}.bvh"} <= set(names)
+        assert {f"{stem}.npy", f"{stem}_feats.npy", f"{stem}_kept.npy", f"{stem}.bvh"} <= set(names)
+        kept = np.load(out / f"{stem}_kept.npy")
+        assert kept.shape == (100, 22) and kept[:20].all() and not kept[20:].any()
     summary = json.loads((out / "results.json").read_text())
-    assert summary["mode"] == "continue" and summary["lengths"] == [[100, 100]]
+    assert summary["modes"] == ["continue"] and summary["lengths"] == [[100, 100]]
     results = np.load(out / "results.npy", allow_pickle=True).item()
     assert results["motion"].shape == (2, 22, 3, 100)
     # same request, same bytes
     again = tmp_path / "again"
     assert main(argv(again)) == 0
     assert (again / "sample00_rep01.npy").read_bytes() == (out / "sample00_rep01.npy").read_bytes()
+
+
+def test_command_batch_of_edits(tiny_run, tmp_path, walk):
+    from t2m.edit.__main__ import main
+
+    np.save(tmp_path / "walk.npy", walk)
+    edits = [
+        {"mode": "continue", "text": "a person walks forward", "source": "walk.npy"},
+        {"mode": "path", "text": "a person walks forward", "path": [[1.0, 0.2, 0.8]]},
+        {"mode": "compose", "timeline": ["a person walks forward#0#2", "a person jumps#2#3"]},
+    ]
+    (tmp_path / "edits.json").write_text(json.dumps(edits))
+    out = tmp_path / "out"
+    argv = ["--batch", str(tmp_path / "edits.json"), "--checkpoints", str(tiny_run),
+            "--out", str(out), "--render", "none", "--steps", "2"]  # fmt: skip
+    assert main(argv) == 0
+    summary = json.loads((out / "results.json").read_text())
+    assert summary["modes"] == ["continue", "path", "compose"]
+    assert summary["lengths"] == [[100], [24], [60]]  # the path: past its point at frame 20
+    edits[1]["speed"] = 3
+    (tmp_path / "edits.json").write_text(json.dumps(edits))
+    bad = ["--batch", str(tmp_path / "edits.json"), "--checkpoints", str(tiny_run),
+           "--out", str(tmp_path / "bad")]  # fmt: skip
+    assert main(bad) == 2
+    assert not (tmp_path / "bad").exists()
 
 
 def test_command_refuses_bad_input_and_writes_nothing(tiny_run, tmp_path, walk, capsys):
@@ -256,6 +283,10 @@ def test_kept_parts_render_in_their_own_colour(tmp_path, walk):
     pixels = np.asarray(Image.open(path).convert("RGB")).reshape(-1, 3)
     green = np.array([int(RenderConfig().highlight_color[i : i + 2], 16) for i in (1, 3, 5)])
     assert (np.abs(pixels.astype(int) - green).sum(-1) < 30).sum() > 50
+    from dataset_tools.viz import render_animation
+
+    render_animation(walk[:4], tmp_path / "k.gif", highlight=highlight[:4])
+    assert (tmp_path / "k.gif").stat().st_size > 0
     with pytest.raises(ValueError, match="highlight must be"):
         render_keyframes(walk[:20], tmp_path / "bad.png", highlight=highlight)
 

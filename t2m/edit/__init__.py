@@ -95,8 +95,10 @@ class EditedMotion(GeneratedMotion):
     Attributes (besides text, prompt_index, repetition, joints (T, J, 3), features (T, D)):
         kept: (T, J) bool, True where the joint came from the source or met a given target.
         mode: the edit mode.
-        constraint_error: root mean square distance in metres from the kept / targeted joints
-            before the hard keep (how close the model got on its own; NaN without constraints).
+        constraint_error: root mean square distance in metres of the chosen candidate from the
+            kept / targeted joints before the hard keep, on the frames the search can change
+            (not those decoded from the kept start's codes alone): how close the model got on
+            its own; NaN without constraints.
     """
 
     kept: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))

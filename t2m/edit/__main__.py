@@ -8,6 +8,7 @@ Examples::
     python -m t2m.edit --text "a person walks" --mode path --path path.csv
     python -m t2m.edit --text "a person raises the left hand" --mode keys --keys targets.npy
     python -m t2m.edit --mode compose --timeline "a person walks forward#0#4" "a person waves#4#7"
+    python -m t2m.edit --batch edits.json --num-samples 3
 
 Writes what ``python -m t2m.sample`` writes (``sampleNN_repRR.npy``, ``_feats.npy``, mp4/gif
 with the kept joints in green, BVH with ``--bvh``, ``results.npy``, ``results.json``), all or
@@ -16,6 +17,7 @@ nothing. Exit status 2 with a one-line message on bad input.
 
 from __future__ import annotations
 
+import json
 import logging
 import sys
 import time
@@ -36,8 +38,11 @@ logger = logging.getLogger("t2m.edit")
 class EditConfig:
     """``python -m t2m.edit``: which edit, from which checkpoints, into which folder."""
 
-    mode: Mode = field(metadata=option(metavar="MODE"))
-    """continue | inbetween | body | path | keys | compose"""
+    mode: Mode | None = field(default=None, metadata=option(metavar="MODE"))
+    """continue | inbetween | body | path | keys | compose (or --batch)"""
+    batch: Path | None = field(default=None, metadata=option(metavar="JSON"))
+    """many edits: a JSON list of objects with the edit options (mode, text, source, keep_seconds,
+    ..., timeline as a list; paths relative to the file); edit i writes sampleNN_repRR with NN = i"""
     text: str | None = None
     """what the generated part does, e.g. "a person waves both hands" (not for compose)"""
     source: Path | None = field(default=None, metadata=option(metavar="FILE"))
@@ -102,8 +107,14 @@ class EditConfig:
         if self.render not in RENDER_CHOICES:
             raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}")
 
+    def requests(self) -> list:
+        """The :class:`t2m.edit.EditRequest` list (checked: missing or extra inputs per mode)."""
+        if (self.mode is None) == (self.batch is None):
+            raise UsageError("give one of --mode and --batch")
+        return [self.request()] if self.batch is None else read_batch(self.batch)
+
     def request(self):
-        """The :class:`t2m.edit.EditRequest` (checked: missing or extra inputs for the mode)."""
+        """The :class:`t2m.edit.EditRequest` of the options."""
         from t2m.edit import EditRequest
 
         timeline = self.timeline
@@ -126,6 +137,41 @@ class EditConfig:
         )
 
 
+BATCH_KEYS = ("mode", "text", "source", "seconds", "keep_seconds", "keep_start", "keep_end",
+              "part", "path", "keys", "timeline", "mapping", "source_fps")  # fmt: skip
+
+
+def read_batch(path: Path) -> list:
+    """Edits of a ``--batch`` JSON file (a list of objects with :data:`BATCH_KEYS`); relative
+    file paths are taken from the file's folder. UsageError (one line) for anything else."""
+    from t2m.edit import EditRequest
+
+    try:
+        entries = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as error:
+        raise UsageError(f"cannot read --batch {path}: {error}") from None
+    if not isinstance(entries, list) or not entries:
+        raise UsageError(f"--batch {path}: give a non-empty JSON list of edits")
+    requests = []
+    for number, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            raise UsageError(f"--batch {path}: edit {number} is not an object")
+        unknown = sorted(set(entry) - set(BATCH_KEYS))
+        if unknown:
+            raise UsageError(f"--batch {path}: edit {number} has unknown keys {unknown}")
+        entry = dict(entry)
+        for key in ("source", "path", "keys"):
+            if isinstance(entry.get(key), str):
+                entry[key] = path.parent / entry[key]
+        try:
+            requests.append(EditRequest(**entry))
+        except UsageError as error:
+            raise UsageError(f"--batch {path}: edit {number}: {error}") from None
+        except TypeError:
+            raise UsageError(f"--batch {path}: edit {number} needs a mode") from None
+    return requests
+
+
 @command(interrupted="interrupted; nothing was written")
 def main(argv: list[str] | None = None) -> int:
     from t2m.edit import edit_batch
@@ -138,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     config = parse_config(parser, EditConfig, argv)
     # 1. everything the user gave, checked before any model is loaded
-    request = config.request()
+    requests = config.requests()
     settings = SearchSettings(
         method=config.method, candidates=config.candidates, steps=config.steps
     )
@@ -158,17 +204,19 @@ def main(argv: list[str] | None = None) -> int:
             need_length_model=False,
             glove_dir=config.glove,
         )
-        if request.mode == "compose":
-            from t2m.edit.modes import read_timeline
+        from t2m.edit.modes import read_timeline
 
-            frames = [read_timeline(request.timeline, pipe.spec)[-1].stop]
-        else:
-            frames = [request.plan(pipe.spec).num_frames]
+        frames = [
+            read_timeline(r.timeline, pipe.spec)[-1].stop
+            if r.mode == "compose"
+            else r.plan(pipe.spec).num_frames
+            for r in requests
+        ]
     except ValueError as error:
         raise UsageError(str(error)) from None
     # 3. edit and write
     write_motions(
-        lambda: edit_batch(pipe, [request], config.num_samples, config.seed, settings),
+        lambda: edit_batch(pipe, requests, config.num_samples, config.seed, settings),
         pipe.spec,
         out,
         frames=frames,
@@ -178,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         bvh=config.bvh,
         overwrite=config.overwrite,
         extra_info={
-            "mode": config.mode,
+            "modes": [r.mode for r in requests],
             "checkpoints": str(config.checkpoints),
             "precision": config.precision,
             "search": asdict(settings),

@@ -91,7 +91,7 @@ class SearchSettings:
     steps: int = 20
     learning_rate: float = 0.1
     noise_weight: float = 1e-3
-    blend_frames: int = 8
+    blend_frames: int = 16
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -103,8 +103,8 @@ class SearchSettings:
 @dataclass(frozen=True)
 class PlanResult:
     """One result: features (T, D), joints (T, J, 3), kept (T, J) bool and the constraint error
-    of the chosen candidate before the hard keep (metres, root mean square; NaN without
-    constraints)."""
+    of the chosen candidate before the hard keep (metres, root mean square over the targets on
+    the frames the search can change; NaN without constraints)."""
 
     features: np.ndarray
     joints: np.ndarray
@@ -317,7 +317,7 @@ def _seam_weights(start: int, stop: int, frames: int, blend: int) -> tuple[np.nd
     return before, after
 
 
-def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 8) -> np.ndarray:
+def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 16) -> np.ndarray:
     """Features (T, D) that copy the plan's kept features and meet its root targets exactly.
 
     1. per joint, kept frames take the source's features; every free run's generated features

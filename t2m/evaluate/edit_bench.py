@@ -27,7 +27,8 @@ Columns (per method):
   over joins; ``plain`` and ``real`` give the same statistic at random frames of plain
   generation and of the real test motions (the edits' sources; compose: its donors);
 * ``semantic``: fraction of regenerated parts whose donor label the corpus' detectors recover
-  (body: the upper-body action, and the source's walk still detected; compose: every segment);
+  (body: the upper-body action, and the source's walk still detected; compose: the fraction
+  of segments recognised, each judged on its own 4 s);
   ``plain`` gives the same for plain generation of the same captions and lengths;
 * ``skate``: the foot-skating ratio (feet 10 and 11; a frame skates when a foot is within 5 cm of
   the floor in two consecutive frames and its speed and its 5-frame mean speed both exceed
@@ -37,7 +38,7 @@ Columns (per method):
   the donors' real motions with the run's evaluator stage, beside plain generation (when the
   run has an evaluator and there are at least 32 items; else n/a);
 * ``ms / edit``: median wall time of single edits (one result; ``--latency-edits`` of them,
-  after a warm-up), and the process' peak resident memory.
+  after a warm-up; the methods take turns on each edit), and the process' peak resident memory.
 """
 
 from __future__ import annotations
@@ -92,6 +93,8 @@ class EditBenchConfig:
     """weight of mean(eps^2) in the optimize method's loss"""
     latency_edits: int = field(default=5, metadata=option(metavar="N"))
     """single edits timed per method"""
+    paper_latency: bool = False
+    """also time single edits of the same requests with paper-sized random-weight models"""
     seed: int = 0
     """seeds the choice of items and the edits"""
     threads: int = field(default=1, metadata=option(metavar="N"))
@@ -291,7 +294,7 @@ def judge(item: Item, motion, fps: float) -> dict:
                 found.append(
                     _labels_found(motion.joints[index * step : (index + 1) * step], [label], fps)
                 )
-        out["semantic"] = all(found) if found else None
+        out["semantic"] = float(np.mean(found)) if found else None  # per segment, as plain
     else:
         a, b = item.part or (0, len(motion.joints))
         part = motion.joints[a:b]
@@ -400,25 +403,35 @@ def run_benchmark(config: EditBenchConfig) -> dict:
         results["real"].update(_rprec_fid(backend, captions, real_features, real_features))
     # the methods
     results["methods"] = {}
-    for method in config.methods:
-        settings = SearchSettings(
+    all_settings = {
+        method: SearchSettings(
             method=method,
             candidates=config.candidates,
             steps=config.steps,
             noise_weight=config.noise_weight,
         )
+        for method in config.methods
+    }
+    for method, settings in all_settings.items():
         start = time.perf_counter()
         motions = [row[0] for row in edit_batch(pipe, requests, 1, config.seed, settings)]
         batch_seconds = time.perf_counter() - start
         judged = [judge(item, motion, fps) for item, motion in zip(items, motions)]
         row = _summarise(judged)
         row["batch_s"] = batch_seconds
-        row.update(_latency(pipe, requests[: config.latency_edits], settings, config.seed))
         if backend is not None:
             parts = [p for item, m in zip(items, motions) for p in _parts(item, m)]
             row.update(_rprec_fid(backend, captions, parts, real_features))
         results["methods"][method] = row
         logger.info("%s: %s", method, {k: v for k, v in row.items() if not isinstance(v, list)})
+    latency = _latency(pipe, requests[: config.latency_edits], all_settings, config.seed)
+    for method, milliseconds in latency.items():
+        results["methods"][method]["ms_per_edit"] = milliseconds
+    if config.paper_latency and config.latency_edits:
+        paper = _latency(
+            _paper_pipeline(), requests[: config.latency_edits], all_settings, config.seed
+        )
+        results["paper_ms_per_edit"] = paper
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return results
 
@@ -463,16 +476,36 @@ def _rprec_fid(backend, captions, motions, reference) -> dict:
     return {"r_precision_3": float(r_precision(texts, embedded)[2]), "fid": fid(real, embedded)}
 
 
-def _latency(pipe, requests, settings: SearchSettings, seed: int) -> dict:
+def _paper_pipeline():
+    """Paper-sized models with random weights (as ``t2m.benchmarks.sample`` times sampling), with
+    a movement encoder: for latency only."""
+    from t2m.benchmarks.sample import _paper_pipeline as sampling_pipeline
+    from t2m.config import paper
+    from t2m.models.autoencoder import CONTACT_DIMS, MovementEncoder
+    from t2m.pipeline import TextToMotion
+
+    pipe, (vae, decoder, initial_code) = sampling_pipeline("fp32")
+    torch.manual_seed(0)
+    encoder = MovementEncoder(pipe.spec.feature_dim - CONTACT_DIMS, paper().autoencoder.model)
+    return TextToMotion(
+        vae, decoder, pipe.normalizer, pipe.vectorizer, initial_code, encoder=encoder.eval()
+    )
+
+
+def _latency(pipe, requests, methods: dict[str, SearchSettings], seed: int) -> dict:
+    """Median milliseconds of a single edit per method; the methods take turns on each edit
+    (interleaved, so that load from other processes falls on all of them alike)."""
     if not requests:
         return {}
-    edit_batch(pipe, requests[:1], 1, seed, settings)  # warm-up (spaCy, first allocations)
-    times = []
+    for settings in methods.values():  # warm-up (spaCy, first allocations)
+        edit_batch(pipe, requests[:1], 1, seed, settings)
+    times: dict[str, list[float]] = {method: [] for method in methods}
     for request in requests:
-        start = time.perf_counter()
-        edit_batch(pipe, [request], 1, seed, settings)
-        times.append(time.perf_counter() - start)
-    return {"ms_per_edit": 1000 * float(np.median(times))}
+        for method, settings in methods.items():
+            start = time.perf_counter()
+            edit_batch(pipe, [request], 1, seed, settings)
+            times[method].append(time.perf_counter() - start)
+    return {method: 1000 * float(np.median(values)) for method, values in times.items()}
 
 
 def _summarise(judged: list[dict]) -> dict:
@@ -524,6 +557,9 @@ def format_table(results: dict) -> str:
         f"{f(real['skate'])} | {f(real.get('r_precision_3'))} | {f(real.get('fid'), 2)} | |"
     )
     lines += ["", f"Peak resident memory of the process: {results['peak_rss_mb']:.0f} MB."]
+    if "paper_ms_per_edit" in results:
+        timed = ", ".join(f"{m} {v:.0f}" for m, v in results["paper_ms_per_edit"].items())
+        lines.append(f"Paper-size models (random weights), ms per edit: {timed}.")
     return "\n".join(lines) + "\n"
 
 
