@@ -67,6 +67,7 @@ import numpy as np
 import torch
 
 from dataset_tools.command import UsageError
+from dataset_tools.representation import recover_from_ric
 from t2m.edit.core import EditPlan, PlanResult, SearchSettings, generate_plans
 from t2m.edit.modes import (
     BODY_PARTS,
@@ -259,45 +260,43 @@ def compose(
             size = min(left, room // unit * unit)
             chunks.append((segment.text, size))
             left -= size
-    features: list[np.ndarray | None] = [None] * num_samples
-    for text, size in chunks:
-        plans = []
-        for r in range(num_samples):
-            if features[r] is None:
-                frames = max(size, unit)
-                target = np.full((frames, spec.num_joints, 3), np.nan)
-                plans.append(EditPlan(text, frames, target, np.zeros(target.shape[:2], bool)))
-                continue
-            tail = features[r][-context:]
-            have = len(tail)
-            frames = have + size
-            target = np.full((frames, spec.num_joints, 3), np.nan)
-            keep = np.zeros((frames, spec.num_joints), bool)
-            keep[:have] = True
-            from dataset_tools.representation import recover_from_ric
-
-            target[:have] = recover_from_ric(tail, spec.num_joints)
-            source = np.full((frames, tail.shape[1]), np.nan)
-            source[:have] = tail
-            yaw = np.full(frames, np.nan)
-            yaw[:have] = half_yaw_of(tail)
-            plans.append(EditPlan(text, frames, target, keep, source, yaw))
-        made = generate_plans(pipe, plans, generator, settings)
-        for r, result in enumerate(made):
-            if features[r] is None:
-                features[r] = result.features
-            else:
-                features[r] = np.concatenate(
-                    [features[r], result.features[len(features[r][-context:]) :]]
-                )
-    from dataset_tools.representation import recover_from_ric
-
+    features: list[np.ndarray] = []  # per sample, what is made so far (T, D)
+    for index, (text, size) in enumerate(chunks):
+        if index == 0:
+            target = np.full((size, spec.num_joints, 3), np.nan)
+            plans = [EditPlan(text, size, target, np.zeros(target.shape[:2], bool))] * num_samples
+        else:
+            plans = [_continuation(text, made[-context:], size, spec) for made in features]
+        results = generate_plans(pipe, plans, generator, settings)
+        if index == 0:
+            features = [result.features for result in results]
+        else:
+            have = min(context, len(features[0]))
+            features = [
+                np.concatenate([made, result.features[have:]])
+                for made, result in zip(features, results)
+            ]
     out = []
     for r in range(num_samples):
         whole = features[r].astype(np.float32)
         joints = recover_from_ric(whole, spec.num_joints).astype(np.float32)
         out.append(PlanResult(whole, joints, np.zeros(joints.shape[:2], bool), float("nan")))
     return out
+
+
+def _continuation(text: str, tail: np.ndarray, size: int, spec) -> EditPlan:
+    """A plan that keeps ``tail`` (K, D) features whole and makes ``size`` more frames."""
+    have = len(tail)
+    frames = have + size
+    target = np.full((frames, spec.num_joints, 3), np.nan)
+    target[:have] = recover_from_ric(tail, spec.num_joints)
+    keep = np.zeros((frames, spec.num_joints), bool)
+    keep[:have] = True
+    source = np.full((frames, tail.shape[1]), np.nan)
+    source[:have] = tail
+    yaw = np.full(frames, np.nan)
+    yaw[:have] = half_yaw_of(tail)
+    return EditPlan(text, frames, target, keep, source, yaw)
 
 
 __all__ = [

@@ -70,6 +70,12 @@ def _whole_snippets(frames: int, spec: DatasetSpec, what: str) -> int:
     return rounded
 
 
+def _round_up(frames: int, spec: DatasetSpec) -> int:
+    """``frames`` rounded up to whole snippets."""
+    unit = spec.snippet_length
+    return -(-frames // unit) * unit
+
+
 def _empty(frames: int, spec: DatasetSpec) -> tuple[np.ndarray, np.ndarray]:
     return (
         np.full((frames, spec.num_joints, 3), np.nan),
@@ -257,10 +263,8 @@ def plan_path(text: str, points: np.ndarray, spec: DatasetSpec, seconds: float |
     result lasts ``seconds`` (default: up to the last point)."""
     last = float(points[-1, 0])
     total = _frames(seconds if seconds is not None else last, spec, "--seconds")
-    unit = spec.snippet_length
-    frames = _whole_snippets(
-        -(-max(total, int(round(last * spec.fps)) + 1) // unit) * unit, spec, "the path"
-    )
+    last_frame = int(round(last * spec.fps))
+    frames = _whole_snippets(_round_up(max(total, last_frame + 1), spec), spec, "the path")
     times = np.concatenate([[0.0], points[:, 0]])
     floor = np.concatenate([[[0.0, 0.0]], points[:, 1:]])
     check_reachable(times, floor, "--path")
@@ -286,9 +290,7 @@ def plan_keys(text: str, keys: np.ndarray, spec: DatasetSpec) -> EditPlan:
         raise UsageError("--keys constrains nothing (all NaN)")
     if np.isinf(keys).any():
         raise UsageError("--keys contains infinite values (use NaN for free)")
-    frames = _whole_snippets(
-        -(-len(keys) // spec.snippet_length) * spec.snippet_length, spec, "--keys"
-    )
+    frames = _whole_snippets(_round_up(len(keys), spec), spec, "--keys")
     target, keep = _empty(frames, spec)
     target[: len(keys)] = keys
     rows = np.flatnonzero(np.isfinite(target[:, 0, [0, 2]]).all(-1))
