@@ -199,3 +199,12 @@ def test_page_edits_a_motion_in_the_view(page):
     history = page.find_elements("css selector", "#history li button")
     assert history[0].text.split(": ", 1)[1].startswith("continue: a person jumps up and down")
     page.find_element("id", "play").click()
+
+
+def test_page_names_words_the_model_does_not_know(page):
+    _generate(page, "a person walks forward blorf#40", samples=1)
+    text = _wait(
+        page, "const w = document.getElementById('warnings'); return !w.hidden && w.textContent"
+    )
+    assert "not trained on blorf" in text
+    assert not page.find_element("id", "error").is_displayed()
