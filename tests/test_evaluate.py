@@ -192,7 +192,9 @@ def test_help_lists_the_documented_options_with_their_docstrings(capsys, monkeyp
     assert exit_info.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     usage = next(
-        line for line in README.read_text().splitlines() if "python -m t2m.evaluate" in line
+        line
+        for line in README.read_text().splitlines()
+        if line.startswith("`python -m t2m.evaluate --dataset")
     )
     documented = set(re.findall(r"--[a-z][a-z-]+", usage))
     assert {"--dataset", "--checkpoints", "--replications", "--quick", "--precision"} <= documented
