@@ -17,3 +17,97 @@ def test_clipping_follows_the_original(name):
     assert config.generator.grad_clip == 0.5
     assert config.evaluator.grad_clip == 0.5
     assert config.autoencoder.grad_clip == 0.0
+
+
+@pytest.mark.parametrize("precision", ["int8", "bf16"])
+def test_reduced_precision_converts_in_place_only_when_asked(tiny_run, precision):
+    import torch
+
+    from t2m.pipeline import TextToMotion
+
+    fp32 = TextToMotion.from_checkpoints(tiny_run)
+    expected = fp32.generate("a person walks forward", lengths=40, seed=3)[0][0].joints
+    vae, decoder = fp32.vae, fp32.decoder
+    copied = fp32.with_precision(precision)  # copies: the fp32 pipeline keeps working
+    assert copied.vae is not vae
+    assert type(vae.generator.input) is torch.nn.Linear
+    assert vae.generator.input.weight.dtype == torch.float32
+    again = fp32.generate("a person walks forward", lengths=40, seed=3)[0][0].joints
+    assert (again == expected).all()
+    # from_checkpoints owns what it loads: converted in place, no second copy of the weights
+    loaded = TextToMotion.from_checkpoints(tiny_run, precision=precision)
+    low = loaded.generate("a person walks forward", lengths=40, seed=3)[0][0].joints
+    assert 0 < abs(low - expected).max() < 0.05 * abs(expected).max() + 0.05
+    owned = TextToMotion(
+        vae,
+        decoder,
+        fp32.normalizer,
+        fp32.vectorizer,
+        fp32.initial_code,
+        precision=precision,
+        training_words=fp32.training_words,
+        copy_models=False,
+    )
+    assert owned.vae is vae and owned.decoder is decoder
+    assert owned.decoder.out.weight.dtype == torch.bfloat16
+
+
+def _write_glove(path, words, dim, seed):
+    import numpy as np
+
+    vectors = np.random.default_rng(seed).normal(size=(len(words), dim)).astype(np.float32)
+    lines = [" ".join([w, *(f"{v:.6f}" for v in row)]) for w, row in zip(words, vectors)]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return np.array([[float(f"{v:.6f}") for v in row] for row in vectors], np.float32)
+
+
+def test_glove_text_is_converted_once_to_a_cache(tmp_path, monkeypatch):
+    import numpy as np
+
+    from t2m.data import words as words_module
+
+    monkeypatch.setenv(words_module.CACHE_ENV, str(tmp_path / "cache"))
+    glove = tmp_path / "glove.txt"
+    names = ["sos", "eos", "unk", "walk", "wave", "café"]
+    expected = _write_glove(glove, names, 7, seed=0)
+    words, vectors = words_module.load_glove_file(glove)
+    assert words == names and np.array_equal(vectors, expected)
+    cached = sorted(p.suffix for p in (tmp_path / "cache" / "glove").iterdir())
+    assert cached == [".npy", ".sha256", ".words"]
+    # later loads read the cache: the text is not parsed again, and no file is rewritten
+    stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache" / "glove").iterdir()}
+
+    def refuse(path):
+        raise AssertionError("parsed the text again")
+
+    monkeypatch.setattr(words_module, "_load_glove_text", refuse)
+    words, vectors = words_module.load_glove_file(glove)
+    assert words == names and np.array_equal(vectors, expected)
+    assert isinstance(vectors, np.memmap)
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
+    vectorizer = words_module.WordVectors(words, vectors, str(glove))
+    assert vectorizer.encode_tokens(["walk/VERB"]).words[1].tolist() == expected[3].tolist()
+
+
+def test_glove_cache_follows_the_content_and_repairs_itself(tmp_path, monkeypatch):
+    import os
+
+    import numpy as np
+
+    from t2m.data import words as words_module
+
+    monkeypatch.setenv(words_module.CACHE_ENV, str(tmp_path / "cache"))
+    glove = tmp_path / "glove.txt"
+    _write_glove(glove, ["sos", "eos", "unk", "a"], 3, seed=0)
+    words_module.load_glove_file(glove)
+    # new content: a new key (the remembered hash is per path, size and mtime)
+    expected = _write_glove(glove, ["sos", "eos", "unk", "b"], 3, seed=1)
+    stat = glove.stat()
+    os.utime(glove, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1))
+    words, vectors = words_module.load_glove_file(glove)
+    assert words[-1] == "b" and np.array_equal(vectors, expected)
+    # a damaged entry (words without their vectors' rows) is rebuilt, not trusted
+    for words_file in (tmp_path / "cache" / "glove").glob("*.words"):
+        words_file.write_text("sos\neos", encoding="utf-8")
+    words, vectors = words_module.load_glove_file(glove)
+    assert words[-1] == "b" and np.array_equal(vectors, expected)
