@@ -113,13 +113,6 @@ def write_config(stage_dir: Path, config: Config) -> None:
     write_text_atomic(stage_dir / "config.json", config.to_json() + "\n")
 
 
-def _is_zip(path: Path) -> bool:
-    """True for torch's zip format, which loads memory-mapped: tensors (the optimizer state of a
-    loaded-for-inference checkpoint, 2x the weights) are read only when used."""
-    with open(path, "rb") as handle:
-        return handle.read(4) == b"PK\x03\x04"
-
-
 def read_checkpoint(path: Path) -> dict[str, Any]:
     """Load a checkpoint dict on CPU without running any code from the file.
 
@@ -134,9 +127,7 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
         with torch.serialization.safe_globals(_FORMAT_1_GLOBALS), warnings.catch_warnings():
             # garbage read as a pickle stream makes torch warn of odd protocols: it is refused
             warnings.filterwarnings("ignore", "Detected pickle protocol")
-            checkpoint = torch.load(
-                path, map_location="cpu", weights_only=True, mmap=_is_zip(path)
-            )
+            checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
         asked = _asked_for(error)
         if asked is None:  # not a payload: a broken pickle stream
