@@ -111,3 +111,43 @@ def test_glove_cache_follows_the_content_and_repairs_itself(tmp_path, monkeypatc
         words_file.write_text("sos\neos", encoding="utf-8")
     words, vectors = words_module.load_glove_file(glove)
     assert words[-1] == "b" and np.array_equal(vectors, expected)
+
+
+def _results(cpu, **values):
+    return {
+        "environment": {"cpu": cpu, "cpu_count": 2, "torch_threads": 2, "torch": "2", "date": "d"},
+        "quick": False,
+        "parts": {"sample": {"status": "ok", "results": values}},
+    }
+
+
+def test_bench_compare_prints_ratios_of_shared_numbers():
+    from t2m.bench import compare
+
+    now = _results("X", fp32_ms=150.0, int8_ms=30, frames=196, note="a", new_only=1.0)
+    table = compare(now, _results("X", fp32_ms=300.0, int8_ms=40, frames=196, note="a"))
+    assert "| sample | fp32_ms | 300.0 | 150.0 | 0.500 |" in table
+    assert "| sample | int8_ms | 40 | 30 | 0.750 |" in table
+    assert "note" not in table and "new_only" not in table
+    assert "NOT the same setting" not in table
+    assert "NOT the same setting: cpu 'Y' -> 'X'" in compare(now, _results("Y", fp32_ms=1.0))
+
+
+def test_bench_compare_refuses_a_file_that_is_no_results(tmp_path):
+    from dataset_tools.command import UsageError
+    from t2m.bench import read_results
+
+    bad = tmp_path / "results.json"
+    bad.write_text("[1, 2]")
+    with pytest.raises(UsageError, match="not a results.json"):
+        read_results(bad)
+    with pytest.raises(UsageError, match="cannot read"):
+        read_results(tmp_path / "missing.json")
+
+
+def test_make_bench_runs_every_part_but_the_side_by_side():
+    from t2m.bench import available
+
+    parts = available()
+    assert {"representation", "train", "sample", "memory"} <= set(parts)
+    assert "versus_original" not in parts

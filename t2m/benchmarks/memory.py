@@ -26,14 +26,14 @@ FRAMES = 196
 
 def write_paper_run(run_dir: Path) -> None:
     """Paper-size ``generator`` and ``length`` checkpoints of random weights in ``run_dir``."""
+    import numpy as np
+
     from dataset_tools.skeleton import HUMANML3D
     from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
     from t2m.train.checkpoint import ModelSizes, atomic_save, make_checkpoint
     from t2m.train.stages import find_stage
-
-    import numpy as np
 
     config = paper()
     config.data.word_vectors = BUILTIN_GLOVE

@@ -366,7 +366,9 @@ def _try_write(path: Path, write) -> bool:
         write(path)
         return True
     except OSError as error:
-        logger.warning("cannot write the word-vector cache %s (%s); continuing without", path, error)
+        logger.warning(
+            "cannot write the word-vector cache %s (%s); continuing without", path, error
+        )
         return False
 
 
