@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import json
 import os
 import platform
 import random
@@ -484,17 +485,23 @@ def measure(original: Path, rounds: int, threads: int, only: set[str] | None) ->
     def wanted(name: str) -> bool:
         return only is None or name in only
 
+    def add(name: str, sides: dict[str, Callable[[], object]], count: int) -> None:
+        rows = summarise(name, interleave(sides, count))
+        for row in rows:  # as it comes: a long run shows its progress
+            print(json.dumps(row), file=sys.stderr, flush=True)
+        results.extend(rows)
+
     if wanted("features"):
         torch.set_num_threads(1)
-        results += summarise("features (1 thread)", interleave(features_row(orig), rounds * 3))
+        add("features (1 thread)", features_row(orig), rounds * 3)
     torch.set_num_threads(threads)
     if wanted("generation"):
-        results += summarise("generation_b1", interleave(generation_rows(orig, 1), rounds))
-        results += summarise("generation_b32", interleave(generation_rows(orig, 32), rounds))
+        add("generation_b1", generation_rows(orig, 1), rounds)
+        add("generation_b32", generation_rows(orig, 32), rounds)
     if wanted("training"):
         for name, sides in small_step_rows(orig).items():
-            results += summarise(name, interleave(sides, rounds))
-        results += summarise("vae_step", interleave(vae_step_rows(orig), max(2, rounds // 2)))
+            add(name, sides, rounds)
+        add("vae_step", vae_step_rows(orig), max(2, rounds // 2))
     memory = peak_memory(original) if wanted("memory") else {}
     for side in ("fp32", "bf16", "int8"):
         if memory:
