@@ -151,3 +151,34 @@ def test_make_bench_runs_every_part_but_the_side_by_side():
     parts = available()
     assert {"representation", "train", "sample", "memory"} <= set(parts)
     assert "versus_original" not in parts
+
+
+def test_side_by_side_ratios_are_medians_of_per_round_ratios():
+    from t2m.benchmarks.versus_original import interleave, summarise, to_markdown
+
+    calls = []
+    sides = {
+        "original": lambda: calls.append("o") or (2.0, 1.0),
+        "ours_fp32": lambda: calls.append("a") or (1.0, 1.0),
+    }
+    times = interleave(sides, rounds=3)
+    assert calls == ["o", "a", "o", "a", "a", "o", "o", "a"]  # warm-up, then rotated rounds
+    (row,) = summarise("generation_b1", times)
+    assert row["measure"] == "generation_b1 fp32"
+    assert (row["ratio"], row["cpu_ratio"], row["rounds"]) == (0.5, 1.0, 3)
+    table = to_markdown(
+        {
+            "environment": {
+                "date": "d",
+                "cpu": "c",
+                "cores": 2,
+                "threads": 1,
+                "load_average_at_end": (1.0, 1.0, 1.0),
+                "torch": "t",
+                "python": "p",
+                "rounds": 3,
+            },
+            "rows": [row],
+        }
+    )
+    assert "| generation_b1 fp32 | 2.0 s | 1.0 s | 0.5 (0.5-0.5) | 1.0 |" in table
