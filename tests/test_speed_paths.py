@@ -182,3 +182,24 @@ def test_side_by_side_ratios_are_medians_of_per_round_ratios():
         }
     )
     assert "| generation_b1 fp32 | 2.0 s | 1.0 s | 0.5 (0.5-0.5) | 1.0 |" in table
+
+
+def test_sentence_alone_is_the_forward_sentence():
+    import torch
+
+    from t2m.config import TextEncoderConfig
+    from t2m.models.text_encoder import TextEncoder
+
+    torch.manual_seed(0)
+    encoder = TextEncoder(6, TextEncoderConfig(hidden_size=5)).train()
+    words, pos = torch.randn(3, 7, 6), torch.eye(15)[torch.randint(0, 15, (3, 7))]
+    lengths = torch.tensor([7, 2, 4])
+    _, expected = encoder(words, pos, lengths)
+    sentence = encoder.sentence(words, pos, lengths)
+    assert torch.equal(sentence, expected)
+    sentence.sum().backward()
+    fast = [p.grad.clone() for p in encoder.parameters()]
+    encoder.zero_grad()
+    encoder(words, pos, lengths)[1].sum().backward()
+    for a, p in zip(fast, encoder.parameters()):
+        torch.testing.assert_close(a, p.grad)
