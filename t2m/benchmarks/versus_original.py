@@ -23,7 +23,8 @@ weights at the paper's sizes and the same inputs. What each row times:
   the anomaly detection its script switches on); ours fp32 and under bf16 autocast.
 * ``autoencoder_step`` (batch 128 x 24 frames), ``length_step`` (batch 64),
   ``evaluator_step`` (batch 32, 196 frames): forward, loss, backward, clipping where the stage
-  clips, Adam; the original's trainers' ``forward`` / ``update`` (its length loop's body).
+  clips, Adam; the original's trainers' ``forward`` / ``update`` (its length loop's body);
+  ours in fp32 and under bf16 autocast (what ``--bf16`` does in training).
 * ``peak_memory_*``: a fresh process per side that builds the paper-size generation models
   (random weights) and generates one 196-frame motion at batch 1; its peak resident set.
 """
@@ -221,8 +222,7 @@ def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
         initial = ae.encode(torch.zeros(1, 4, FEATURES))[0, 0]
 
     def ours_step(teacher_forcing: bool, bf16: bool) -> None:
-        autocast = torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
-        with autocast:
+        with _autocast(bf16):
             with torch.no_grad():
                 codes = ae.encode(motion)
             features, sentence, mask = vae.encode_text(words, pos, lengths)
@@ -265,6 +265,19 @@ def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
     }
 
 
+def _autocast(bf16: bool) -> contextlib.AbstractContextManager:
+    return torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+
+
+def _sides(ours: Callable[[bool], None], original: Callable[[], None]) -> dict:
+    """The original, ours in fp32 and ours under bf16 autocast (``--bf16`` in training)."""
+    return {
+        "original": original,
+        "ours_fp32": lambda: ours(False),
+        "ours_bf16": lambda: ours(True),
+    }
+
+
 def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], object]]]:
     from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
@@ -281,10 +294,12 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     ae = MovementAutoencoder(FEATURES, config.autoencoder.model).train()
     ae_opt = torch.optim.Adam(ae.parameters(), lr=1e-4)
 
-    def ours_ae() -> None:
-        reconstruction, codes = ae(windows)
+    def ours_ae(bf16: bool) -> None:
+        with _autocast(bf16):
+            reconstruction, codes = ae(windows)
+            loss = autoencoder_loss(reconstruction, windows, codes)["loss"]
         ae_opt.zero_grad(set_to_none=True)
-        autoencoder_loss(reconstruction, windows, codes)["loss"].backward()
+        loss.backward()
         ae_opt.step()
 
     enc, dec = m.MovementConvEncoder(FEATURES - 4, 512, 512), m.MovementConvDecoder(512, 512, 263)
@@ -298,7 +313,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
         decomp.forward(windows)
         decomp.update()
 
-    rows["autoencoder_step"] = {"ours": ours_ae, "original": original_ae}
+    rows["autoencoder_step"] = _sides(ours_ae, original_ae)
 
     # length estimator, batch 64
     text64 = random_text(64, generator)
@@ -306,9 +321,11 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     estimator = LengthEstimator(WORD_DIM, config.length.model).train()
     length_opt = torch.optim.Adam(estimator.parameters(), lr=1e-4)
 
-    def ours_length() -> None:
+    def ours_length(bf16: bool) -> None:
+        with _autocast(bf16):
+            loss = length_loss(estimator(*text64), classes)["loss"]
         length_opt.zero_grad(set_to_none=True)
-        length_loss(estimator(*text64), classes)["loss"].backward()
+        loss.backward()
         torch.nn.utils.clip_grad_norm_(list(estimator.parameters()), config.length.grad_clip)
         length_opt.step()
 
@@ -324,7 +341,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
         length_trainer.clip_norm([original_estimator])
         length_trainer.step([length_trainer.opt_estimator])
 
-    rows["length_step"] = {"ours": ours_length, "original": original_length}
+    rows["length_step"] = _sides(ours_length, original_length)
 
     # evaluator, batch 32, 196 frames
     words, pos, lengths = random_text(32, generator)
@@ -335,10 +352,12 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     trainable = [p for p in evaluator.parameters() if p.requires_grad]
     eval_opt = torch.optim.Adam(trainable, lr=1e-4)
 
-    def ours_evaluator() -> None:
-        text, moving = evaluator(words, pos, lengths, motion, motion_lengths)
+    def ours_evaluator(bf16: bool) -> None:
+        with _autocast(bf16):
+            text, moving = evaluator(words, pos, lengths, motion, motion_lengths)
+            loss = contrastive_loss(text, moving, 1)["loss"]
         eval_opt.zero_grad(set_to_none=True)
-        contrastive_loss(text, moving, 1)["loss"].backward()
+        loss.backward()
         torch.nn.utils.clip_grad_norm_(trainable, config.evaluator.grad_clip)
         eval_opt.step()
 
@@ -356,7 +375,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
         match.forward(data)
         match.update()
 
-    rows["evaluator_step"] = {"ours": ours_evaluator, "original": original_evaluator}
+    rows["evaluator_step"] = _sides(ours_evaluator, original_evaluator)
     return rows
 
 
