@@ -6,7 +6,9 @@ ratios ours / original (below 1: ours is faster).
 
 ``PATH`` is a checkout of github.com/EricGuo5513/text-to-motion; its own modules are imported
 from there (``networks/modules.py``, ``networks/trainers.py``, ``scripts/motion_process.py``)
-and driven through its trainers' methods. Nothing of it is copied here. Both sides get random
+and driven through its trainers' methods. Nothing of it is copied here; the one accommodation
+is ``np.float`` (removed in numpy 1.24, read by its ``common/quaternion.py``), set to ``float``
+before the import. Both sides get random
 weights at the paper's sizes and the same inputs. What each row times:
 
 * ``features``: one 200-frame joint array -> 263-d features (ours ``process_motion``: retarget,
