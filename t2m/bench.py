@@ -34,7 +34,10 @@ from dataset_tools.io import write_json_atomic, write_text_atomic
 logger = logging.getLogger(__name__)
 
 # The order in which the parts run (cheap first); modules not listed run after these.
-ORDER = ("representation", "synth", "build", "train", "sample", "evaluate")
+ORDER = ("representation", "synth", "build", "train", "sample", "memory", "evaluate")
+# Benchmarks with their own command line, not parts of ``make bench`` (the side-by-side run
+# against the original needs its checkout).
+STANDALONE = ("versus_original",)
 
 
 def _cpu_name() -> str:
@@ -66,7 +69,11 @@ def environment() -> dict:
 def available() -> list[str]:
     import t2m.benchmarks as package
 
-    names = [m.name for m in pkgutil.iter_modules(package.__path__) if not m.name.startswith("_")]
+    names = [
+        m.name
+        for m in pkgutil.iter_modules(package.__path__)
+        if not m.name.startswith("_") and m.name not in STANDALONE
+    ]
     return sorted(names, key=lambda n: (ORDER.index(n) if n in ORDER else len(ORDER), n))
 
 
@@ -114,6 +121,48 @@ def to_markdown(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def compare(results: dict, earlier: dict) -> str:
+    """A Markdown table of the numbers both results hold: earlier, now and now / earlier.
+
+    Only a ratio of two runs on the same machine means anything; a different CPU or thread
+    count is said in the table's heading.
+    """
+    now_env, then_env = results["environment"], earlier.get("environment", {})
+    heading = f"Ratios now / earlier ({then_env.get('date', '?')})"
+    changed = [
+        f"{key} {then_env.get(key)!r} -> {now_env.get(key)!r}"
+        for key in ("cpu", "cpu_count", "torch_threads", "torch")
+        if then_env.get(key) != now_env.get(key)
+    ]
+    if changed:
+        heading += "; NOT the same setting: " + ", ".join(changed)
+    lines = [heading, "", "| part | measurement | earlier | now | now / earlier |"]
+    lines.append("| --- | --- | --- | --- | --- |")
+    for part, entry in results["parts"].items():
+        before = earlier.get("parts", {}).get(part, {}).get("results", {})
+        for key, value in entry["results"].items():
+            old = before.get(key)
+            numbers = all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in (value, old)
+            )
+            if numbers and old:
+                lines.append(f"| {part} | {key} | {old} | {value} | {value / old:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def read_results(path: Path) -> dict:
+    """An earlier ``results.json``; UsageError (one line) when it is not one."""
+    import json
+
+    try:
+        results = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise UsageError(f"cannot read benchmark results {path}: {error}") from None
+    if not isinstance(results, dict) or not isinstance(results.get("parts"), dict):
+        raise UsageError(f"{path} is not a results.json written by python -m t2m.bench")
+    return results
+
+
 @dataclass
 class BenchConfig:
     """``python -m t2m.bench``."""
@@ -124,6 +173,9 @@ class BenchConfig:
     """fewer repetitions (a smoke run)"""
     out: Path = field(default=Path("bench"), metadata=option(metavar="DIR"))
     """output folder"""
+    compare: Path | None = field(default=None, metadata=option(metavar="FILE"))
+    """an earlier results.json of this machine: also print (and write to compare.md) every
+    measurement's ratio now / earlier"""
 
 
 @command
@@ -136,11 +188,16 @@ def main(argv: list[str] | None = None) -> int:
         raise UsageError(f"unknown benchmark(s) {', '.join(unknown)}; known: {', '.join(names)}")
     if config.only:
         names = [n for n in names if n in config.only]
+    earlier = read_results(config.compare) if config.compare is not None else None
     results = run_all(names, config.quick)
     write_json_atomic(config.out / "results.json", results)
     markdown = to_markdown(results)
     write_text_atomic(config.out / "results.md", markdown)
     print(markdown)
+    if earlier is not None:
+        table = compare(results, earlier)
+        write_text_atomic(config.out / "compare.md", table)
+        print(table)
     return 0 if all(p["status"] == "ok" for p in results["parts"].values()) else 1
 
 

@@ -162,6 +162,8 @@ class LengthStageConfig(StageConfig):
 
     model: LengthModelConfig = field(default_factory=LengthModelConfig)
     epochs: int = 30
+    grad_clip: float = 0.5
+    """As the original's length trainer (clip_grad_norm_ 0.5 on the estimator)."""
 
 
 @dataclass
@@ -201,6 +203,8 @@ class EvaluatorStageConfig(StageConfig):
     margin: float = 10.0
     negative_weight: float = 1.0
     epochs: int = 60
+    grad_clip: float = 0.5
+    """As the original's evaluator trainer (0.5 on each of its text and motion encoders)."""
 
 
 # The section names of the first releases, still read from config.json files, checkpoints and

@@ -148,6 +148,9 @@ class TextToMotion:
             conventions (for models trained on a dataset built with ``--spacy-pos``).
         encoder: the frozen movement encoder (features -> snippet codes), for edits that
             continue from known frames (:meth:`edit`); None: edits search without it.
+        copy_models: for bf16 / int8, convert copies of ``vae`` and ``decoder`` (the caller's
+            modules stay float32); False converts them in place, which saves holding the float32
+            weights and their converted copy at once (``from_checkpoints`` owns what it loads).
     """
 
     def __init__(
@@ -165,6 +168,8 @@ class TextToMotion:
         training_words: Collection[str] | None = None,
         spacy_pos: bool = False,
         encoder: MovementEncoder | None = None,
+        *,
+        copy_models: bool = True,
     ) -> None:
         if precision not in PRECISIONS:
             raise ValueError(f"unknown precision {precision!r}; use one of {', '.join(PRECISIONS)}")
@@ -194,15 +199,15 @@ class TextToMotion:
         vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
         if precision == "int8":
-            vae = quantize_int8(vae)
+            vae = quantize_int8(vae, inplace=not copy_models)
         elif precision == "bf16":
-            vae = copy.deepcopy(vae).to(torch.bfloat16)
+            vae = (copy.deepcopy(vae) if copy_models else vae).to(torch.bfloat16)
         self.vae = vae
         # The decoder's transposed convolutions have no dynamic-int8 kernels; in both reduced
         # modes they run in bfloat16 (3x faster at batch 32 with AMX, ~0.5% relative error).
         self.decoder_dtype = torch.float32 if precision == "fp32" else torch.bfloat16
         if self.decoder_dtype != torch.float32:
-            decoder = copy.deepcopy(decoder).to(self.decoder_dtype)
+            decoder = (copy.deepcopy(decoder) if copy_models else decoder).to(self.decoder_dtype)
         self.decoder = decoder
         self.encoder = encoder.to(self.device).eval() if encoder is not None else None
         self.encoder_input_size = self.spec.feature_dim - CONTACT_DIMS
@@ -273,6 +278,7 @@ class TextToMotion:
                 device=resolve_device(device),
                 precision=precision,
                 encoder=release.encoder,
+                copy_models=False,
             )
         if not run_dir.is_dir():
             raise ValueError(
@@ -329,6 +335,7 @@ class TextToMotion:
             precision=precision,
             training_words=t2m.extra.get("training_words"),
             encoder=encoder,
+            copy_models=False,
         )
 
     # -- steps -------------------------------------------------------------------------------

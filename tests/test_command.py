@@ -201,7 +201,7 @@ def test_only_rank_zero_talks(monkeypatch):
             "--out --overwrite --render --bvh --device --batch-size --threads --precision",
         ),
         ("dataset_tools.synth.cli", "--out --clips --seed --heldout-phrasings --workers --force"),
-        ("t2m.bench", "--only --quick --out"),
+        ("t2m.bench", "--only --quick --out --compare"),
     ],
 )
 def test_documented_options_are_generated(capsys, module, options):

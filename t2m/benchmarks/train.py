@@ -1,7 +1,8 @@
 """Training-step speed of every stage at ``paper`` sizes and batch sizes, on synthetic batches.
 
-One step = forward, backward and optimizer update, as in the training loops (the temporal VAE
-with the frozen encoder, the fine-tuned decoder and gradient clipping). Reported per stage:
+One step = forward, backward, gradient clipping where the stage clips (length, temporal VAE,
+evaluator) and optimizer update, as in the training loops (the temporal VAE with the frozen
+encoder and the fine-tuned decoder). Reported per stage:
 seconds per step and steps/s (fp32), the temporal-VAE step under bf16 autocast too, and the peak
 memory (resident set on CPU, allocated on CUDA). Word vectors are 300-d as in the paper.
 
@@ -106,6 +107,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     def length_step() -> None:
         len_opt.zero_grad(set_to_none=True)
         length_loss(estimator(words, pos, lengths), classes)["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(list(estimator.parameters()), config.length.grad_clip)
         len_opt.step()
 
     seconds = _time(length_step, steps * 3, device_)
@@ -184,9 +186,8 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     evaluator = Evaluator(
         WORD_DIM, FEATURE_DIM, config.autoencoder.model, config.evaluator.model
     ).to(device_)
-    eval_opt = torch.optim.Adam(
-        [p for p in evaluator.parameters() if p.requires_grad], lr=config.evaluator.lr
-    )
+    eval_trainable = [p for p in evaluator.parameters() if p.requires_grad]
+    eval_opt = torch.optim.Adam(eval_trainable, lr=config.evaluator.lr)
     motion_lengths = torch.randint(10, 50, (batch,), generator=generator).to(device_) * 4
     motion = torch.randn(batch, 196, FEATURE_DIM, generator=generator).to(device_)
 
@@ -194,6 +195,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
         text, moving = evaluator(words, pos, lengths, motion, motion_lengths)
         eval_opt.zero_grad(set_to_none=True)
         contrastive_loss(text, moving, 1)["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(eval_trainable, config.evaluator.grad_clip)
         eval_opt.step()
 
     seconds = _time(eval_step, steps * 3, device_)

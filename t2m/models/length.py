@@ -34,8 +34,7 @@ class LengthEstimator(nn.Module):
     def forward(
         self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
     ) -> torch.Tensor:
-        _, sentence = self.text_encoder(words, pos, lengths)
-        return self.head(sentence)
+        return self.head(self.text_encoder.sentence(words, pos, lengths))
 
 
 def length_loss(logits: torch.Tensor, target_class: torch.Tensor) -> dict[str, torch.Tensor]:

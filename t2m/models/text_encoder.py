@@ -56,14 +56,27 @@ class TextEncoder(nn.Module):
             raise ValueError(f"expected word vectors (B, L, Dw), got shape {tuple(words.shape)}")
         return self.input_projection(words + self.pos_embedding(pos))
 
-    def forward(
-        self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    def _run(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor):
+        """The packed GRU over the tokens: (packed outputs, last states (2, B, H), max length)."""
         inputs = self.embed(words, pos)
         batch, max_len = inputs.shape[:2]
         hidden = self.initial_hidden.expand(2, batch, self.hidden_size).contiguous()
         packed = pack_padded_sequence(inputs, lengths.cpu(), batch_first=True, enforce_sorted=False)
         outputs, last = self.gru(packed, hidden)
+        return outputs, last, max_len
+
+    def sentence(
+        self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
+    ) -> torch.Tensor:
+        """The sentence feature (B, 2H) alone, as :meth:`forward` gives it: the per-word outputs
+        are not padded back (nor, in training, their gradients gathered from the padding)."""
+        _, last, _ = self._run(words, pos, lengths)
+        return torch.cat([last[0], last[1]], dim=-1)
+
+    def forward(
+        self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        outputs, last, max_len = self._run(words, pos, lengths)
         word_features, _ = pad_packed_sequence(outputs, batch_first=True, total_length=max_len)
         if self.flip_backward_words:
             word_features = self._flip_backward(word_features, lengths.to(word_features.device))
@@ -100,5 +113,4 @@ class ProjectedTextEncoder(nn.Module):
         self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
     ) -> torch.Tensor:
         """-> (B, output_size)."""
-        _, sentence = self.encoder(words, pos, lengths)
-        return self.head(sentence)
+        return self.head(self.encoder.sentence(words, pos, lengths))

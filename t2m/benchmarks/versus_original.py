@@ -1,0 +1,620 @@
+"""Side by side with the original T2M code: the same measurements on both, in one process,
+interleaved round by round; each row reports both medians and the median of the per-round
+ratios ours / original (below 1: ours is faster).
+
+    python -m t2m.benchmarks.versus_original --original PATH [--rounds N] [--threads 2] [--out JSON]
+
+``PATH`` is a checkout of github.com/EricGuo5513/text-to-motion; its own modules are imported
+from there (``networks/modules.py``, ``networks/trainers.py``, ``scripts/motion_process.py``)
+and driven through its trainers' methods. Nothing of it is copied here; the one accommodation
+is ``np.float`` (removed in numpy 1.24, read by its ``common/quaternion.py``), set to ``float``
+before the import. Both sides get random
+weights at the paper's sizes and the same inputs. What each row times:
+
+* ``features``: one 200-frame joint array -> 263-d features (ours ``process_motion``: retarget,
+  canonicalise, features; the original's ``process_file``), one thread.
+* ``generation_b1_*``, ``generation_b32_*``: "text in, joints out" for 196 frames: spaCy
+  tagging (the same function on both sides), word vectors (the same 300-d table), text encoder,
+  49 prior / generator steps, movement decoder, de-normalisation, each side's
+  ``recover_from_ric``. The original at fp32 (its ``CompTrainerV6.generate`` on the batch);
+  ours at fp32, bf16 and int8 (:class:`t2m.pipeline.TextToMotion`). Batch 32: 32 copies of
+  the prompt; reported as seconds per batch (the ratio is the inverse of the throughput ratio).
+* ``vae_step_*``: one temporal-VAE training step, batch 32 x 49 snippets: encoder codes,
+  forward, loss, backward, clipping at 0.5, Adam; 0.4 x teacher-forced + 0.6 x free-running
+  (the mix of both trainers). The original's ``CompTrainerV6.forward`` / ``update`` (without
+  the anomaly detection its script switches on); ours fp32 and under bf16 autocast.
+* ``autoencoder_step`` (batch 128 x 24 frames), ``length_step`` (batch 64),
+  ``evaluator_step`` (batch 32, 196 frames): forward, loss, backward, clipping where the stage
+  clips, Adam; the original's trainers' ``forward`` / ``update`` (its length loop's body);
+  ours in fp32 and under bf16 autocast (what ``--bf16`` does in training).
+* ``peak_memory_*``: a fresh process per side that builds the paper-size generation models
+  (random weights) and generates one 196-frame motion at batch 1; its peak resident set.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import json
+import os
+import platform
+import random
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+PROMPT = "a person walks forward and waves with the right hand"
+FRAMES, SNIPPETS, FEATURES, WORD_DIM = 196, 49, 263, 300
+
+
+# -- the original's code ---------------------------------------------------------------------
+
+
+def import_original(path: Path) -> SimpleNamespace:
+    """The original's modules, imported from its checkout (put first on ``sys.path``)."""
+    if not (path / "networks" / "modules.py").is_file():
+        raise SystemExit(f"{path}: not a checkout of EricGuo5513/text-to-motion")
+    sys.path.insert(0, str(path))
+    # its common/quaternion.py reads np.float, removed in numpy 1.24 (it was the builtin float)
+    if "float" not in np.__dict__:
+        setattr(np, "float", float)  # noqa: B010 (ruff would rewrite np.float itself)
+    return SimpleNamespace(
+        modules=importlib.import_module("networks.modules"),
+        trainers=importlib.import_module("networks.trainers"),
+        motion_process=importlib.import_module("scripts.motion_process"),
+        param=importlib.import_module("utils.paramUtil"),
+        skeleton=importlib.import_module("common.skeleton"),
+    )
+
+
+def _options(**values) -> SimpleNamespace:
+    base = dict(device=torch.device("cpu"), is_train=True, log_dir="", unit_length=4)
+    base.update(values)
+    return SimpleNamespace(**base)
+
+
+def original_generation_models(orig: SimpleNamespace) -> dict:
+    """The original's generation networks at the paper's sizes (``train_comp_v6.build_models``)."""
+    m = orig.modules
+    text_size = 1024
+    return dict(
+        text_enc=m.TextEncoderBiGRU(WORD_DIM, 15, 512, "cpu"),
+        seq_pri=m.TextDecoder(text_size, 512 + 512, 128, 1024, 1),
+        seq_post=m.TextDecoder(text_size, 512 + 1024, 128, 1024, 1),
+        seq_dec=m.TextVAEDecoder(text_size, 512 + 128 + 512, 512, 1024, 1),
+        att_layer=m.AttLayer(1024, text_size, 512),
+        mov_enc=m.MovementConvEncoder(FEATURES - 4, 512, 512),
+        mov_dec=m.MovementConvDecoder(512, 512, FEATURES),
+    )
+
+
+# -- inputs --------------------------------------------------------------------------------
+
+
+def vectorizer_300d():
+    """A 300-d word table (random vectors) holding the prompt's words: both sides look up the
+    same vectors."""
+    from dataset_tools.texts import tag_prompts
+    from t2m.data.words import WordVectors
+
+    words = ["sos", "eos", "unk", *sorted({w for w, _ in tag_prompts([PROMPT])[0]})]
+    vectors = np.random.default_rng(0).normal(size=(len(words), WORD_DIM)).astype(np.float32)
+    return WordVectors(words, vectors, "versus-original")
+
+
+def text_batch(vectorizer, batch: int):
+    from dataset_tools.texts import tag_prompts
+
+    pairs = tag_prompts([PROMPT])[0]
+    encoded = vectorizer.encode_tokens([f"{w}/{p}" for w, p in pairs])
+    words = torch.from_numpy(np.stack([encoded.words] * batch))
+    pos = torch.from_numpy(np.stack([encoded.pos_onehot] * batch))
+    return words, pos, torch.full((batch,), encoded.length, dtype=torch.long)
+
+
+def random_text(batch: int, generator: torch.Generator):
+    """Word vectors (B, 22, 300), POS one-hots and lengths sorted descending (the original's
+    packing needs sorted captions; ours does not care)."""
+    words = torch.randn(batch, 22, WORD_DIM, generator=generator)
+    pos = F.one_hot(torch.randint(0, 15, (batch, 22), generator=generator), 15).float()
+    lengths = torch.randint(5, 23, (batch,), generator=generator).sort(descending=True).values
+    return words, pos, lengths
+
+
+# -- rows: (ours, original) callables ------------------------------------------------------
+
+
+def features_row(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
+    from dataset_tools.representation import process_motion
+    from t2m.benchmarks.representation import _random_motion
+
+    joints = _random_motion(np.random.default_rng(0), 200)
+    mp = orig.motion_process
+    # what the original's script sets up as globals under its __main__
+    mp.l_idx1, mp.l_idx2, mp.fid_r, mp.fid_l = 5, 8, [8, 11], [7, 10]
+    mp.face_joint_indx, mp.r_hip, mp.l_hip, mp.joints_num = [2, 1, 17, 16], 2, 1, 22
+    mp.n_raw_offsets = torch.from_numpy(orig.param.t2m_raw_offsets)
+    mp.kinematic_chain = orig.param.t2m_kinematic_chain
+    skeleton = orig.skeleton.Skeleton(mp.n_raw_offsets, mp.kinematic_chain, "cpu")
+    mp.tgt_offsets = skeleton.get_offsets_joints(torch.from_numpy(joints[0]).float())
+    return {
+        "ours": lambda: process_motion(joints),
+        "original": lambda: mp.process_file(joints.copy(), 0.002),
+    }
+
+
+def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[], object]]:
+    from dataset_tools.texts import tag_prompts
+    from t2m.config import paper
+    from t2m.data.normalization import Normalizer
+    from t2m.models.autoencoder import MovementDecoder
+    from t2m.models.temporal_vae import TemporalVAE
+    from t2m.pipeline import TextToMotion
+
+    vectorizer = vectorizer_300d()
+    mean, std = np.zeros(FEATURES, np.float32), np.ones(FEATURES, np.float32)
+    config = paper()
+    torch.manual_seed(0)
+    vae = TemporalVAE(WORD_DIM, 512, config.generator.model)
+    decoder = MovementDecoder(FEATURES, config.autoencoder.model)
+    pipes = {
+        precision: TextToMotion(
+            vae, decoder, Normalizer(mean, std), vectorizer, torch.zeros(512), precision=precision
+        )
+        for precision in ("fp32", "bf16", "int8")
+    }
+    models = original_generation_models(orig)
+    for module in models.values():
+        module.eval()
+    trainer = orig.trainers.CompTrainerV6(
+        _options(is_train=False), **{k: v for k, v in models.items() if k != "seq_post"}
+    )
+    recover = orig.motion_process.recover_from_ric
+    mean_t, std_t = torch.from_numpy(mean), torch.from_numpy(std)
+
+    def original() -> np.ndarray:
+        pairs = tag_prompts([PROMPT] * batch)  # the same tagging as ours
+        encoded = [vectorizer.encode_tokens([f"{w}/{p}" for w, p in item]) for item in pairs]
+        words = torch.from_numpy(np.stack([e.words for e in encoded]))
+        pos = torch.from_numpy(np.stack([e.pos_onehot for e in encoded]))
+        lengths = torch.tensor([e.length for e in encoded])
+        m_lens = torch.full((batch,), FRAMES)
+        with torch.no_grad():
+            motions, _, _ = trainer.generate(words, pos, lengths, m_lens, SNIPPETS, FEATURES)
+            joints = recover(motions * std_t + mean_t, 22)
+        return joints.numpy()
+
+    rows = {"original": original}
+    for precision, pipe in pipes.items():
+        rows[f"ours_{precision}"] = lambda pipe=pipe: pipe.generate(
+            [PROMPT] * batch, lengths=FRAMES, seed=0, batch_size=batch
+        )
+    return rows
+
+
+def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
+    from t2m.config import paper
+    from t2m.models.autoencoder import MovementAutoencoder
+    from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+
+    batch, config = 32, paper()
+    generator = torch.Generator().manual_seed(1)
+    words, pos, lengths = random_text(batch, generator)
+    motion = torch.randn(batch, FRAMES, FEATURES, generator=generator)
+    # ours
+    torch.manual_seed(0)
+    ae = MovementAutoencoder(FEATURES, config.autoencoder.model)
+    ae.encoder.eval().requires_grad_(False)
+    vae = TemporalVAE(WORD_DIM, 512, config.generator.model)
+    optimizer = torch.optim.Adam(
+        [{"params": vae.parameters()}, {"params": ae.decoder.parameters(), "lr": 2e-5}], lr=2e-4
+    )
+    trainable = list(vae.parameters()) + list(ae.decoder.parameters())
+    with torch.no_grad():
+        initial = ae.encode(torch.zeros(1, 4, FEATURES))[0, 0]
+
+    def ours_step(teacher_forcing: bool, bf16: bool) -> None:
+        with _autocast(bf16):
+            with torch.no_grad():
+                codes = ae.encode(motion)
+            features, sentence, mask = vae.encode_text(words, pos, lengths)
+            outputs = vae(features, sentence, mask, codes, initial, teacher_forcing)
+            losses = temporal_vae_loss(outputs, codes, ae.decode(outputs["codes"]), motion)
+        optimizer.zero_grad(set_to_none=True)
+        losses["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(trainable, 0.5)
+        optimizer.step()
+
+    # the original
+    models = original_generation_models(orig)
+    opts = _options(text_enc_mod="bigru", lambda_rec_mov=1.0, lambda_rec_mot=1.0, lambda_kld=0.01)
+    trainer = orig.trainers.CompTrainerV6(opts, **models)
+    for name in ("text_enc", "seq_pri", "seq_dec", "seq_post", "att_layer"):
+        setattr(trainer, f"opt_{name}", torch.optim.Adam(models[name].parameters(), lr=2e-4))
+    trainer.opt_mov_dec = torch.optim.Adam(models["mov_dec"].parameters(), lr=2e-5)
+    models["mov_enc"].eval()
+    for module in ("text_enc", "seq_pri", "seq_dec", "seq_post", "att_layer", "mov_dec"):
+        models[module].train()
+    data = (words, pos, None, lengths, motion, torch.full((batch,), FRAMES))
+
+    def original_step(teacher_forcing: bool) -> None:
+        trainer.forward(data, 1.0 if teacher_forcing else 0.0, SNIPPETS)
+        trainer.update()
+
+    def mixed(step: Callable[[bool], None]) -> Callable[[], tuple[float, float]]:
+        def run() -> tuple[float, float]:
+            """The 0.4 / 0.6 mix of the two kinds of step: (wall, CPU) seconds."""
+            forced = _seconds(lambda: step(True))
+            free = _seconds(lambda: step(False))
+            return tuple(0.4 * a + 0.6 * b for a, b in zip(forced, free))  # type: ignore[return-value]
+
+        return run
+
+    return {
+        "original": mixed(original_step),
+        "ours_fp32": mixed(lambda tf: ours_step(tf, False)),
+        "ours_bf16": mixed(lambda tf: ours_step(tf, True)),
+    }
+
+
+def _autocast(bf16: bool) -> contextlib.AbstractContextManager:
+    return torch.autocast("cpu", dtype=torch.bfloat16) if bf16 else contextlib.nullcontext()
+
+
+def _sides(ours: Callable[[bool], None], original: Callable[[], None]) -> dict:
+    """The original, ours in fp32 and ours under bf16 autocast (``--bf16`` in training)."""
+    return {
+        "original": original,
+        "ours_fp32": lambda: ours(False),
+        "ours_bf16": lambda: ours(True),
+    }
+
+
+def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], object]]]:
+    from t2m.config import paper
+    from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
+    from t2m.models.evaluator import Evaluator, contrastive_loss
+    from t2m.models.length import LengthEstimator, length_loss
+
+    config, m = paper(), orig.modules
+    generator = torch.Generator().manual_seed(2)
+    rows: dict[str, dict[str, Callable[[], object]]] = {}
+    torch.manual_seed(0)
+
+    # autoencoder, batch 128 x 24 frames
+    windows = torch.randn(128, 24, FEATURES, generator=generator)
+    ae = MovementAutoencoder(FEATURES, config.autoencoder.model).train()
+    ae_opt = torch.optim.Adam(ae.parameters(), lr=1e-4)
+
+    def ours_ae(bf16: bool) -> None:
+        with _autocast(bf16):
+            reconstruction, codes = ae(windows)
+            loss = autoencoder_loss(reconstruction, windows, codes)["loss"]
+        ae_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        ae_opt.step()
+
+    enc, dec = m.MovementConvEncoder(FEATURES - 4, 512, 512), m.MovementConvDecoder(512, 512, 263)
+    decomp = orig.trainers.DecompTrainerV3(
+        _options(lambda_sparsity=0.001, lambda_smooth=0.001), enc.train(), dec.train()
+    )
+    decomp.opt_movement_enc = torch.optim.Adam(enc.parameters(), lr=1e-4)
+    decomp.opt_movement_dec = torch.optim.Adam(dec.parameters(), lr=1e-4)
+
+    def original_ae() -> None:
+        decomp.forward(windows)
+        decomp.update()
+
+    rows["autoencoder_step"] = _sides(ours_ae, original_ae)
+
+    # length estimator, batch 64
+    text64 = random_text(64, generator)
+    classes = torch.randint(10, 50, (64,), generator=generator)
+    estimator = LengthEstimator(WORD_DIM, config.length.model).train()
+    length_opt = torch.optim.Adam(estimator.parameters(), lr=1e-4)
+
+    def ours_length(bf16: bool) -> None:
+        with _autocast(bf16):
+            loss = length_loss(estimator(*text64), classes)["loss"]
+        length_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(list(estimator.parameters()), config.length.grad_clip)
+        length_opt.step()
+
+    original_estimator = m.MotionLenEstimatorBiGRU(WORD_DIM, 15, 512, 200).train()
+    length_trainer = orig.trainers.LengthEstTrainer(_options(), original_estimator)
+    length_trainer.opt_estimator = torch.optim.Adam(original_estimator.parameters(), lr=1e-4)
+
+    def original_length() -> None:  # the body of LengthEstTrainer.train's loop
+        logits = original_estimator(*text64)
+        length_trainer.zero_grad([length_trainer.opt_estimator])
+        loss = length_trainer.mul_cls_criterion(logits, classes)
+        loss.backward()
+        length_trainer.clip_norm([original_estimator])
+        length_trainer.step([length_trainer.opt_estimator])
+
+    rows["length_step"] = _sides(ours_length, original_length)
+
+    # evaluator, batch 32, 196 frames
+    words, pos, lengths = random_text(32, generator)
+    motion = torch.randn(32, FRAMES, FEATURES, generator=generator)
+    motion_lengths = torch.randint(10, 50, (32,), generator=generator) * 4
+    evaluator = Evaluator(WORD_DIM, FEATURES, config.autoencoder.model, config.evaluator.model)
+    evaluator.train()
+    trainable = [p for p in evaluator.parameters() if p.requires_grad]
+    eval_opt = torch.optim.Adam(trainable, lr=1e-4)
+
+    def ours_evaluator(bf16: bool) -> None:
+        with _autocast(bf16):
+            text, moving = evaluator(words, pos, lengths, motion, motion_lengths)
+            loss = contrastive_loss(text, moving, 1)["loss"]
+        eval_opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(trainable, config.evaluator.grad_clip)
+        eval_opt.step()
+
+    text_encoder = m.TextEncoderBiGRUCo(WORD_DIM, 15, 512, 512, "cpu").train()
+    motion_encoder = m.MotionEncoderBiGRUCo(512, 1024, 512, "cpu").train()
+    movement_encoder = m.MovementConvEncoder(FEATURES - 4, 512, 512).eval()
+    match = orig.trainers.TextMotionMatchTrainer(
+        _options(negative_margin=10.0), text_encoder, motion_encoder, movement_encoder
+    )
+    match.opt_text_encoder = torch.optim.Adam(text_encoder.parameters(), lr=1e-4)
+    match.opt_motion_encoder = torch.optim.Adam(motion_encoder.parameters(), lr=1e-4)
+    data = (words, pos, None, lengths, motion, motion_lengths, None)
+
+    def original_evaluator() -> None:
+        match.forward(data)
+        match.update()
+
+    rows["evaluator_step"] = _sides(ours_evaluator, original_evaluator)
+    return rows
+
+
+# -- peak memory (child processes) ----------------------------------------------------------
+
+
+def memory_child(side: str, original_path: str) -> float:
+    """Build the paper-size generation models, generate one motion; peak RSS in MB."""
+    torch.set_num_threads(1)
+    orig = import_original(Path(original_path))
+    rows = generation_rows_for_memory(orig, side)
+    rows()
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[], object]:
+    """One side's batch-1 generation, built as a user's process would (ours converts in place)."""
+    from t2m.config import paper
+    from t2m.data.normalization import Normalizer
+    from t2m.models.autoencoder import MovementDecoder
+    from t2m.models.temporal_vae import TemporalVAE
+    from t2m.pipeline import TextToMotion
+
+    if side == "original":
+        models = original_generation_models(orig)
+        for module in models.values():
+            module.eval()
+        trainer = orig.trainers.CompTrainerV6(
+            _options(is_train=False), **{k: v for k, v in models.items() if k != "seq_post"}
+        )
+        words, pos, lengths = text_batch(vectorizer_300d(), 1)
+
+        def original() -> object:
+            with torch.no_grad():
+                motions = trainer.generate(
+                    words, pos, lengths, torch.tensor([FRAMES]), SNIPPETS, FEATURES
+                )[0]
+                return orig.motion_process.recover_from_ric(motions, 22)
+
+        return original
+    config = paper()
+    pipe = TextToMotion(
+        TemporalVAE(WORD_DIM, 512, config.generator.model),
+        MovementDecoder(FEATURES, config.autoencoder.model),
+        Normalizer(np.zeros(FEATURES, np.float32), np.ones(FEATURES, np.float32)),
+        vectorizer_300d(),
+        torch.zeros(512),
+        precision=side,
+        copy_models=False,
+    )
+    return lambda: pipe.generate(PROMPT, lengths=FRAMES, seed=0)
+
+
+def peak_memory(original: Path) -> dict[str, float]:
+    results = {}
+    for side in ("original", "fp32", "bf16", "int8"):
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "t2m.benchmarks.versus_original",
+                "--memory-child",
+                side,
+                "--original",
+                str(original),
+            ],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
+        results[side] = float(out.strip().splitlines()[-1])
+    return results
+
+
+# -- the interleaved timing -----------------------------------------------------------------
+
+
+def _seconds(function: Callable[[], object]) -> tuple[float, float]:
+    """(wall, CPU) seconds of one call; a function that times itself returns that pair.
+
+    CPU time is this process's (all its threads): on a machine shared with other jobs it
+    leaves out the time the cores were busy with them, and with one thread it is the most
+    stable measure; with more threads it also counts their waiting.
+    """
+    wall, cpu = time.perf_counter(), time.process_time()
+    result = function()
+    if isinstance(result, tuple) and len(result) == 2 and isinstance(result[0], float):
+        return result
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def interleave(
+    sides: dict[str, Callable[[], object]], rounds: int
+) -> dict[str, list[tuple[float, float]]]:
+    """Every side once per round (order rotated each round), after one warm-up call each."""
+    for function in sides.values():
+        function()
+    names = list(sides)
+    times: dict[str, list[tuple[float, float]]] = {name: [] for name in names}
+    for index in range(rounds):
+        shift = index % len(names)
+        for name in names[shift:] + names[:shift]:
+            random.seed(index)  # the original's trainers draw teacher forcing from it
+            times[name].append(_seconds(sides[name]))
+    return times
+
+
+def summarise(name: str, times: dict[str, list[tuple[float, float]]]) -> list[dict]:
+    """Per side: medians of wall and CPU seconds, and the median (min, max) of the per-round
+    ratios ours / original, of wall and of CPU time."""
+    base = times["original"]
+    rows = []
+    for side, values in times.items():
+        if side == "original":
+            continue
+        ratios = [ours[0] / theirs[0] for ours, theirs in zip(values, base)]
+        cpu_ratios = [ours[1] / theirs[1] for ours, theirs in zip(values, base)]
+        rows.append(
+            {
+                "measure": name if side == "ours" else f"{name} {side.removeprefix('ours_')}",
+                "original_s": round(statistics.median(v[0] for v in base), 4),
+                "ours_s": round(statistics.median(v[0] for v in values), 4),
+                "ratio": round(statistics.median(ratios), 3),
+                "ratio_min": round(min(ratios), 3),
+                "ratio_max": round(max(ratios), 3),
+                "original_cpu_s": round(statistics.median(v[1] for v in base), 4),
+                "ours_cpu_s": round(statistics.median(v[1] for v in values), 4),
+                "cpu_ratio": round(statistics.median(cpu_ratios), 3),
+                "rounds": len(ratios),
+            }
+        )
+    return rows
+
+
+def measure(original: Path, rounds: int, threads: int, only: set[str] | None) -> dict:
+    orig = import_original(original)
+    results: list[dict] = []
+
+    def wanted(name: str) -> bool:
+        return only is None or name in only
+
+    def add(name: str, sides: dict[str, Callable[[], object]], count: int) -> None:
+        rows = summarise(name, interleave(sides, count))
+        for row in rows:  # as it comes: a long run shows its progress
+            print(json.dumps(row), file=sys.stderr, flush=True)
+        results.extend(rows)
+
+    if wanted("features"):
+        torch.set_num_threads(1)
+        add("features (1 thread)", features_row(orig), rounds * 3)
+    torch.set_num_threads(threads)
+    if wanted("generation"):
+        add("generation_b1", generation_rows(orig, 1), rounds)
+        add("generation_b32", generation_rows(orig, 32), rounds)
+    if wanted("training"):
+        for name, sides in small_step_rows(orig).items():
+            add(name, sides, rounds)
+        add("vae_step", vae_step_rows(orig), max(2, rounds // 2))
+    memory = peak_memory(original) if wanted("memory") else {}
+    for side in ("fp32", "bf16", "int8"):
+        if memory:
+            results.append(
+                {
+                    "measure": f"peak_memory_mb {side}",
+                    "original_s": memory["original"],
+                    "ours_s": memory[side],
+                    "ratio": round(memory[side] / memory["original"], 3),
+                    "rounds": 1,
+                }
+            )
+    return {
+        "environment": {
+            "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+            "cpu": _cpu(),
+            "cores": os.cpu_count(),
+            "threads": threads,
+            "load_average_at_end": os.getloadavg(),
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "numpy": np.__version__,
+            "original": str(original),
+            "rounds": rounds,
+        },
+        "rows": results,
+    }
+
+
+def _cpu() -> str:
+    from t2m.bench import _cpu_name
+
+    return _cpu_name()
+
+
+def to_markdown(results: dict) -> str:
+    env = results["environment"]
+    lines = [
+        f"Measured {env['date']} on {env['cpu']} ({env['cores']} cores, {env['threads']} torch "
+        f"threads, load average at the end {', '.join(f'{x:.1f}' for x in env['load_average_at_end'])}"
+        f"); torch {env['torch']}, Python {env['python']}; {env['rounds']} interleaved rounds.",
+        "",
+        "| measure | original | ours | ratio ours / original (min-max) | CPU-time ratio |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for row in results["rows"]:
+        unit = "MB" if row["measure"].startswith("peak_memory") else "s"
+        spread = f" ({row['ratio_min']}-{row['ratio_max']})" if "ratio_min" in row else ""
+        lines.append(
+            f"| {row['measure']} | {row['original_s']} {unit} | {row['ours_s']} {unit} | "
+            f"{row['ratio']}{spread} | {row.get('cpu_ratio', '-')} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m t2m.benchmarks.versus_original", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--original", type=Path, required=True, help="the original's checkout")
+    parser.add_argument("--rounds", type=int, default=5, help="interleaved rounds per row")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads (both sides)")
+    parser.add_argument(
+        "--only", nargs="*", choices=("features", "generation", "training", "memory")
+    )
+    parser.add_argument("--out", type=Path, help="write the results as JSON here")
+    parser.add_argument("--memory-child", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.memory_child:
+        print(memory_child(args.memory_child, str(args.original)))
+        return 0
+    results = measure(args.original, args.rounds, args.threads, set(args.only or []) or None)
+    if args.out:
+        from dataset_tools.io import write_json_atomic
+
+        write_json_atomic(args.out, results)
+    print(to_markdown(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
