@@ -201,13 +201,14 @@ def test_command_writes_what_sample_writes(tiny_run, tmp_path, walk):
         return ["--source", str(tmp_path / "walk.npy"), "--text", "a person walks forward",
                 "--mode", "continue", "--keep-seconds", "1", "--checkpoints", str(tiny_run),
                 "--out", str(out), "--num-samples", "2", "--render", "none", "--bvh",
-                "--candidates", "2", "--steps", "2"]  # fmt: skip
+                "--glb", "--candidates", "2", "--steps", "2"]  # fmt: skip
 
     out = tmp_path / "out"
     assert main(argv(out)) == 0
     names = sorted(p.name for p in out.iterdir())
     for stem in ("sample00_rep00", "sample00_rep01"):
         assert {f"{stem}.npy", f"{stem}_feats.npy", f"{stem}_kept.npy", f"{stem}.bvh"} <= set(names)
+        assert (out / f"{stem}.glb").read_bytes()[:4] == b"glTF"
         kept = np.load(out / f"{stem}_kept.npy")
         assert kept.shape == (100, 22) and kept[:20].all() and not kept[20:].any()
     summary = json.loads((out / "results.json").read_text())

@@ -11,7 +11,7 @@ Examples::
     python -m t2m.edit --batch edits.json --num-samples 3
 
 Writes what ``python -m t2m.sample`` writes (``sampleNN_repRR.npy``, ``_feats.npy``, mp4/gif
-with the kept joints in green, BVH with ``--bvh``, ``results.npy``, ``results.json``), all or
+with the kept joints in green, BVH with ``--bvh``, glTF binary with ``--glb``, ``results.npy``, ``results.json``), all or
 nothing. Exit status 2 with a one-line message on bad input.
 """
 
@@ -92,6 +92,8 @@ class EditConfig:
     """stick-figure animation format (kept joints in green), or none"""
     bvh: bool = False
     """also write a BVH file per motion"""
+    glb: bool = False
+    """also write an animated glTF binary (.glb) per motion"""
     device: str = "auto"
     """auto, cpu, cuda or cuda:N"""
     threads: int = field(default=0, metadata=option(metavar="N"))
@@ -224,6 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         seed=config.seed,
         render=config.render,
         bvh=config.bvh,
+        glb=config.glb,
         overwrite=config.overwrite,
         extra_info={
             "modes": [r.mode for r in requests],
