@@ -406,7 +406,8 @@ class TemporalVAE(nn.Module):
             if initial_code is None:
                 raise ValueError("generate needs an initial_code or a state to start from")
             state = self.initial_state(sentence, initial_code)
-        rollout = generation_plan(self) if fast else self._prior_rollout
+        plan = generation_plan(self) if fast else None
+        rollout = self._prior_rollout if plan is None else plan
         final, codes = rollout(
             state,
             self.word_context(word_features, word_mask),
