@@ -335,10 +335,19 @@ class GenerationPlan(nn.Module):
         h_prior, h_gen, previous, _ = state
         prior_hidden = self.prior_state(h_prior)[:, : 3 * h]
         gen_hidden = self.generator_state(h_gen)[:, : 3 * h]
+        if h_gen.shape[0] == 1:  # one batched product is fastest for one sequence ...
+
+            def score(hidden: torch.Tensor) -> torch.Tensor:
+                return torch.baddbmm(score_bias, score_table, hidden[..., None])[..., 0]
+
+        else:  # ... and 6x slower than a vector dot product for 32 (1 thread, paper size)
+
+            def score(hidden: torch.Tensor) -> torch.Tensor:
+                return torch.linalg.vecdot(score_table, hidden[:, None]) + score_bias[..., 0]
+
         codes = []
         for i in range(time_codes.shape[1]):
-            scores = torch.baddbmm(score_bias, score_table, h_gen[..., None])  # (B, L, 1)
-            weights = torch.softmax(scores[..., 0], dim=-1)
+            weights = torch.softmax(score(h_gen), dim=-1)  # (B, L)
             attention = torch.bmm(weights[:, None], value_table)[:, 0]  # (B, 2H)
             pre_prior, pre_gen = (self.previous(previous) + attention).split(h, dim=-1)
             time_code = time_codes[:, i]
