@@ -71,7 +71,7 @@ def quantize_int8(module: nn.Module, inplace: bool = False) -> nn.Module:
         warnings.simplefilter("ignore", UserWarning)
 
         def int8_linear(weight: torch.Tensor, bias: torch.Tensor | None) -> nn.Module:
-            holder = nn.Sequential(float_linear(weight, bias))
+            holder = nn.Sequential(float_linear(weight, bias, copy=False))  # quantising copies
             return quantize_dynamic(holder, {nn.Linear}, dtype=torch.qint8, inplace=True)[0]
 
         for vae in module.modules():

@@ -237,13 +237,16 @@ class PackedLinear(nn.Module):
         return torch.ops.mkldnn._linear_pointwise(inputs, self.packed, self.bias, "none", [], "")
 
 
-def float_linear(weight: torch.Tensor, bias: torch.Tensor | None) -> nn.Module:
-    """A Linear holding copies of ``weight`` (O, I) and ``bias`` (O,), no gradients."""
-    linear = nn.Linear(weight.shape[1], weight.shape[0], bias=bias is not None)
-    linear.to(device=weight.device, dtype=weight.dtype)
-    linear.weight = nn.Parameter(weight.detach().clone(), requires_grad=False)
+def float_linear(weight: torch.Tensor, bias: torch.Tensor | None, copy: bool = True) -> nn.Linear:
+    """A Linear holding ``weight`` (O, I) and ``bias`` (O,), no gradients: copies of them, or
+    (``copy=False``) the tensors themselves, for a caller about to convert it."""
+    linear = nn.Linear(weight.shape[1], weight.shape[0], bias=bias is not None, device="meta")
+    weight, bias = weight.detach(), None if bias is None else bias.detach()
+    if copy:
+        weight, bias = weight.clone(), None if bias is None else bias.clone()
+    linear.weight = nn.Parameter(weight, requires_grad=False)
     if bias is not None:
-        linear.bias = nn.Parameter(bias.detach().clone(), requires_grad=False)
+        linear.bias = nn.Parameter(bias, requires_grad=False)
     return linear
 
 
