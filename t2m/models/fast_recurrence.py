@@ -292,10 +292,10 @@ class GenerationPlan(nn.Module):
             torch.cat([prior.input.bias, gen.input.bias]),
         )  # (2H, C)
         self.latent = _linear(gen_in[:, c + a :], None)  # (H, Z)
-        self.register_buffer("query_weight", vae.query.weight.detach().clone())  # (A, H)
+        # per-sequence tables: keys -> keys W_q (A -> H), values -> values W_att^T (A -> 2H)
+        self.score_table = _linear(vae.query.weight.t().contiguous(), None)
         self.register_buffer("query_bias", vae.query.bias.detach().clone())  # (A,)
-        attention = torch.cat([prior_in[:, c : c + a], gen_in[:, c : c + a]])  # (2H, A)
-        self.register_buffer("attention_weight", attention.detach().clone())
+        self.value_table = _linear(torch.cat([prior_in[:, c : c + a], gen_in[:, c : c + a]]), None)
         self.prior_norm = copy.deepcopy(prior.norm).requires_grad_(False)
         self.generator_norm = copy.deepcopy(gen.norm).requires_grad_(False)
         self.prior_gates = _linear(prior.cell.weight_ih, prior.cell.bias_ih)  # (3H, H)
@@ -317,11 +317,10 @@ class GenerationPlan(nn.Module):
         """Per sequence: score table (B, L, H), score bias (B, L, 1) (mask included) and value
         table (B, L, 2H), from :meth:`TemporalVAE.word_context`."""
         keys = context.keys
-        scale = self.query_weight.shape[0] ** -0.5
-        dtype = keys.dtype
-        score_table = (keys @ self.query_weight.to(dtype)) * scale
-        score_bias = (keys @ self.query_bias.to(dtype)) * scale + context.mask_bias
-        value_table = context.values @ self.attention_weight.to(dtype).t()
+        scale = self.query_bias.shape[0] ** -0.5
+        score_table = self.score_table(keys) * scale
+        score_bias = (keys @ self.query_bias.to(keys.dtype)) * scale + context.mask_bias
+        value_table = self.value_table(context.values)
         return score_table, score_bias[..., None], value_table
 
     def forward(
