@@ -11,6 +11,10 @@ its precision (25% more output error at paper size). So z gets a Linear of its o
 (:class:`PartwiseLinear`, W [x_1, x_2] + b = W_1 x_1 + W_2 x_2 + b) before quantising; giving
 every part its own gained 2% more and cost two more products per step.
 
+A :class:`TemporalVAE` also gets its :class:`~t2m.models.fast_recurrence.GenerationPlan` (what
+``generate`` runs), built from the float weights and quantised Linear by Linear before the model
+itself is; the model's own quantised layers serve ``rollout`` and ``prefix_state``.
+
 The error against float32 is tested in ``tests/test_temporal_vae.py`` and measured in
 ``t2m.benchmarks.sample``.
 """

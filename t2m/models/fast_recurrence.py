@@ -1,7 +1,8 @@
 """The temporal VAE's training pass, rearranged for speed: the arithmetic of
 :meth:`t2m.models.temporal_vae.TemporalVAE.rollout` over :meth:`~TemporalVAE.step`, tested equal
 to it (``tests/test_temporal_vae.py``). :meth:`TemporalVAE.forward` runs :func:`fast_forward`
-unless called with ``fast=False``; generation runs the plain step (measured as fast).
+unless called with ``fast=False``; :meth:`TemporalVAE.generate` runs a :class:`GenerationPlan`
+(the prior / generator step with stacked and folded weights, at the end of this file).
 
 Three rearrangements, each the same sum in another order:
 

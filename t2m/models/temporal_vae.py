@@ -20,7 +20,9 @@ runs it over a sequence: the training pass (teacher-forced or free-running, :met
 generation (:meth:`generate`) and reading a known prefix (:meth:`prefix_state`). :meth:`forward`
 runs :func:`t2m.models.fast_recurrence.fast_forward` unless ``fast=False``: the same arithmetic
 rearranged (10-20% faster per training step at paper size on a CPU thread, even at demo size),
-tested equal to this file.
+tested equal to this file; :meth:`generate` runs its
+:class:`~t2m.models.fast_recurrence.GenerationPlan` unless ``fast=False``, the step's sums
+stacked and folded for sampling, also tested equal to :meth:`rollout`.
 """
 
 from __future__ import annotations
