@@ -4,17 +4,22 @@ rollout, resuming from a state, and bf16 / int8 against float32.
 Tolerances (float32, tiny model): the fast pass sums the same products in another order, so its
 outputs agree to 1e-5 relative + 1e-6 absolute (observed 3e-7 absolute) and each parameter's
 gradient to 1e-5 of its largest entry (observed 7e-7). Generation, splitting and resuming run
-the same operations on the same shapes and are compared exactly. Against float32, the largest
-error relative to the largest value: bf16 autocast 3% (observed 0.8%), int8 5% (observed 2.3%).
+the same operations on the same shapes and are compared exactly; generation's plan (stacked and
+folded products) against the step by step rollout to 1e-5 of the largest value. Against float32,
+the largest error relative to the largest value: bf16 autocast 3% (observed 0.8%), int8 5%
+(observed 2.3%); a bfloat16 model's plan against its own rollout 3%.
 """
 
 from __future__ import annotations
+
+import copy
 
 import pytest
 import torch
 import torch.nn.functional as F
 
 from t2m.config import TemporalVAEConfig, TextEncoderConfig
+from t2m.models.fast_recurrence import PackedLinear, generation_plan
 from t2m.models.temporal_vae import TemporalVAE, gaussian_kl, temporal_vae_loss
 from t2m.quantize import PartwiseLinear, quantize_int8
 
@@ -119,7 +124,10 @@ def test_generate_is_the_step_by_step_rollout_with_explicit_or_drawn_noise():
     with torch.no_grad():
         manual = manual_rollout(vae, features, sentence, mask, num_snippets, initial, noise)
     valid = torch.arange(10)[None, :, None] < num_snippets[:, None, None]
-    assert torch.equal(codes, manual * valid)
+    plain = vae.generate(features, sentence, mask, num_snippets, initial, noise=noise, fast=False)
+    assert torch.equal(plain, manual * valid)
+    # the generation plan: the same sums in another order
+    torch.testing.assert_close(codes, plain, rtol=0, atol=1e-5 * plain.abs().max().item())
     assert codes[1, :4].abs().sum() > 0 and not codes[1, 4:].any() and not codes[2, 7:].any()
     other = vae.generate(
         features, sentence, mask, num_snippets, initial, torch.Generator().manual_seed(6)
@@ -162,9 +170,10 @@ def test_generation_split_in_two_continues_exactly():
 
     # The state after known codes: fed the model's own codes with the same noise through the
     # prior, it is the state generation reached; through the posterior, a state to continue.
+    # (generation runs the plan: equal up to the order of the sums)
     prefix = vae.prefix_state(*args, first, initial, total, posterior=False, noise=noise[:, :4])
     for a, b in zip(prefix, middle, strict=True):
-        assert (a is None and b is None) or torch.equal(a, b)
+        assert (a is None and b is None) or torch.allclose(a, b, rtol=0, atol=1e-5)
     read = vae.prefix_state(*args, first, initial, total)
     assert read.posterior is not None and torch.equal(read.previous_code, first[:, -1])
     continued = vae.generate(*args, total - 4, state=read, noise=noise[:, 4:])
@@ -224,6 +233,49 @@ def test_int8_copy_is_close_to_float32():
     quantized = int8.generate(features, sentence, mask, num_snippets, initial, noise=noise)
     assert 0 < (quantized - expected).abs().max() < 0.05 * expected.abs().max()
     assert not quantized[1, 6:].any()  # past its length
+    # its plan was quantised with it; a copy of the quantised model, planless, runs the rollout
+    assert generation_plan(int8) is not None
+    assert "quantized" in type(generation_plan(int8).prior_gates).__module__
+    plain = int8.generate(features, sentence, mask, num_snippets, initial, noise=noise, fast=False)
+    assert (quantized - plain).abs().max() < 0.05 * expected.abs().max()
+    copied = copy.deepcopy(int8)
+    assert generation_plan(copied) is None
+    assert torch.equal(
+        copied.generate(features, sentence, mask, num_snippets, initial, noise=noise), plain
+    )
+
+
+def test_generation_plan_follows_the_weights_and_bfloat16():
+    vae = make_vae().eval()
+    features, sentence, mask = text(vae)
+    args = (features, sentence, mask, torch.tensor([6, 3, 5]), randn(CODE, seed=2))
+    noise = randn(3, 6, LATENT, seed=3)
+    before = vae.generate(*args, noise=noise)
+    with torch.no_grad():
+        vae.output[-1].bias.add_(1.0)  # an in-place update (an optimiser step) rebuilds the plan
+    after = vae.generate(*args, noise=noise)
+    torch.testing.assert_close(
+        after, vae.generate(*args, noise=noise, fast=False), rtol=0, atol=1e-5
+    )
+    assert (after - before)[:, :3].abs().min() > 0.5
+    copied = copy.deepcopy(vae)  # the plan is not part of the model
+    assert torch.equal(copied.generate(*args, noise=noise), after)
+    low = copy.deepcopy(vae).to(torch.bfloat16)
+    low_args = (features.bfloat16(), sentence.bfloat16(), *args[2:4], args[4].bfloat16())
+    planned = low.generate(*low_args, noise=noise.bfloat16()).float()
+    plain = low.generate(*low_args, noise=noise.bfloat16(), fast=False).float()
+    assert (planned - plain).abs().max() < 0.03 * plain.abs().max()
+
+
+def test_packed_linear_is_the_linear():
+    weight, bias, inputs = randn(24, 16, seed=0), randn(24, seed=1), randn(3, 5, 16, seed=2)
+    weight, bias, inputs = weight.bfloat16(), bias.bfloat16(), inputs.bfloat16()
+    if not PackedLinear.supports(weight):
+        pytest.skip("no oneDNN bfloat16 on this CPU")
+    expected = F.linear(inputs.float(), weight.float(), bias.float())
+    packed = PackedLinear(weight, bias)(inputs)
+    assert packed.dtype == torch.bfloat16 and packed.shape == (3, 5, 24)
+    assert (packed.float() - expected).abs().max() < 0.02 * expected.abs().max()
 
 
 def test_partwise_linear_is_the_linear():
