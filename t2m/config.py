@@ -188,6 +188,9 @@ class GeneratorStageConfig(StageConfig):
     """... or after this many epochs in the stage."""
     final_epochs: int = 0
     """Extra epochs at ``end_snippets`` beyond the stage limit (0: stop when the last stage ends)."""
+    whole_clips: bool = False
+    """At each curriculum length, train the clips shorter than it whole (batched by length)
+    instead of leaving them out; the original (false) trains crops of the length only."""
     checkpoint_every: int = 200
     log_every: int = 20
 

@@ -114,6 +114,10 @@ class EvalConfig:
     evaluator always runs in float32"""
     quick: bool = False
     """development run: few replications on a subset, marked as such in every output"""
+    clean: bool = False
+    """pass generated motions through the foot-contact clean-up (t2m.cleanup, as t2m.sample
+    does by default) before they are embedded and scored; the standard protocol judges the raw
+    model output"""
 
     def __post_init__(self) -> None:
         at_least = {
@@ -168,6 +172,7 @@ def deviations(config: EvalConfig, num_items: int) -> list[str]:
         "pool_size",
         "mm_pairs",
         "precision",
+        "clean",
     ):
         value, standard = getattr(config, key), getattr(STANDARD, key)
         if value != standard:
@@ -354,6 +359,27 @@ def _multimodality(
     )
 
 
+class CleanedBackend:
+    """A :class:`Backend` whose generated motions (raw features) go through the foot-contact
+    clean-up (:func:`t2m.cleanup.clean_features`)."""
+
+    def __init__(self, backend: Backend):
+        self.backend = backend
+
+    def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
+        return self.backend.embed_texts(captions)
+
+    def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
+        return self.backend.embed_motions(motions)
+
+    def generate(
+        self, captions: Sequence[Caption], lengths: np.ndarray | None, seed: int
+    ) -> list[np.ndarray]:
+        from t2m.cleanup import clean_features
+
+        return [clean_features(f) for f in self.backend.generate(captions, lengths, seed)]
+
+
 def check_memory(num_items: int, config: EvalConfig, spec: DatasetSpec) -> None:
     """Refuse, before the first replication, settings whose generations cannot fit in memory:
     a generated row (``num_items`` motions) and the MultiModality generations
@@ -400,6 +426,8 @@ def run_protocol(
             f"one pool of {config.pool_size} (lower --pool-size or evaluate a larger split)"
         )
     check_memory(num_items, config, spec)
+    if config.clean:
+        backend = CleanedBackend(backend)
     values = {
         row: {
             name: [] for name in METRICS + EXTRA_METRICS if row != REAL or name != "multimodality"
