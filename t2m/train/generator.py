@@ -229,7 +229,7 @@ def train_generator(job: StageJob) -> Path:
         snippets = curriculum.snippets
         frames = snippets * unit
         if section.whole_clips:  # every clip; the shorter ones whole
-            items = data.train.indices_at_least(section.start_snippets * unit)
+            items = data.train.indices_at_least(data.spec.min_frames)
         else:
             items = data.train.indices_at_least(frames)
         batches = [items[b] for b in run.epoch_batches(len(items))]
@@ -257,7 +257,7 @@ def train_generator(job: StageJob) -> Path:
         # 4. end of epoch: validate on the clips long enough, then move along the curriculum;
         # best.pt = the best model at the longest length reached so far
         if section.whole_clips:  # every clip, in chunks of similar length
-            val_items = data.val.indices_at_least(section.start_snippets * unit)
+            val_items = data.val.indices_at_least(data.spec.min_frames)
             val_items = val_items[np.argsort(data.val.lengths[val_items], kind="stable")]
         else:
             val_items = data.val.indices_at_least(frames)
