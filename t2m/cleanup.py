@@ -25,6 +25,7 @@ floor at y = 0, SMPL (22) or KIT (21) joints.
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from dataset_tools.representation import (
     FeatureLayout,
@@ -43,6 +44,12 @@ BLEND_FRAMES = 3
 """Frames over which a lock fades in before a run and out after it."""
 PLANT_HEIGHT_M = 0.02
 """A planted foot's lowest joint is brought into [0, this]."""
+SMOOTH_FRAMES = 1.0
+"""Standard deviation (frames) of the Gaussian that smooths each foot's correction."""
+SOFT_REACH = 0.97
+"""Hip-to-ankle distances beyond this share of the leg's length are approached softly."""
+MAX_PLANT_HEIGHT_M = 0.10
+"""A contact run whose foot stays higher than this (median of its lowest joint) is not planted."""
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -68,37 +75,68 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 
 def foot_offsets(
-    ankle: np.ndarray, toe: np.ndarray, contact: np.ndarray, blend: int = BLEND_FRAMES
+    ankle: np.ndarray, toe: np.ndarray, contact: np.ndarray, blend: int | None = None
 ) -> np.ndarray:
     """(T, 3) translation of one foot (ankle and toe together) that plants it during contact.
+
+    In each contact run the toe is held at its mean horizontal position and the foot's lowest
+    joint brought into [0, :data:`PLANT_HEIGHT_M`]; runs whose foot stays higher than
+    :data:`MAX_PLANT_HEIGHT_M` (a contact predicted in the air) are left alone. Between two runs
+    the correction moves smoothly (smoothstep) from the first run's last value to the second's
+    first; before the first run and after the last it fades in and out over ``blend`` frames
+    (default :data:`BLEND_FRAMES`). Finally no foot joint stays below the floor.
 
     Args:
         ankle, toe: (T, 3) positions.
         contact: (T,) bool, the foot predicted on the floor.
-        blend: frames of fade-in before and fade-out after each run.
+        blend: frames of fade-in before the first run and fade-out after the last.
     """
+    blend = BLEND_FRAMES if blend is None else blend
     num_frames = len(toe)
-    offsets = np.zeros((num_frames, 3))
-    weights = np.zeros(num_frames)
     frames = np.arange(num_frames)
     lowest = np.minimum(ankle[:, 1], toe[:, 1])
-    for start, end in contact_runs(contact):
+    offsets = np.zeros((num_frames, 3))
+    runs = [
+        (start, end)
+        for start, end in contact_runs(contact)
+        if np.median(lowest[start:end]) <= MAX_PLANT_HEIGHT_M
+    ]
+    for start, end in runs:
         run = slice(start, end)
-        correction = np.zeros((end - start, 3))
-        correction[:, [0, 2]] = toe[run][:, [0, 2]].mean(axis=0) - toe[run][:, [0, 2]]
-        correction[:, 1] = np.clip(lowest[run], 0.0, PLANT_HEIGHT_M) - lowest[run]
-        # Weight 1 in the run, fading to 0 over `blend` frames on each side; outside the run
-        # the correction of its nearest frame applies.
-        distance = np.maximum(start - frames, frames - (end - 1)).clip(min=0)
-        weight = 1.0 - _smoothstep(distance / (blend + 1))
-        index = np.clip(frames, start, end - 1) - start
-        take = weight > weights
-        offsets[take] = weight[take, None] * correction[index[take]]
-        weights[take] = weight[take]
+        offsets[run, 0] = toe[run, 0].mean() - toe[run, 0]
+        offsets[run, 2] = toe[run, 2].mean() - toe[run, 2]
+        offsets[run, 1] = np.clip(lowest[run], 0.0, PLANT_HEIGHT_M) - lowest[run]
+    for (_, end), (start, _) in zip(runs[:-1], runs[1:]):  # gaps: from one run to the next
+        weight = _smoothstep((frames[end:start] - (end - 1)) / (start - end + 1))[:, None]
+        offsets[end:start] = (1 - weight) * offsets[end - 1] + weight * offsets[start]
+    if runs:
+        first, last = runs[0][0], runs[-1][1] - 1
+        before = frames[max(0, first - blend) : first]
+        offsets[before] = (1 - _smoothstep((first - before) / (blend + 1)))[:, None] * offsets[
+            first
+        ]
+        after = frames[last + 1 : last + 1 + blend]
+        offsets[after] = (1 - _smoothstep((after - last) / (blend + 1)))[:, None] * offsets[last]
+    if SMOOTH_FRAMES > 0:  # round the corners where a planted foot starts and stops
+        offsets = gaussian_filter1d(offsets, SMOOTH_FRAMES, axis=0, mode="nearest")
     # Nothing of the foot below the floor, in contact or not.
-    below = np.minimum(lowest + offsets[:, 1], 0.0)
-    offsets[:, 1] -= below
+    offsets[:, 1] -= np.minimum(lowest + offsets[:, 1], 0.0)
     return offsets
+
+
+def _soft_reach(target: np.ndarray, current: np.ndarray, full: np.ndarray) -> np.ndarray:
+    """Hip-to-ankle distances (T,) to use for ``target`` distances, given the ``current`` ones and
+    the ``full`` leg lengths: unchanged up to ``max(current, SOFT_REACH * full)``; beyond it the
+    excess approaches the full length exponentially (continuous slope), never reaching it.
+
+    Near full extension the knee moves by sqrt(2 L dD) for a reach change dD: a hard limit
+    there makes the knee jump from frame to frame.
+    """
+    base = np.maximum(current, SOFT_REACH * full)
+    room = np.maximum(full - base, 0.0)
+    excess = np.maximum(target - base, 0.0)
+    soft = base + room * (1.0 - np.exp(-excess / np.maximum(room, 1e-12)))
+    return np.where(target > base, soft, target)
 
 
 def two_bone_knee(
@@ -107,15 +145,17 @@ def two_bone_knee(
     """Knee and reachable ankle positions (T, 3) for an ankle ``target`` (T, 3), hip fixed.
 
     Thigh |knee - hip| and shin |ankle - knee| keep their per-frame lengths; the knee bends in the
-    plane of hip, target and the given knee (towards it). A target out of reach is moved along
-    the hip-target line to the nearest reachable distance.
+    plane of hip, target and the given knee (towards it). A target farther from the hip than the
+    given ankle and near the leg's full length is brought closer along the hip-target line
+    (:func:`_soft_reach`), so a leg never snaps straight.
     """
     thigh = np.linalg.norm(knee - hip, axis=-1)
     shin = np.linalg.norm(ankle - knee, axis=-1)
     reach = target - hip
     distance = np.linalg.norm(reach, axis=-1)
     along = reach / np.maximum(distance, 1e-9)[:, None]
-    distance = np.clip(distance, np.abs(thigh - shin) + 1e-6, thigh + shin - 1e-6)
+    distance = _soft_reach(distance, np.linalg.norm(ankle - hip, axis=-1), thigh + shin)
+    distance = np.maximum(distance, np.abs(thigh - shin) + 1e-6)
     new_ankle = hip + along * distance[:, None]
     # Knee: `a` along the hip-ankle line, `r` off it, towards the generated knee.
     a = (thigh**2 - shin**2 + distance**2) / (2.0 * distance)
@@ -207,8 +247,10 @@ def clean_features(features: np.ndarray) -> np.ndarray:
 __all__ = [
     "BLEND_FRAMES",
     "CONTACT_THRESHOLD",
+    "MAX_PLANT_HEIGHT_M",
     "MIN_CONTACT_FRAMES",
     "PLANT_HEIGHT_M",
+    "SOFT_REACH",
     "clean_features",
     "clean_joints",
     "contact_runs",

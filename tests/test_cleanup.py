@@ -60,16 +60,19 @@ def bent_pose() -> np.ndarray:
     return pose
 
 
-def test_a_swaying_body_keeps_its_planted_toes_exactly_still():
+def test_a_swaying_body_keeps_its_planted_toes_still(monkeypatch):
     joints = np.repeat(bent_pose()[None], 40, axis=0)
     joints[..., 0] += 0.04 * np.sin(np.linspace(0, 4 * np.pi, 40))[:, None]  # sways 4 cm
     np.testing.assert_allclose(lengths(joints)[:, :2], [[0.40, 0.42]] * 40)
+    still = np.repeat(joints[:, [10, 11]].mean(axis=0)[None], 40, axis=0)
     cleaned = cleanup.clean_joints(joints, np.ones((40, 4)))
-    for toe in (10, 11):
-        still = joints[:, toe].mean(axis=0)
-        np.testing.assert_allclose(cleaned[:, toe], np.repeat(still[None], 40, 0), atol=1e-9)
+    # The smoothed correction (a Gaussian of 1 frame) leaves a few millimetres of the sway.
+    assert np.abs(cleaned[:, [10, 11]] - still).max() < 0.005
     np.testing.assert_allclose(lengths(cleaned), lengths(joints), atol=1e-9)
     assert physical.skating_ratio(cleaned, 20.0) == 0.0
+    monkeypatch.setattr(cleanup, "SMOOTH_FRAMES", 0.0)  # unsmoothed: exactly still
+    cleaned = cleanup.clean_joints(joints, np.ones((40, 4)))
+    np.testing.assert_allclose(cleaned[:, [10, 11]], still, atol=1e-9)
 
 
 def test_no_contact_and_no_penetration_changes_nothing():
