@@ -9,17 +9,24 @@ first. :func:`clean_joints` fixes it with three small steps, per foot:
    than :data:`MIN_CONTACT_FRAMES` are ignored and gaps of one frame closed.
 2. **Lock.** During a run the toe's horizontal position is held at its mean over the run, and
    the foot is lowered or raised so that its lowest joint sits between the floor and
-   :data:`PLANT_HEIGHT_M`; the correction (a translation of ankle and toe together, so the foot
-   keeps its length) fades in and out over :data:`BLEND_FRAMES` frames around the run
-   (smoothstep). Outside contact a foot joint below the floor is lifted to it.
+   :data:`PLANT_HEIGHT_M` (a run whose foot stays above :data:`MAX_PLANT_HEIGHT_M` is a contact
+   predicted in the air and left alone). The correction is a translation of ankle and toe
+   together (the foot keeps its length); between two runs it moves smoothly from one run's
+   value to the next, it fades in and out over :data:`BLEND_FRAMES` frames before the first
+   run and after the last, and a Gaussian of :data:`SMOOTH_FRAMES` rounds its corners. A foot
+   joint below the floor is lifted to it, in contact or not.
 3. **Leg IK.** Hip fixed, the knee is re-placed by two-bone inverse kinematics in the plane of the
    hip, the new ankle and the generated knee, so thigh and shin keep their per-frame lengths;
-   an ankle out of reach is pulled back along the hip-ankle line (the lock is then partial).
+   an ankle pushed towards the leg's full length is held back softly (:data:`SOFT_REACH`), so
+   the knee never snaps straight (the lock is then partial).
 
 Everything else (root, spine, arms) is untouched. :func:`clean_features` does the same on raw
-features and re-extracts them from the cleaned joints (with the model's contact channels kept),
-so features and joints stay consistent. Input and output joints (T, J, 3) are metres, y-up, the
-floor at y = 0, SMPL (22) or KIT (21) joints.
+features and writes the cleaned joints back into them (the root and the model's contact
+channels kept), so features and joints stay consistent. Input and output joints (T, J, 3) are
+metres, y-up, the floor at y = 0, SMPL (22) or KIT (21) joints.
+
+Measured on the demo model (README, *Evaluation*): foot skating, penetration and floating go
+down, jerk up by a few percent, semantic accuracy unchanged within its interval.
 """
 
 from __future__ import annotations
