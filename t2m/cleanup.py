@@ -34,13 +34,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from dataset_tools.kinematics import inverse_kinematics
 from dataset_tools.representation import (
+    FACING_SMOOTH_SIGMA,
     FeatureLayout,
-    extract_features,
     recover_from_ric,
     recover_root,
 )
-from dataset_tools.rotations import qrot
+from dataset_tools.rotations import qrot, quat_to_6d
 from dataset_tools.skeleton import SkeletonSpec, skeleton_for
 
 CONTACT_THRESHOLD = 0.5
@@ -247,7 +248,8 @@ def clean_features(features: np.ndarray) -> np.ndarray:
     out = features.astype(np.float64).copy()
     out[:, layout.ric] = ric[:, 1:].reshape(num_frames, -1)
     out[:, layout.local_velocity] = velocity.reshape(num_frames, -1)
-    out[:, layout.rot6d] = extract_features(extended, skeleton)[:, layout.rot6d]
+    local = inverse_kinematics(extended, skeleton, smooth_sigma=FACING_SMOOTH_SIGMA, compat=True)
+    out[:, layout.rot6d] = quat_to_6d(local[:-1, 1:]).reshape(num_frames, -1)
     return out.astype(np.float32)
 
 
