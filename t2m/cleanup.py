@@ -56,7 +56,7 @@ SMOOTH_FRAMES = 1.0
 """Standard deviation (frames) of the Gaussian that smooths each foot's correction."""
 SOFT_REACH = 0.97
 """Hip-to-ankle distances beyond this share of the leg's length are approached softly."""
-MAX_PLANT_HEIGHT_M = 0.10
+MAX_PLANT_HEIGHT_M = 0.05
 """A contact run whose foot stays higher than this (median of its lowest joint) is not planted."""
 
 
@@ -90,8 +90,8 @@ def foot_offsets(
     In each contact run the toe is held at its mean horizontal position and the foot's lowest
     joint brought into [0, :data:`PLANT_HEIGHT_M`]; runs whose foot stays higher than
     :data:`MAX_PLANT_HEIGHT_M` (a contact predicted in the air) are left alone. Between two runs
-    the correction moves smoothly (smoothstep) from the first run's last value to the second's
-    first; before the first run and after the last it fades in and out over ``blend`` frames
+    the horizontal correction moves smoothly (smoothstep) from the first run's last value to the
+    second's first, the vertical one fades out and in over ``blend`` frames; before the first run and after the last it fades in and out over ``blend`` frames
     (default :data:`BLEND_FRAMES`). Finally no foot joint stays below the floor.
 
     Args:
@@ -115,8 +115,14 @@ def foot_offsets(
         offsets[run, 2] = toe[run, 2].mean() - toe[run, 2]
         offsets[run, 1] = np.clip(lowest[run], 0.0, PLANT_HEIGHT_M) - lowest[run]
     for (_, end), (start, _) in zip(runs[:-1], runs[1:]):  # gaps: from one run to the next
-        weight = _smoothstep((frames[end:start] - (end - 1)) / (start - end + 1))[:, None]
-        offsets[end:start] = (1 - weight) * offsets[end - 1] + weight * offsets[start]
+        gap = frames[end:start]
+        # Horizontally, from the one run's correction to the next; vertically, each fades out
+        # within `blend` frames, so a foot in flight (a hop, a jump) keeps its height.
+        weight = _smoothstep((gap - (end - 1)) / (start - end + 1))[:, None]
+        offsets[gap] = (1 - weight) * offsets[end - 1] + weight * offsets[start]
+        fade_out = 1 - _smoothstep((gap - (end - 1)) / (blend + 1))
+        fade_in = 1 - _smoothstep((start - gap) / (blend + 1))
+        offsets[gap, 1] = fade_out * offsets[end - 1, 1] + fade_in * offsets[start, 1]
     if runs:
         first, last = runs[0][0], runs[-1][1] - 1
         before = frames[max(0, first - blend) : first]
