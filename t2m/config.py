@@ -337,7 +337,7 @@ Generator (2026-12-01): whole clips (generator.whole_clips) and a curriculum of 
 (10, 23, 36, 49 snippets; at most 4 epochs each, 8 more at the last). The earlier schedule
 (13 lengths, 3 snippets apart, at most 5 epochs each, crops only) trained captions such as
 "jumps three times, then waves" against crops of one jump, and its longest lengths saw only
-the 46 training clips that long. Quick evaluation, ground-truth lengths, same autoencoder,
+the 44 training clips that long. Quick evaluation, ground-truth lengths, same autoencoder,
 length model and evaluator: semantic accuracy 0.542 -> 0.620, R-precision top 1 0.740 ->
 0.781, FID 0.80 -> 0.22, MM-Dist 2.34 -> 1.90, MultiModality 1.10 -> 0.76, with 0.83x the
 snippet steps (2,400 batches instead of 3,090)."""
