@@ -51,7 +51,7 @@ STAMP := $(VENV_DIR)/.installed
 py = $(call quote,$(VENV_DIR)/bin/python)
 
 .PHONY: install test lint dataset contact-sheet train-ae train-len train-t2m train-eval train \
-	sample eval demo bench
+	sample eval demo bench mocap-check
 
 install: $(STAMP)
 
@@ -105,6 +105,9 @@ eval: install
 
 demo: install
 	$(py) -m t2m.demo $(args)
+
+mocap-check: install
+	$(py) -m t2m.evaluate.mocap $(args)
 
 bench: install
 	$(py) -m t2m.bench $(args)
