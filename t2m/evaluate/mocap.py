@@ -140,6 +140,7 @@ def run_check(config: MocapCheckConfig) -> dict:
         if not (folder / FINISHED).is_file():
             stage_start = time.perf_counter()
             resume = (folder / "latest.pt").is_file()
+            logger.info("training %s (%s) ...", name, "resuming" if resume else "from scratch")
             train_stage(
                 name, preset(config.preset), config.dataset, config.checkpoints, resume=resume
             )
