@@ -52,7 +52,7 @@ STAMP := $(VENV_DIR)/.installed
 py = $(call quote,$(VENV_DIR)/bin/python)
 
 .PHONY: install test lint dataset contact-sheet train-ae train-len train-t2m train-eval train \
-	sample eval demo bench serve
+	sample eval demo bench serve mocap-check
 
 install: $(STAMP)
 
@@ -106,6 +106,9 @@ eval: install
 
 demo: install
 	$(py) -m t2m.demo $(args)
+
+mocap-check: install
+	$(py) -m t2m.evaluate.mocap $(args)
 
 bench: install
 	$(py) -m t2m.bench $(args)

@@ -190,6 +190,9 @@ class GeneratorStageConfig(StageConfig):
     """... or after this many epochs in the stage."""
     final_epochs: int = 0
     """Extra epochs at ``end_snippets`` beyond the stage limit (0: stop when the last stage ends)."""
+    whole_clips: bool = False
+    """At each curriculum length, train the clips shorter than it whole (batched by length)
+    instead of leaving them out; the original (false) trains crops of the length only."""
     checkpoint_every: int = 200
     log_every: int = 20
 
@@ -308,9 +311,11 @@ def demo() -> Config:
         decoder_lr=1e-4,
         start_snippets=10,
         end_snippets=49,
-        curriculum_step=3,
+        curriculum_step=13,
         patience=3,
-        max_stage_epochs=5,
+        max_stage_epochs=4,
+        final_epochs=8,
+        whole_clips=True,
         checkpoint_every=100,
     )
     cfg.evaluator = EvaluatorStageConfig(
@@ -331,7 +336,15 @@ per stage. Quick-evaluation semantic accuracy by epochs per stage: 1 -> 0.19, 3 
 5 -> 0.49; with the smooth-L1 autoencoder, 0.58.
 Smooth L1, not the original's L1: with L1 this autoencoder reconstructed a one-handed wave at a
 third of its amplitude, half of it on the wrong arm (semantic accuracy of its reconstructions
-for wave 0.26, of the generator's samples 0); with smooth L1, 0.97."""
+for wave 0.26, of the generator's samples 0); with smooth L1, 0.97.
+Generator (2026-12-01): whole clips (generator.whole_clips) and a curriculum of four lengths
+(10, 23, 36, 49 snippets; at most 4 epochs each, 8 more at the last). The earlier schedule
+(13 lengths, 3 snippets apart, at most 5 epochs each, crops only) trained captions such as
+"jumps three times, then waves" against crops of one jump, and its longest lengths saw only
+the 44 training clips that long. Quick evaluation, ground-truth lengths, same autoencoder,
+length model and evaluator: semantic accuracy 0.542 -> 0.620, R-precision top 1 0.740 ->
+0.781, FID 0.80 -> 0.22, MM-Dist 2.34 -> 1.90, MultiModality 1.10 -> 0.76; the generator stage
+took 0.87x the time (1142 s against 1308 s, side by side on the loaded 2-core machine)."""
 
 
 def tiny() -> Config:

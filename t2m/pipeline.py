@@ -42,6 +42,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
+from t2m.cleanup import clean_features
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
 from t2m.models.autoencoder import (
@@ -471,6 +472,7 @@ class TextToMotion:
         seed: int = 0,
         batch_size: int = 32,
         progress: bool = False,
+        clean: bool = True,
     ) -> list[list[GeneratedMotion]]:
         """Generate ``num_samples`` motions per prompt.
 
@@ -482,6 +484,9 @@ class TextToMotion:
             seed: seeds the one generator all draws come from.
             batch_size: motions generated together.
             progress: show a progress bar.
+            clean: foot-contact clean-up (:func:`t2m.cleanup.clean_features`: planted feet
+                held still and on the floor, legs fixed by IK); False gives the raw model
+                output.
 
         Returns:
             ``motions[prompt][sample]``.
@@ -529,6 +534,8 @@ class TextToMotion:
                 [prepared[p].encoded for p, _ in batch], [frames[i] for i in batch], generator
             )
             for (p, r), feats in zip(batch, features):
+                if clean:
+                    feats = clean_features(feats)
                 joints = recover_from_ric(feats, self.spec.num_joints)
                 results[(p, r)] = GeneratedMotion(
                     texts[p], p, r, joints.astype(np.float32), feats.astype(np.float32)

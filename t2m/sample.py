@@ -401,6 +401,7 @@ def sample_to_folder(
     overwrite: bool = False,
     extra_info: dict | None = None,
     glb: bool = False,
+    clean: bool = True,
 ) -> Path:
     """Generate motions for ``prompts`` with a :class:`t2m.pipeline.TextToMotion` and write every
     file of the output contract into ``out``; returns ``out``. Nothing is left in ``out`` on error.
@@ -417,6 +418,7 @@ def sample_to_folder(
             seed=seed,
             batch_size=batch_size,
             progress=True,
+            clean=clean,
         ),
         pipe.spec,
         out,
@@ -527,6 +529,9 @@ class SampleConfig:
     """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
     precision: Literal["fp32", "bf16", "int8"] = "fp32"
     """inference precision (int8 is CPU only)"""
+    clean: bool = True
+    """foot-contact clean-up: planted feet held still on the floor, legs fixed by IK
+    (--no-clean: the model's raw output)"""
 
     def __post_init__(self) -> None:
         if (self.text is None) == (self.text_file is None):
@@ -617,7 +622,9 @@ def main(argv: list[str] | None = None) -> int:
             "checkpoints": str(config.checkpoints),
             "precision": config.precision,
             "batch_size": config.batch_size,
+            "clean": config.clean,
         },
+        clean=config.clean,
     )
     logger.info("wrote %s", out)
     return 0

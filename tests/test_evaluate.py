@@ -315,6 +315,10 @@ def test_tiny_end_to_end_evaluation(tiny_run, tiny_dataset, tmp_path, capsys):
     assert real["fid"]["mean"] < summary["rows"][evaluate.GT_LENGTH]["fid"]["mean"]
     text = (out / "results.md").read_text()
     assert "| Ours (sampled length) |" in text and "Deviations from the standard protocol" in text
+    # Physical quality is measured for every row (the dataset's motions are 263-d features).
+    for row in evaluate.ROWS:
+        assert {"physical_skating_ratio", "physical_jerk_area"} <= summary["rows"][row].keys()
+    assert "Physical quality" in text and "Foot skating ratio" in text
     assert "results.md" in capsys.readouterr().out
 
 

@@ -438,3 +438,40 @@ def test_curriculum_moves_on_after_patience_or_the_stage_limit(tiny_config):
     for value in (3.0, 3.1, 3.2):
         curriculum.record(value, section)
     assert curriculum.done and curriculum.snippets == 16
+
+
+def test_length_buckets_batch_clips_of_similar_length():
+    import numpy as np
+
+    from t2m.train.generator import length_buckets
+
+    lengths = np.array([50, 10, 40, 20, 60, 30, 80, 70, 99, 5])
+    batches = [np.array([9, 3, 7]), np.array([1, 8, 0]), np.array([4, 2, 6])]
+    cut = length_buckets(batches, lengths, np.random.default_rng(0))
+    assert sorted(np.concatenate(cut).tolist()) == sorted(np.concatenate(batches).tolist())
+    assert sorted(sorted(lengths[b].tolist()) for b in cut) == [
+        [5, 10, 20], [40, 50, 60], [70, 80, 99]
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("whole_clips", [False, True])
+def test_whole_clips_train_the_clips_shorter_than_the_curriculum_length(
+    tiny_dataset, tiny_config, tiny_run, tmp_path, whole_clips
+):
+    # The tiny training split: 28 clips of 50..130 frames and a few 44-frame captioned sub-clips,
+    # batches of 8. At 30 snippets (120 frames) fewer than 8 are that long: the original
+    # curriculum ends there, while whole clips train every clip again (the shorter ones whole).
+    items = load_split(tiny_dataset, "train")
+    assert sum(len(clip.motion) >= 120 for clip in items) < 8
+    batches = len(items) // 8
+    shutil.copytree(tiny_run / "autoencoder", tmp_path / "autoencoder")
+    overrides = {
+        "generator.start_snippets": "10",
+        "generator.end_snippets": "30",
+        "generator.curriculum_step": "20",
+        "generator.max_stage_epochs": "1",
+        "generator.whole_clips": str(whole_clips).lower(),
+    }
+    train_stage("generator", apply_overrides(tiny_config, overrides), tiny_dataset, tmp_path)
+    progress = load_stage(tmp_path, "generator", which="latest").progress
+    assert progress["step"] == (2 * batches if whole_clips else batches)

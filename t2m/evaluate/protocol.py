@@ -21,6 +21,8 @@ The protocol, per replication (each with its own seed):
    the row's draw get ``mm_samples`` generations each (the row's own generation is the first),
    10 pairs per caption.
 4. Each metric is reported as mean and 95% interval ``1.96 sigma / sqrt(replications)``.
+5. Physical quality of every row's motions (foot skating, jerk, penetration, floating; see
+   :mod:`t2m.evaluate.physical`), the jerk curve compared with the reference draw's.
 
 Unlike the original, generation is batched. When the dataset comes with a scorer (the procedural
 demo corpus does: ``dataset_tools.synth.scoring``), a row also reports semantic accuracy: how
@@ -45,7 +47,7 @@ from dataset_tools.command import UsageError, option
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
 from t2m.data.dataset import Caption, Clip
-from t2m.evaluate import metrics
+from t2m.evaluate import metrics, physical
 from t2m.evaluate.backend import Backend
 from t2m.streams import EvalStream, GenerationStream, stream_rng, stream_seed
 
@@ -112,6 +114,10 @@ class EvalConfig:
     evaluator always runs in float32"""
     quick: bool = False
     """development run: few replications on a subset, marked as such in every output"""
+    clean: bool = False
+    """pass generated motions through the foot-contact clean-up (t2m.cleanup, as t2m.sample
+    does by default) before they are embedded and scored; the standard protocol judges the raw
+    model output"""
 
     def __post_init__(self) -> None:
         at_least = {
@@ -166,6 +172,7 @@ def deviations(config: EvalConfig, num_items: int) -> list[str]:
         "pool_size",
         "mm_pairs",
         "precision",
+        "clean",
     ):
         value, standard = getattr(config, key), getattr(STANDARD, key)
         if value != standard:
@@ -283,6 +290,8 @@ class ProtocolResult:
     num_available: int
     config: EvalConfig
     timings_s: dict[str, float] = field(default_factory=dict)
+    physical: dict[str, dict[str, list[float]]] = field(default_factory=dict)
+    """Per row, per figure of :mod:`t2m.evaluate.physical`, the value of each replication."""
 
 
 class _Timer:
@@ -350,6 +359,27 @@ def _multimodality(
     )
 
 
+class CleanedBackend:
+    """A :class:`Backend` whose generated motions (raw features) go through the foot-contact
+    clean-up (:func:`t2m.cleanup.clean_features`)."""
+
+    def __init__(self, backend: Backend):
+        self.backend = backend
+
+    def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
+        return self.backend.embed_texts(captions)
+
+    def embed_motions(self, motions: Sequence[np.ndarray]) -> np.ndarray:
+        return self.backend.embed_motions(motions)
+
+    def generate(
+        self, captions: Sequence[Caption], lengths: np.ndarray | None, seed: int
+    ) -> list[np.ndarray]:
+        from t2m.cleanup import clean_features
+
+        return [clean_features(f) for f in self.backend.generate(captions, lengths, seed)]
+
+
 def check_memory(num_items: int, config: EvalConfig, spec: DatasetSpec) -> None:
     """Refuse, before the first replication, settings whose generations cannot fit in memory:
     a generated row (``num_items`` motions) and the MultiModality generations
@@ -396,6 +426,8 @@ def run_protocol(
             f"one pool of {config.pool_size} (lower --pool-size or evaluate a larger split)"
         )
     check_memory(num_items, config, spec)
+    if config.clean:
+        backend = CleanedBackend(backend)
     values = {
         row: {
             name: [] for name in METRICS + EXTRA_METRICS if row != REAL or name != "multimodality"
@@ -403,7 +435,15 @@ def run_protocol(
         for row in ROWS
     }
     semantic_values: dict[str, dict[str, list[float]]] = {row: {} for row in ROWS}
-    timed = _Timer("generate_s", "embed_s", "metrics_s", "semantic_s")
+    timed = _Timer("generate_s", "embed_s", "metrics_s", "semantic_s", "physical_s")
+    physical_values: dict[str, dict[str, list[float]]] = {row: {} for row in ROWS}
+    # Physical figures need joints: only motions that are the spec's features have them.
+    measure_physics = clips[0].motion.shape[-1] == spec.feature_dim
+
+    def row_physics(motions: Sequence[np.ndarray]) -> physical.RowPhysics | None:
+        if not measure_physics:
+            return None
+        return timed("physical_s", physical.row_physics, motions, spec.fps)
 
     def add_semantic(row: str, draw: Draw, motions: Sequence[np.ndarray]) -> None:
         if semantic is None:
@@ -424,9 +464,12 @@ def run_protocol(
         new_draw = functools.partial(draw_items, clips, num_items, rng, spec, candidates)
 
         reference_draw = new_draw()
+        reference_motions = reference_draw.motion_list(clips)
         reference = metrics.gaussian_statistics(
-            timed("embed_s", backend.embed_motions, reference_draw.motion_list(clips))
+            timed("embed_s", backend.embed_motions, reference_motions)
         )
+        physics: dict[str, Any] = {}  # row -> physical.RowPhysics of this replication
+        reference_physics = row_physics(reference_motions)
 
         real_draw = new_draw()
         real_motions = real_draw.motion_list(clips)
@@ -436,6 +479,7 @@ def run_protocol(
         for name, value in row.items():
             values[REAL][name].append(value)
         add_semantic(REAL, real_draw, real_motions)
+        physics[REAL] = row_physics(real_motions)
 
         for variant, row_name in enumerate((GT_LENGTH, SAMPLED_LENGTH)):
             draw = new_draw()
@@ -464,6 +508,12 @@ def run_protocol(
             for name, value in row.items():
                 values[row_name][name].append(value)
             add_semantic(row_name, draw, generated)
+            physics[row_name] = row_physics(generated)
+        if reference_physics is not None:
+            figures = physical.rows_physics(physics, reference_physics, spec.fps)
+            for row_name, row_figures in figures.items():
+                for key, value in row_figures.items():
+                    physical_values[row_name].setdefault(key, []).append(value)
     timings = dict(timed.seconds, total_s=time.perf_counter() - total_start)
     return ProtocolResult(
         values=values,
@@ -472,4 +522,5 @@ def run_protocol(
         num_available=len(clips),
         config=config,
         timings_s=timings,
+        physical=physical_values,
     )

@@ -55,6 +55,8 @@ def summarize(result: ProtocolResult) -> dict[str, Any]:
         for name, series in result.semantic[row].items():
             key = "semantic_accuracy" if name == "all" else f"semantic_accuracy_{name}"
             rows[row][key] = _entry(series)
+        for name, series in result.physical.get(row, {}).items():
+            rows[row][f"physical_{name}"] = _entry(series)
     return {
         "quick": result.config.quick,
         "standard_protocol": not deviations(result.config, result.num_items),
@@ -101,6 +103,45 @@ def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
     for action in actions:
         cells = [_cell(summary["rows"][row].get(prefix + action)) for row in ROWS]
         lines.append(f"| {action} | " + " | ".join(cells) + " |")
+    return lines
+
+
+# Columns of the physical-quality table (figures of t2m.evaluate.physical): title, digits.
+PHYSICAL_COLUMNS = {
+    "skating_ratio": ("Foot skating ratio ↓", 3),
+    "penetration_mm": ("Penetration, mm ↓", 1),
+    "floating_ratio": ("Floating ratio ↓", 3),
+    "jerk_mean": ("Jerk mean, m/s³ →", 0),
+    "jerk_peak": ("Jerk peak, m/s³ →", 0),
+    "jerk_area": ("Jerk area vs real, m/s² ↓", 0),
+}
+
+
+def _physical_table(summary: dict[str, Any]) -> list[str]:
+    """The physical-quality table (one line per row), or nothing when it was not measured."""
+    if not any("physical_skating_ratio" in summary["rows"][row] for row in ROWS):
+        return []
+    lines = [
+        "Physical quality (see `t2m.evaluate.physical`):",
+        "",
+        "| Method | " + " | ".join(title for title, _ in PHYSICAL_COLUMNS.values()) + " |",
+        "|---|" + "---|" * len(PHYSICAL_COLUMNS),
+    ]
+    for row in ROWS:
+        cells = [
+            _cell(summary["rows"][row].get(f"physical_{name}"), digits)
+            for name, (_, digits) in PHYSICAL_COLUMNS.items()
+        ]
+        lines.append(f"| {row} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Foot skating: share of frame steps in which a toe joint within 5 cm of the floor moves "
+        "faster than 0.5 m/s (and so does its 5-frame average). Penetration: mean depth of the "
+        "lowest foot joint below the floor. Floating: share of frames with a predicted foot "
+        "contact and every foot joint above 5 cm. Jerk: per frame the largest joint's summed "
+        "|xyz| third difference; its mean and peak per motion (closer to the real row is better), "
+        "and the area between the row's mean jerk curve and that of real motions drawn apart.",
+    ]
     return lines
 
 
@@ -164,6 +205,9 @@ def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evalua
             "direction) the demo corpus' detectors recover from the joints."
         )
         lines += ["", *_semantic_breakdown(summary)]
+    physical_lines = _physical_table(summary)
+    if physical_lines:
+        lines += ["", *physical_lines]
     timings = summary.get("timings_s", {})
     if "total_s" in timings:
         lines += ["", f"Wall time: {timings['total_s']:.1f} s."]

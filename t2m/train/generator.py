@@ -7,6 +7,13 @@ when the validation reconstruction has not improved for ``patience`` epochs or a
 are used. Scheduled
 sampling: per batch, with probability ``teacher_forcing`` the ground-truth previous codes are fed,
 otherwise the model's own (detached) predictions.
+
+With ``whole_clips`` (the ``demo`` preset) every training clip takes part at every curriculum
+length: one shorter than the length is trained whole, with the caption that describes all of it,
+instead of being left out; batches hold clips of similar length (:func:`length_buckets`), each
+cropped to its shortest. Without it (the original), a caption such as "jumps three times, then
+waves" is mostly trained against crops that show one jump, and the longest lengths see only the
+few clips that long.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from t2m.config import Config, GeneratorStageConfig
 from t2m.data.dataset import MotionTextData
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+from t2m.streams import Stream, stream_rng
 from t2m.train.runtime import seed_init
 from t2m.train.stage import (
     LossesOf,
@@ -139,6 +147,23 @@ class Curriculum:
         return improved
 
 
+def length_buckets(
+    batches: list[np.ndarray], lengths: np.ndarray, rng: np.random.Generator
+) -> list[np.ndarray]:
+    """The items of ``batches`` re-cut into batches of similar length, in random batch order.
+
+    Items are sorted by ``lengths[item]`` (ties keep the batches' random order) and cut into
+    batches of the first batch's size (the same count as given); ``rng`` shuffles the batches.
+    """
+    if not batches:
+        return []
+    items = np.concatenate(batches)
+    order = items[np.argsort(lengths[items], kind="stable")]
+    size = len(batches[0])
+    cut = [order[k * size : (k + 1) * size] for k in range(len(batches))]
+    return [cut[k] for k in rng.permutation(len(cut))]
+
+
 def train_generator(job: StageJob) -> Path:
     """Train the generator into its stage folder (needs the autoencoder); returns that folder."""
     # 1. the trained autoencoder (frozen encoder, decoder to fine-tune) and the data
@@ -188,10 +213,12 @@ def train_generator(job: StageJob) -> Path:
         batch's generator (validation: the same noise every epoch)."""
 
         def losses_of(items: np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-            batch = to_device(split.fixed_crop_batch(items, rng, snippets * unit), runtime.device)
+            # crops of `snippets`, or of the batch's shortest clip when that is shorter
+            steps = min(snippets, int(split.lengths[items].min()) // unit)
+            batch = to_device(split.fixed_crop_batch(items, rng, steps * unit), runtime.device)
             if teacher:
                 return trainable(batch, bool(rng.random() < section.teacher_forcing))
-            shape = (len(items), snippets, section.model.latent_size)
+            shape = (len(items), steps, section.model.latent_size)
             noise = torch.from_numpy(rng.standard_normal(shape, dtype=np.float32))
             return trainable(batch, False, noise.to(runtime.device))
 
@@ -201,8 +228,15 @@ def train_generator(job: StageJob) -> Path:
     while not curriculum.done and not run.reached_max_steps():
         snippets = curriculum.snippets
         frames = snippets * unit
-        items = data.train.indices_at_least(frames)
+        if section.whole_clips:  # every clip; the shorter ones whole
+            items = data.train.indices_at_least(data.spec.min_frames)
+        else:
+            items = data.train.indices_at_least(frames)
         batches = [items[b] for b in run.epoch_batches(len(items))]
+        if section.whole_clips:
+            crops = np.minimum(data.train.lengths, frames) // unit
+            rng = stream_rng(Stream.EPOCH_ORDER, config.seed, run.progress.epoch, 1)
+            batches = length_buckets(batches, crops, rng)
         if not batches:
             logger.warning(
                 "generator: fewer than %d training clips of %d frames; curriculum ends",
@@ -222,7 +256,12 @@ def train_generator(job: StageJob) -> Path:
             break
         # 4. end of epoch: validate on the clips long enough, then move along the curriculum;
         # best.pt = the best model at the longest length reached so far
-        val_chunks = validation_chunks(data.val.indices_at_least(frames), section.batch_size)
+        if section.whole_clips:  # every clip, in chunks of similar length
+            val_items = data.val.indices_at_least(data.spec.min_frames)
+            val_items = val_items[np.argsort(data.val.lengths[val_items], kind="stable")]
+        else:
+            val_items = data.val.indices_at_least(frames)
+        val_chunks = validation_chunks(val_items, section.batch_size)
         metrics = run.validate(trainable, val_chunks, losses_on(data.val, snippets, False))
         value = runtime.broadcast_float(metrics.get("reconstruction", math.inf))
         improved = curriculum.record(value, section)
