@@ -197,7 +197,7 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
     rows = {"original": original}
     for precision, pipe in pipes.items():
         rows[f"ours_{precision}"] = lambda pipe=pipe: pipe.generate(
-            [PROMPT] * batch, lengths=FRAMES, seed=0, batch_size=batch
+            [PROMPT] * batch, lengths=FRAMES, clean=False, seed=0, batch_size=batch
         )
     return rows
 
@@ -428,7 +428,7 @@ def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[],
         precision=side,
         copy_models=False,
     )
-    return lambda: pipe.generate(PROMPT, lengths=FRAMES, seed=0)
+    return lambda: pipe.generate(PROMPT, lengths=FRAMES, clean=False, seed=0)
 
 
 def peak_memory(original: Path) -> dict[str, float]:
