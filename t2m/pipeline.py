@@ -534,15 +534,20 @@ class TextToMotion:
                 [prepared[p].encoded for p, _ in batch], [frames[i] for i in batch], generator
             )
             for (p, r), feats in zip(batch, features):
-                if clean:
-                    feats = clean_features(feats)
-                joints = recover_from_ric(feats, self.spec.num_joints)
-                results[(p, r)] = GeneratedMotion(
-                    texts[p], p, r, joints.astype(np.float32), feats.astype(np.float32)
-                )
+                joints, feats = self.finish(feats, clean)
+                results[(p, r)] = GeneratedMotion(texts[p], p, r, joints, feats)
             bar.update(len(batch))
         bar.close()
         return [[results[(p, r)] for r in range(num_samples)] for p in range(len(texts))]
+
+    def finish(self, features: np.ndarray, clean: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """One generated motion's de-normalised features (T, D) -> (joints (T, J, 3), features
+        (T, D)), float32, after the foot-contact clean-up when ``clean`` (what :meth:`generate`
+        and the web app return)."""
+        if clean:
+            features = clean_features(features)
+        joints = recover_from_ric(features, self.spec.num_joints)
+        return joints.astype(np.float32), features.astype(np.float32)
 
     def _clamp(self, frames: int) -> int:
         return frames_for(frames, self.spec)

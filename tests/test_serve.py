@@ -394,3 +394,21 @@ def test_an_idle_connection_is_closed(server, monkeypatch):
         started = time.monotonic()
         assert connection.recv(1024) == b""  # closed by the server, not by this test's timeout
         assert time.monotonic() - started < 5
+
+
+def test_served_motions_get_the_clean_up_that_sample_gives(pipe, monkeypatch):
+    import t2m.pipeline
+
+    def lifted(features):  # a visible stand-in for the clean-up: the root joint 10 cm higher
+        features = features.copy()
+        features[:, 3] += 0.1
+        return features
+
+    monkeypatch.setattr(t2m.pipeline, "clean_features", lifted)
+    job = GenerationJob(["a person walks forward"], [40], 1, seed=5, precision="fp32")
+    generate_jobs(pipe, [job])
+    served = job.result[0][0][0].joints
+    cleaned = pipe.generate("a person walks forward", 1, 40, seed=5)[0][0].joints
+    raw = pipe.generate("a person walks forward", 1, 40, seed=5, clean=False)[0][0].joints
+    np.testing.assert_allclose(served, cleaned, atol=2e-4)
+    np.testing.assert_allclose(served[:, 0, 1] - raw[:, 0, 1], 0.1, atol=2e-4)

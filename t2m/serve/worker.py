@@ -20,10 +20,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
 
-from dataset_tools.representation import recover_from_ric
 from t2m.pipeline import GeneratedMotion, PreparedText, TextToMotion, frames_for
 
 logger = logging.getLogger(__name__)
@@ -123,10 +121,8 @@ def generate_jobs(pipe: TextToMotion, jobs: list[GenerationJob]) -> None:
         job = rows.job
         motions: dict[tuple[int, int], GeneratedMotion] = {}
         for (p, r), feats in zip(rows.items, features[start : start + len(rows.items)]):
-            joints = recover_from_ric(feats, pipe.spec.num_joints)
-            motions[(p, r)] = GeneratedMotion(
-                job.texts[p], p, r, joints.astype(np.float32), feats.astype(np.float32)
-            )
+            joints, feats = pipe.finish(feats)  # cleaned, as t2m.sample and generate() do
+            motions[(p, r)] = GeneratedMotion(job.texts[p], p, r, joints, feats)
         start += len(rows.items)
         grid = [[motions[(p, r)] for r in range(job.num_samples)] for p in range(len(job.texts))]
         job.result = (grid, rows.prepared)
