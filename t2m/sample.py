@@ -491,7 +491,39 @@ def write_motions(
 
 
 @dataclass
-class SampleConfig:
+class OutputOptions:
+    """The options ``python -m t2m.sample`` and ``python -m t2m.edit`` share: which checkpoints,
+    which files into which folder, where and how to run."""
+
+    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
+    """run folder with the trained stages, or the original T2M release's folder"""
+    glove: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """the release's GloVe subset (default: glove/ beside the release's checkpoints/)"""
+    out: Path | None = field(default=None, metadata=option(metavar="DIR"))
+    """output folder (default outputs/<timestamp>/)"""
+    overwrite: bool = False
+    """replace a non-empty --out written by an earlier run"""
+    render: Render = "mp4"
+    """stick-figure animation format (an edit's kept joints in green), or none"""
+    bvh: bool = False
+    """also write a BVH file per motion"""
+    glb: bool = False
+    """also write an animated glTF binary (.glb) per motion"""
+    device: str = "auto"
+    """auto, cpu, cuda or cuda:N (auto: CUDA when present)"""
+    threads: int = field(default=0, metadata=option(metavar="N"))
+    """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
+    precision: Literal["fp32", "bf16", "int8"] = "fp32"
+    """inference precision (int8 is CPU only, and an edit cannot optimise through it)"""
+
+    def __post_init__(self) -> None:
+        check_threads(self.threads)
+        if self.render not in RENDER_CHOICES:
+            raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}")
+
+
+@dataclass
+class SampleConfig(OutputOptions):
     """``python -m t2m.sample``: what to generate, from which checkpoints, into which folder."""
 
     text: str | None = None
@@ -507,28 +539,8 @@ class SampleConfig:
     """length in seconds instead of frames"""
     seed: int = 0
     """random seed: same seed, same bytes"""
-    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
-    """run folder with the length/ and generator/ stages, or the original T2M release's folder"""
-    glove: Path | None = field(default=None, metadata=option(metavar="DIR"))
-    """the release's GloVe subset (default: glove/ beside the release's checkpoints/)"""
-    out: Path | None = field(default=None, metadata=option(metavar="DIR"))
-    """output folder (default outputs/<timestamp>/)"""
-    overwrite: bool = False
-    """replace a non-empty --out written by an earlier run"""
-    render: Render = "mp4"
-    """stick-figure animation format, or none"""
-    bvh: bool = False
-    """also write a BVH file per motion"""
-    glb: bool = False
-    """also write an animated glTF binary (.glb) per motion"""
-    device: str = "auto"
-    """auto, cpu, cuda or cuda:N (auto: CUDA when present)"""
     batch_size: int = field(default=32, metadata=option(metavar="N"))
     """motions generated together"""
-    threads: int = field(default=0, metadata=option(metavar="N"))
-    """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
-    precision: Literal["fp32", "bf16", "int8"] = "fp32"
-    """inference precision (int8 is CPU only)"""
     clean: bool = True
     """foot-contact clean-up: planted feet held still on the floor, legs fixed by IK
     (--no-clean: the model's raw output)"""
@@ -542,7 +554,7 @@ class SampleConfig:
             raise UsageError("give one of --length and --seconds")
         if self.num_samples < 1 or self.batch_size < 1:
             raise UsageError("--num-samples and --batch-size must be at least 1")
-        check_threads(self.threads)
+        super().__post_init__()
         if self.text_file is not None and not self.text_file.is_file():
             raise UsageError(f"--text-file {self.text_file} is not a file")
         check_seed(self.seed)

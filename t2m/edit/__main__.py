@@ -23,19 +23,18 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Literal
 
 from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
-from t2m.config import check_seed, check_threads
+from t2m.config import check_seed
 from t2m.edit.core import Method, SearchSettings
 from t2m.edit.modes import Mode, Part
-from t2m.sample import RENDER_CHOICES, Render, check_out, write_motions
+from t2m.sample import OutputOptions, check_out, write_motions
 
 logger = logging.getLogger("t2m.edit")
 
 
 @dataclass
-class EditConfig:
+class EditConfig(OutputOptions):
     """``python -m t2m.edit``: which edit, from which checkpoints, into which folder."""
 
     mode: Mode | None = field(default=None, metadata=option(metavar="MODE"))
@@ -80,34 +79,14 @@ class EditConfig:
     """noise draws per result, the closest to the constraints kept"""
     steps: int = field(default=20, metadata=option(metavar="N"))
     """optimisation steps of --method optimize (and auto)"""
-    checkpoints: Path = field(default=Path("checkpoints/demo"), metadata=option(metavar="DIR"))
-    """run folder, or the original T2M release's folder"""
-    glove: Path | None = field(default=None, metadata=option(metavar="DIR"))
-    """the release's GloVe subset (default: glove/ beside the release's checkpoints/)"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default outputs/edit-<timestamp>/)"""
-    overwrite: bool = False
-    """replace a non-empty --out written by an earlier run"""
-    render: Render = "mp4"
-    """stick-figure animation format (kept joints in green), or none"""
-    bvh: bool = False
-    """also write a BVH file per motion"""
-    glb: bool = False
-    """also write an animated glTF binary (.glb) per motion"""
-    device: str = "auto"
-    """auto, cpu, cuda or cuda:N"""
-    threads: int = field(default=0, metadata=option(metavar="N"))
-    """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
-    precision: Literal["fp32", "bf16", "int8"] = "fp32"
-    """inference precision (int8 is CPU only and cannot optimise)"""
 
     def __post_init__(self) -> None:
         if self.num_samples < 1 or self.candidates < 1 or self.steps < 0:
             raise UsageError("--num-samples and --candidates must be >= 1, --steps >= 0")
-        check_threads(self.threads)
         check_seed(self.seed)
-        if self.render not in RENDER_CHOICES:
-            raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}")
+        super().__post_init__()
 
     def requests(self) -> list:
         """The :class:`t2m.edit.EditRequest` list (checked: missing or extra inputs per mode)."""
