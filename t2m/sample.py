@@ -52,7 +52,7 @@ from dataset_tools.command import (
 from dataset_tools.io import atomic_write, check_output_folder, write_json_atomic
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
-from t2m.pipeline import GeneratedMotion
+from t2m.pipeline import GeneratedMotion, TextToMotion
 
 logger = logging.getLogger("t2m.sample")
 
@@ -521,6 +521,33 @@ class OutputOptions:
         if self.render not in RENDER_CHOICES:
             raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}")
 
+    def output_folder(self, prefix: str = "") -> Path:
+        """``--out`` (default ``outputs/<prefix><timestamp>``), checked before any model work."""
+        out = self.out or Path("outputs") / time.strftime(f"{prefix}%Y-%m-%d_%H-%M-%S")
+        return check_out(out, self.overwrite)
+
+    def load_pipeline(self, need_length_model: bool) -> TextToMotion:
+        """The models of ``--checkpoints`` on the chosen device, threads and precision; what is
+        missing or mismatched is a one-line UsageError (the library's message names the make
+        target)."""
+        from t2m.train.runtime import inference_device
+
+        if self.threads:
+            import torch
+
+            torch.set_num_threads(self.threads)
+        device = inference_device(self.device, self.precision)
+        try:
+            return TextToMotion.from_checkpoints(
+                self.checkpoints,
+                device=device,
+                precision=self.precision,
+                need_length_model=need_length_model,
+                glove_dir=self.glove,
+            )
+        except ValueError as error:
+            raise UsageError(str(error)) from None
+
 
 @dataclass
 class SampleConfig(OutputOptions):
@@ -582,8 +609,6 @@ class SampleConfig(OutputOptions):
 
 @command(interrupted="interrupted; nothing was written")
 def main(argv: list[str] | None = None) -> int:
-    from t2m.pipeline import TextToMotion
-
     parser = CommandParser(
         prog="python -m t2m.sample",
         description="Generate 3D human motions from text with trained T2M checkpoints.",
@@ -596,24 +621,10 @@ def main(argv: list[str] | None = None) -> int:
     # 1. everything the user gave, checked before any model is loaded (the lengths are made
     # again in frames of the models' dataset once they are)
     prompts = config.prompts()
-    out = config.out or Path("outputs") / time.strftime("%Y-%m-%d_%H-%M-%S")
-    check_out(out, config.overwrite)
-    if config.threads:
-        import torch
-
-        torch.set_num_threads(config.threads)
-    # 2. the models (the library says what is missing or mismatched, naming the make target)
-    from t2m.train.runtime import inference_device
-
-    device = inference_device(config.device, config.precision)
+    out = config.output_folder()
+    # 2. the models
+    pipe = config.load_pipeline(need_length_model=any(p.frames is None for p in prompts))
     try:
-        pipe = TextToMotion.from_checkpoints(
-            config.checkpoints,
-            device=device,
-            precision=config.precision,
-            need_length_model=any(p.frames is None for p in prompts),
-            glove_dir=config.glove,
-        )
         pipe.prepare([p.text for p in prompts])  # refuses a prompt with no known word
     except ValueError as error:
         raise UsageError(str(error)) from None

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import logging
 import sys
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from dataset_tools.command import CommandParser, UsageError, command, option, pa
 from t2m.config import check_seed
 from t2m.edit.core import Method, SearchSettings
 from t2m.edit.modes import Mode, Part
-from t2m.sample import OutputOptions, check_out, write_motions
+from t2m.sample import OutputOptions, write_motions
 
 logger = logging.getLogger("t2m.edit")
 
@@ -156,8 +155,6 @@ def read_batch(path: Path) -> list:
 @command(interrupted="interrupted; nothing was written")
 def main(argv: list[str] | None = None) -> int:
     from t2m.edit import edit_batch
-    from t2m.pipeline import TextToMotion
-    from t2m.train.runtime import inference_device
 
     parser = CommandParser(
         prog="python -m t2m.edit",
@@ -169,22 +166,10 @@ def main(argv: list[str] | None = None) -> int:
     settings = SearchSettings(
         method=config.method, candidates=config.candidates, steps=config.steps
     )
-    out = config.out or Path("outputs") / time.strftime("edit-%Y-%m-%d_%H-%M-%S")
-    check_out(out, config.overwrite)
-    if config.threads:
-        import torch
-
-        torch.set_num_threads(config.threads)
+    out = config.output_folder("edit-")
     # 2. the models
-    device = inference_device(config.device, config.precision)
+    pipe = config.load_pipeline(need_length_model=False)
     try:
-        pipe = TextToMotion.from_checkpoints(
-            config.checkpoints,
-            device=device,
-            precision=config.precision,
-            need_length_model=False,
-            glove_dir=config.glove,
-        )
         from t2m.edit.modes import read_timeline
 
         frames = [
