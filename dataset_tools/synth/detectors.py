@@ -47,6 +47,8 @@ penetration, bone-length constancy, knee and elbow angles, and jerk.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -196,89 +198,181 @@ class MotionSignals:
         relative = joints[:, [7, 8, 20, 21]] - joints[:, :1]
         self.limb_speed = np.linalg.norm(np.diff(relative, axis=0), axis=-1).mean(axis=1) * fps
 
-    def facts(self, start: int = 0, end: int | None = None) -> dict:
-        """The facts of frames [start, end) (see the module docstring); at least 2 frames."""
+    def facts(self, start: int = 0, end: int | None = None) -> WindowFacts:
+        """The facts of frames [start, end) (see the module docstring); at least 2 frames.
+        Each group of facts is computed when one of its keys is first read."""
         end = self.num_frames if end is None else end
         if not 0 <= start < end - 1 < self.num_frames:
             raise ValueError(f"window [{start}, {end}) of a {self.num_frames}-frame motion")
-        fps, w = self.fps, slice(start, end)
-        T = end - start
-        ground = float(np.percentile(self.lowest_foot[w], 2))
-        heights = self.height[w] - ground
-        leg = float(np.median(self.leg[w]))
+        return WindowFacts(self, start, end)
 
-        facts: dict = {"duration_s": T / fps}
-        facts["forward_speed_mps"] = float(np.mean(self.forward_speed[w]))
-        facts["left_speed_mps"] = float(np.mean(self.left_speed[w]))
-        facts["path_speed_mps"] = float(np.mean(self.path_speed[w]))
-        facts["displacement_m"] = float(np.linalg.norm(self.root[end - 1] - self.root[start]))
-        facts["yaw_change_deg"] = float(np.degrees(self.yaw[end - 1] - self.yaw[start]))
 
-        # Flight: every foot joint clear of the ground.
-        lowest_foot = self.lowest_foot[w] - ground
+class WindowFacts(dict):
+    """The facts of one window of a motion (:meth:`MotionSignals.facts`): a dict whose groups
+    of keys (gait, flight, pelvis, arms, ...) are computed on first read, so that checking one
+    label costs only what the label reads. :meth:`complete` computes them all."""
+
+    def __init__(self, signals: MotionSignals, start: int, end: int):
+        super().__init__()
+        self.signals, self.start, self.end = signals, start, end
+        self.window = slice(start, end)
+
+    def __missing__(self, key: str):
+        group = _FACT_GROUPS.get(key)
+        if group is None:
+            raise KeyError(key)
+        self.update(group(self))
+        return super().__getitem__(key)
+
+    def get(self, key: str, default=None):
+        return self[key] if key in self or key in _FACT_GROUPS else default
+
+    def complete(self) -> dict:
+        """Every fact, as a plain dict."""
+        return {key: self[key] for key in _FACT_GROUPS}
+
+    @functools.cached_property
+    def ground(self) -> float:
+        """Floor height: the 2nd percentile of the lowest foot joint's height."""
+        return float(np.percentile(self.signals.lowest_foot[self.window], 2))
+
+    @functools.cached_property
+    def heights(self) -> np.ndarray:
+        """(T, 22) joint heights above the floor."""
+        return self.signals.height[self.window] - self.ground
+
+    @functools.cached_property
+    def leg(self) -> float:
+        return float(np.median(self.signals.leg[self.window]))
+
+    def _gait(self) -> dict:
+        s, w, a, b = self.signals, self.window, self.start, self.end - 1
+        return {
+            "duration_s": (self.end - self.start) / s.fps,
+            "forward_speed_mps": float(np.mean(s.forward_speed[w])),
+            "left_speed_mps": float(np.mean(s.left_speed[w])),
+            "path_speed_mps": float(np.mean(s.path_speed[w])),
+            "displacement_m": float(np.linalg.norm(s.root[b] - s.root[a])),
+            "yaw_change_deg": float(np.degrees(s.yaw[b] - s.yaw[a])),
+            "leg_length_m": self.leg,
+            "speed_scale": REFERENCE_LEG_M / self.leg,
+        }
+
+    def _flight(self) -> dict:
+        """Flight: every foot joint clear of the ground."""
+        heights, fps = self.heights, self.signals.fps
+        lowest_foot = self.signals.lowest_foot[self.window] - self.ground
         # Sitting with the feet raised is not flight: the pelvis must be well off the ground.
-        off = (lowest_foot > 0.05) & (heights[:, 0] > 0.8 * leg)
+        off = (lowest_foot > 0.05) & (heights[:, 0] > 0.8 * self.leg)
         airborne = [(a, b) for a, b in _runs(off) if (b - a) / fps >= 0.1]
-        facts["airborne_count"] = len(airborne)
-        facts["max_airborne_height_m"] = float(
-            max((lowest_foot[a:b].max() for a, b in airborne), default=0.0)
-        )
-        facts["hop_side"] = None
+        facts = {
+            "airborne_count": len(airborne),
+            "max_airborne_height_m": float(
+                max((lowest_foot[a:b].max() for a, b in airborne), default=0.0)
+            ),
+            "hop_side": None,
+        }
         if airborne:
+            first, last = airborne[0][0], airborne[-1][1]
             for side in ("left", "right"):
                 held = (
                     heights[:, _SIDES[_OTHER[side]]["ankle"]]
                     > heights[:, _SIDES[side]["ankle"]] + 0.12
                 )
-                first, last = airborne[0][0], airborne[-1][1]
                 if held[first:last].mean() > 0.9:
                     facts["hop_side"] = side
+        return facts
 
-        pelvis = heights[:, 0] / leg
-        facts["pelvis_min_ratio"] = float(pelvis.min())
-        facts["dip_count"] = _count_dips(pelvis, 0.85, 0.98)
-        facts["sit"] = bool(pelvis.min() < 0.4)
-        facts["trunk_max_deg"] = float(self.lean_deg[w].max())
+    def _pelvis(self) -> dict:
+        pelvis = self.heights[:, 0] / self.leg
+        return {
+            "pelvis_min_ratio": float(pelvis.min()),
+            "dip_count": _count_dips(pelvis, 0.85, 0.98),
+            "sit": bool(pelvis.min() < 0.4),
+        }
 
-        reaches = {}
-        for side, ids in _SIDES.items():
-            signals = {name: values[w] for name, values in self.side[side].items()}
-            up = signals["above_shoulder"] > 0.1
+    def _trunk(self) -> dict:
+        return {"trunk_max_deg": float(self.signals.lean_deg[self.window].max())}
+
+    def _arms(self) -> dict:
+        """Waving and raised arms."""
+        facts = {}
+        for side in _SIDES:
+            signals = self.signals.side[side]
+            up = signals["above_shoulder"][self.window] > 0.1
             swing_extent, swing_reversals = (
-                _swing_extent(signals["lateral"][up], fps) if up.sum() > 2 else (0.0, 0)
+                _swing_extent(signals["lateral"][self.window][up], self.signals.fps)
+                if up.sum() > 2
+                else (0.0, 0)
             )
-            facts[f"wave_{side}"] = bool(
-                up.mean() > 0.25 and swing_extent > 0.12 and swing_reversals >= 2
-            )
-            facts[f"raise_{side}"] = bool(
-                np.sum(signals["above_head"] > 0.2) / fps >= 0.3 and not facts[f"wave_{side}"]
-            )
-            # Kick: the ankle high and in front of the pelvis while the other foot is planted.
+            wave = bool(up.mean() > 0.25 and swing_extent > 0.12 and swing_reversals >= 2)
+            above_head = signals["above_head"][self.window] > 0.2
+            facts[f"wave_{side}"] = wave
+            facts[f"raise_{side}"] = bool(np.sum(above_head) / self.signals.fps >= 0.3) and not wave
+        return facts
+
+    def _kicks(self) -> dict:
+        """Kick: the ankle high and in front of the pelvis while the other foot is planted."""
+        facts, heights = {}, self.heights
+        for side, ids in _SIDES.items():
             other = _SIDES[_OTHER[side]]
             planted = heights[:, [other["ankle"], other["toe"]]].min(axis=1) < 0.05
-            kicking = (heights[:, ids["ankle"]] > 0.35) & (signals["ahead"] > 0.3) & planted
-            facts[f"kick_{side}"] = bool(kicking.sum() >= max(1, round(0.05 * fps)))
-            # Punch: the wrist far in front of the shoulder at chest height, the arm nearly
-            # straight.
+            ahead = self.signals.side[side]["ahead"][self.window]
+            kicking = (heights[:, ids["ankle"]] > 0.35) & (ahead > 0.3) & planted
+            facts[f"kick_{side}"] = bool(kicking.sum() >= max(1, round(0.05 * self.signals.fps)))
+        return facts
+
+    def _punches(self) -> dict:
+        """Punch: the wrist far in front of the shoulder at chest height, the arm nearly
+        straight; counted per arm."""
+        reaches = {}
+        for side in _SIDES:
+            signals = {
+                name: values[self.window] for name, values in self.signals.side[side].items()
+            }
             arm = np.median(signals["arm"])
             level = np.abs(signals["above_shoulder"]) < 0.35 * arm
             reaches[side] = np.where(level, signals["reach"] / arm, 0.0)
+        facts = {}
         for side in _SIDES:
             # A punch extends one arm; both arms swinging forward together (a jump) is no punch.
             alone = reaches[_OTHER[side]] < 0.55
             facts[f"punch_{side}"] = _count_above(np.where(alone, reaches[side], 0.0), 0.8, 0.55)
-
-        hands = np.where(self.hands_in_front[w], self.hands[w], 1.0)
-        facts["clap_count"] = _count_dips(hands, 0.12, 0.22)
-        facts["limb_activity_mps"] = float(np.mean(self.limb_speed[start : end - 1]))
-        facts["leg_length_m"] = leg
-        facts["speed_scale"] = REFERENCE_LEG_M / leg
         return facts
+
+    def _claps(self) -> dict:
+        s = self.signals
+        hands = np.where(s.hands_in_front[self.window], s.hands[self.window], 1.0)
+        return {"clap_count": _count_dips(hands, 0.12, 0.22)}
+
+    def _limbs(self) -> dict:
+        speeds = self.signals.limb_speed[self.start : self.end - 1]
+        return {"limb_activity_mps": float(np.mean(speeds))}
+
+
+# Every fact, in the order detect_labels lists them, and the method of WindowFacts computing it.
+_FACT_GROUPS: dict[str, Callable[[WindowFacts], dict]] = {
+    key: group
+    for group, keys in (
+        (WindowFacts._gait, ("duration_s", "forward_speed_mps", "left_speed_mps",
+                             "path_speed_mps", "displacement_m", "yaw_change_deg")),
+        (WindowFacts._flight, ("airborne_count", "max_airborne_height_m", "hop_side")),
+        (WindowFacts._pelvis, ("pelvis_min_ratio", "dip_count", "sit")),
+        (WindowFacts._trunk, ("trunk_max_deg",)),
+        (WindowFacts._arms, ("wave_left", "raise_left", "wave_right", "raise_right")),
+        (WindowFacts._kicks, ("kick_left", "kick_right")),
+        (WindowFacts._punches, ("punch_left", "punch_right")),
+        (WindowFacts._claps, ("clap_count",)),
+        (WindowFacts._limbs, ("limb_activity_mps",)),
+        (WindowFacts._gait, ("leg_length_m", "speed_scale")),
+    )
+    for key in keys
+}  # fmt: skip
 
 
 def detect_labels(joints: np.ndarray, fps: float) -> dict:
     """Facts about a motion (see the module docstring) from joints (T, 22, 3), y-up metres."""
-    return MotionSignals(joints, fps).facts()
+    return MotionSignals(joints, fps).facts().complete()
 
 
 def _speed_class(speed: float, gait: str, direction: str) -> str:
