@@ -119,7 +119,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
-def _count_dips(signal: np.ndarray, low: float, high: float) -> int:
+def count_dips(signal: np.ndarray, low: float, high: float) -> int:
     """Episodes of ``signal`` below ``low``; two count as one unless it rose above ``high``
     between them (hysteresis), so a dip cut by the window's edge still counts."""
     state = np.where(signal < low, -1, np.where(signal > high, 1, 0))
@@ -130,15 +130,15 @@ def _count_dips(signal: np.ndarray, low: float, high: float) -> int:
 
 def _count_above(signal: np.ndarray, high: float, low: float) -> int:
     """Episodes of ``signal`` rising above ``high`` (re-armed once it falls below ``low``)."""
-    return _count_dips(-signal, -high, -low)
+    return count_dips(-signal, -high, -low)
 
 
-def _swing_extent(signal: np.ndarray, fps: float) -> tuple[float, int]:
-    """Peak-to-peak range and number of direction reversals of a (T,) signal."""
+def swing(signal: np.ndarray, fps: float, min_speed_mps: float = 0.6) -> tuple[float, int]:
+    """Peak-to-peak range and number of direction reversals of a (T,) signal in metres (after
+    0.04 s smoothing); movement slower than ``min_speed_mps`` is tremble and ignored."""
     smooth = gaussian_filter1d(signal, max(0.04 * fps, 0.5))
-    velocity = np.diff(smooth)
-    threshold = 0.01 * 60.0 / fps  # metres per frame, ignore tremble
-    moving = velocity[np.abs(velocity) > threshold]
+    velocity = np.diff(smooth) * fps
+    moving = velocity[np.abs(velocity) > min_speed_mps]
     reversals = int(np.sum(np.diff(np.sign(moving)) != 0)) if len(moving) > 1 else 0
     return float(np.ptp(smooth)), reversals
 
@@ -171,6 +171,7 @@ class MotionSignals:
         self.forward_speed = np.sum(velocity * forward, axis=1)  # (T,)
         self.left_speed = np.sum(velocity * left, axis=1)
         self.path_speed = np.linalg.norm(velocity, axis=1)
+        self.forward = forward  # (T, 3) unit horizontal facing
         self.yaw = np.unwrap(np.arctan2(forward[:, 0], forward[:, 2]))  # (T,) radians
         lengths = SMPL.bone_lengths_of(joints)  # (T, J): the bone ending at each joint
         lft, rgt = _SIDES["left"], _SIDES["right"]
@@ -287,7 +288,7 @@ class WindowFacts(dict):
         pelvis = self.heights[:, 0] / self.leg
         return {
             "pelvis_min_ratio": float(pelvis.min()),
-            "dip_count": _count_dips(pelvis, 0.85, 0.98),
+            "dip_count": count_dips(pelvis, 0.85, 0.98),
             "sit": bool(pelvis.min() < 0.4),
         }
 
@@ -301,7 +302,7 @@ class WindowFacts(dict):
             signals = self.signals.side[side]
             up = signals["above_shoulder"][self.window] > 0.1
             swing_extent, swing_reversals = (
-                _swing_extent(signals["lateral"][self.window][up], self.signals.fps)
+                swing(signals["lateral"][self.window][up], self.signals.fps)
                 if up.sum() > 2
                 else (0.0, 0)
             )
@@ -343,7 +344,7 @@ class WindowFacts(dict):
     def _claps(self) -> dict:
         s = self.signals
         hands = np.where(s.hands_in_front[self.window], s.hands[self.window], 1.0)
-        return {"clap_count": _count_dips(hands, 0.12, 0.22)}
+        return {"clap_count": count_dips(hands, 0.12, 0.22)}
 
     def _limbs(self) -> dict:
         speeds = self.signals.limb_speed[self.start : self.end - 1]
