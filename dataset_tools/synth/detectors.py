@@ -530,10 +530,10 @@ COUNTED_EVENTS: dict[str, tuple[tuple[str, ...], frozenset[str]]] = {
 class _WindowJudge:
     """Whether a window of a motion matches a segment label, each window's facts computed once.
 
-    With ``exclusive``, a segment also fails when its stretch, widened over the trimmed frames
-    on both sides, holds an event that another segment of the clip counts (a jump, punch,
-    squat or clap) and its own action does not make: an aligned segmentation may not hide a
-    surplus jump in a neighbouring walk.
+    With ``exclusive``, the events a segment counts (jumps, punches, squats, claps) must all lie
+    in its own stretch: another segment's stretch, widened over the trimmed frames on both
+    sides, must not hold such an event unless its own action makes them. An aligned
+    segmentation may not hide a surplus jump in a neighbouring wave.
     """
 
     def __init__(self, signals: MotionSignals, segments: list[dict], exclusive: bool = False):
@@ -541,13 +541,9 @@ class _WindowJudge:
         self.trim = round(TRIM_S * signals.fps)
         self.facts: dict[tuple[int, int], dict] = {}
         counted = {seg["action"] for seg in segments if seg["action"] in COUNTED_EVENTS}
+        # Per segment: the counted actions whose events may not appear in its stretch.
         self.forbidden = [
-            [
-                key
-                for action in counted
-                if seg["action"] not in COUNTED_EVENTS[action][1]
-                for key in COUNTED_EVENTS[action][0]
-            ]
+            [action for action in sorted(counted) if seg["action"] not in COUNTED_EVENTS[action][1]]
             if exclusive
             else []
             for seg in segments
@@ -558,20 +554,40 @@ class _WindowJudge:
             self.facts[(a, b)] = self.signals.facts(a, b)
         return self.facts[(a, b)]
 
-    def __call__(self, index: int, span: tuple[float, float]) -> bool:
-        """Whether segment ``index`` matches when it spans frames (start, end)."""
-        T = self.signals.num_frames
+    def label_ok(self, index: int, span: tuple[float, float]) -> bool:
+        """Whether segment ``index``'s label matches when it spans frames (start, end)."""
         last = len(self.segments) - 1
         a, b = _window(span, index == 0, index == last, self.trim)
-        b = min(b, T)
-        if b - a < 2 or not label_matches(self._facts(a, b), self.segments[index]):
-            return False
+        b = min(b, self.signals.num_frames)
+        return b - a >= 2 and label_matches(self._facts(a, b), self.segments[index])
+
+    def strays(self, index: int, span: tuple[float, float]) -> list[str]:
+        """The counted actions (of other segments) with events in segment ``index``'s stretch."""
         if not self.forbidden[index]:
-            return True
+            return []
+        T = self.signals.num_frames
         wide = self._facts(
             max(0, int(round(span[0] - self.trim))), min(T, int(round(span[1] + self.trim)))
         )
-        return all(wide[key] == 0 for key in self.forbidden[index])
+        return [
+            action
+            for action in self.forbidden[index]
+            if any(wide[key] for key in COUNTED_EVENTS[action][0])
+        ]
+
+    def __call__(self, index: int, span: tuple[float, float]) -> bool:
+        """Whether segment ``index`` matches, and holds no other segment's counted event."""
+        return self.label_ok(index, span) and not self.strays(index, span)
+
+    def verdicts(self, spans: list[tuple[float, float]]) -> tuple[bool, ...]:
+        """Per segment of a whole segmentation, whether it is right: its label matches and, if it
+        counts events, none of them lies in another segment's stretch (a stray event fails the
+        segment that counts it, not the one it strayed into)."""
+        strayed = {action for i, span in enumerate(spans) for action in self.strays(i, span)}
+        return tuple(
+            self.label_ok(i, span) and self.segments[i]["action"] not in strayed
+            for i, span in enumerate(spans)
+        )
 
 
 def clip_matches(
@@ -594,7 +610,7 @@ def clip_matches(
     total = total_frames or segments[-1]["end"]
     spans = _proportional_spans(segments, total, signals.num_frames)
     judge = _WindowJudge(signals, segments)
-    return [judge(i, span) for i, span in enumerate(spans)]
+    return [judge.label_ok(i, span) for i, span in enumerate(spans)]
 
 
 @dataclass(frozen=True)
@@ -616,7 +632,9 @@ class Alignment:
     """The best in-order segmentation of a motion for a clip's labels (:func:`align_segments`).
 
     Attributes:
-        matches: per segment, whether it matches in the best segmentation.
+        matches: per segment, whether it is right in the best segmentation: its label matches
+            and, if it counts events (jumps, punches, ...), none of them lies in another
+            segment's stretch.
         fixed: per segment, whether it matches with the clip's own proportions
             (:func:`clip_matches`).
         spans: per segment, its (start, end) frames in the best segmentation (before trimming).
@@ -639,7 +657,10 @@ def align_segments(
 
     The boundaries between segments move over a grid (``bounds``) around their proportional
     places; the segmentation with the most segments matching wins (ties: the least moved,
-    so the proportional one when it is as good). Dynamic programming over the boundaries, each
+    so the proportional one when it is as good). A segment that counts events (a jump, punch,
+    squat or clap) owns them all: such an event in another segment's stretch (widened over the
+    trimmed frames) fails the item, so "jumps once, then waves" does not pass a motion that
+    jumps twice by hiding a jump in the wave. Dynamic programming over the boundaries, each
     window's facts computed once.
 
     Args:
@@ -652,9 +673,9 @@ def align_segments(
     total = total_frames or segments[-1]["end"]
     T, k = signals.num_frames, len(segments)
     spans = _proportional_spans(segments, total, T)
-    fixed = tuple(_WindowJudge(signals, segments)(i, span) for i, span in enumerate(spans))
+    fixed = _WindowJudge(signals, segments).verdicts(spans)
     judge = _WindowJudge(signals, segments, exclusive=True)
-    proportional = tuple(judge(i, span) for i, span in enumerate(spans))
+    proportional = judge.verdicts(spans)
     if all(proportional) or k == 1:
         return Alignment(proportional, fixed, tuple(spans))
     # Candidate positions of each boundary (the proportional one included), and the shortest
@@ -695,7 +716,7 @@ def align_segments(
         chosen.append(layers[i - 1][c])
     chosen.reverse()
     found = [(chosen[i], chosen[i + 1]) for i in range(k)]
-    return Alignment(tuple(judge(i, span) for i, span in enumerate(found)), fixed, tuple(found))
+    return Alignment(judge.verdicts(found), fixed, tuple(found))
 
 
 def mirror_label(label: dict) -> dict:
