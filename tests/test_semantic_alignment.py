@@ -85,7 +85,9 @@ def test_counts_must_be_exact_and_no_event_hides_in_a_neighbour():
         labels = _labels(("jump", jump, 50), ("wave", WAVE, 60))
         # With "jumps once", a window holding only the first jump exists, but the second jump
         # would fall into the wave's stretch: counted events stay in their own segment.
-        assert all(align_segments(joints, FPS, labels).matches) == right, count
+        found = align_segments(joints, FPS, labels)
+        # The wave is right either way; the jump segment carries the count's verdict.
+        assert found.matches == (right, True), count
 
 
 def test_window_facts_agree_with_the_facts_of_the_cut_motion(walk_then_wave):
