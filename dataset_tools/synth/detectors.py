@@ -621,9 +621,10 @@ class AlignmentBounds:
     defaults sit on the plateau of the generated motions' accuracy (a finer 0.1 s grid, shifts
     of 0.35 or 0.5, or segments down to a quarter of their length each gain at most 0.003 of
     items) while the false positives of real motions scored against wrong labels (other clips',
-    reversed order, mirrored sides, counts off by one) stay those of fixed timing for every
-    setting tried; the corpus' shortest segment is 1.3 s and a jump about 0.45 s, so 0.25 s
-    steps cannot skip an event.
+    reversed order, a count one lower) stay those of fixed timing for every setting tried
+    (mirrored sides and a count one higher, measured at the defaults: none, as with fixed
+    timing); the corpus' shortest segment is 1.3 s and a jump about 0.45 s, so 0.25 s steps
+    cannot skip an event.
     """
 
     step_s: float = 0.25
