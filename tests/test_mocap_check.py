@@ -97,7 +97,8 @@ def test_tiny_check_end_to_end(tmp_path):
         assert row["generated"]["motions"] == 1 and row["real"]["motions"] >= 1
     walk = results["contents"]["a person walks forward."]["real"]
     assert walk["recognised"] > 0.5 and walk["speed_mps"] > 0.7  # real walks walk
-    # The content checks are calibrated on the real clips (all styles): 0.73 before.
+    # The content checks are calibrated on the real clips (all styles): 0.69 on these with the
+    # previous checks.
     assert results["overall"]["real"] >= 0.9
     written = json.loads((tmp_path / "out" / "results.json").read_text())
     assert written["overall"] == results["overall"]
