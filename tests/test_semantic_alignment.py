@@ -113,3 +113,17 @@ def test_scorer_reports_aligned_and_fixed_timing(walk_then_wave):
     assert scores["all"] == 1.0 and scores["segments"] == 1.0
     assert scores["all_fixed_timing"] == 0.0 and scores["segments_fixed_timing"] == 0.5
     assert scores["action_walk"] == 1.0 and scores["fixed_timing_action_walk"] == 0.0
+
+
+def test_a_neighbour_that_makes_such_events_cannot_absorb_or_split_one():
+    # A sit dips once itself: moving the boundary into it must neither give the squats its dip
+    # (a count one higher) nor take one squat (one lower).
+    squat = {"count": 2, "depth_deg": 90, "period_s": 1.8}
+    squats, sit = _action("squat", squat, 3.8), _action("sit", {"hold_s": 1.2, "knee_deg": 25}, 5.4)
+    sitting = ("sit", {"hold_s": 1.2, "knee_deg": 25}, len(sit))
+    for count in (1, 2, 3):
+        squatting = ("squat", {**squat, "count": count}, len(squats))
+        before = align_segments(_then(squats, sit), FPS, _labels(squatting, sitting))
+        after = align_segments(_then(sit, squats), FPS, _labels(sitting, squatting))
+        assert before.matches == (count == 2, True), count
+        assert after.matches == (True, count == 2), count
