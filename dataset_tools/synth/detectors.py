@@ -364,12 +364,14 @@ class WindowFacts(dict):
                 name: values[self.window] for name, values in self.signals.side[side].items()
             }
             arm = np.median(signals["arm"])
-            level = (np.abs(signals["above_shoulder"]) < 0.35 * arm) & ~signals["raising"]
+            level = np.abs(signals["above_shoulder"]) < 0.35 * arm
             reaches[side] = np.where(level, signals["reach"] / arm, 0.0)
         facts = {}
         for side in _SIDES:
-            # A punch extends one arm; both arms swinging forward together (a jump) is no punch.
+            # A punch extends one arm; both arms swinging forward together (a jump) is no punch,
+            # nor is an arm on its way up to or down from overhead.
             alone = reaches[_OTHER[side]] < 0.55
+            alone &= ~self.signals.side[side]["raising"][self.window]
             facts[f"punch_{side}"] = _count_above(np.where(alone, reaches[side], 0.0), 0.8, 0.55)
         return facts
 
