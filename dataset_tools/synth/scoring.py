@@ -23,7 +23,7 @@ from dataset_tools import humanml3d
 from dataset_tools.build import DATASET_FPS
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.synth.corpus import GENERATOR
-from dataset_tools.synth.detectors import clip_matches, mirror_label
+from dataset_tools.synth.detectors import MotionSignals, align_segments, mirror_label
 
 logger = logging.getLogger(__name__)
 
@@ -55,10 +55,13 @@ def find_corpus_labels(dataset_dir: str | Path) -> Path | None:
 class SemanticScorer:
     """Semantic accuracy on the demo corpus: do the corpus' own detectors find an item's labels?
 
-    An item counts as right when every labelled segment of its source clip is recovered from the
-    joints (the motion is cut in proportion to the segments' frames, see
-    :func:`~dataset_tools.synth.detectors.clip_matches`); mirrored clips (:func:`~dataset_tools.humanml3d.mirror_name`) are
-    checked against the mirrored labels. Sub-clips with their own time range are not scored.
+    An item counts as right when every labelled segment of its source clip is found in the
+    joints, in the labelled order, wherever the motion performs it
+    (:func:`~dataset_tools.synth.detectors.align_segments`: captions give the order and the
+    counts, never the timing). The strict score that cuts the motion in the proportions of the
+    labelled clip (:func:`~dataset_tools.synth.detectors.clip_matches`) is reported beside it
+    under ``*_fixed_timing`` names. Mirrored clips (:func:`~dataset_tools.humanml3d.mirror_name`)
+    are checked against the mirrored labels. Sub-clips with their own time range are not scored.
 
     Args:
         labels: the content of ``labels.json`` (``{"fps", "clips": {name: {"frames",
@@ -83,29 +86,40 @@ class SemanticScorer:
 
     def __call__(self, names: Sequence[str], motions: Sequence[np.ndarray]) -> dict[str, float]:
         """Raw features (T_i, D) of the named items -> ``all`` (items fully right),
-        ``segments`` (segments right) and ``action_<name>`` (segments of that action right)."""
-        items_right, items, per_action = 0, 0, {}
+        ``segments`` (segments right), ``action_<name>`` (segments of that action right), and
+        the same with the clip's own timing: ``all_fixed_timing``, ``segments_fixed_timing``,
+        ``fixed_timing_action_<name>``."""
+        items = 0
+        right = {"aligned": 0, "fixed": 0}
+        per_action: dict[str, list[int]] = {}  # action -> [aligned right, fixed right, total]
         for name, motion in zip(names, motions, strict=True):
             segments = self.segments_for(name)
             if segments is None:
                 continue
             base = name if name in self.clips else humanml3d.unmirrored_name(name)
             joints = recover_from_ric(motion, FeatureLayout.for_dim(motion.shape[-1]).num_joints)
-            matched = clip_matches(joints, self.fps, segments, self.clips[base]["frames"])
+            signals = MotionSignals(joints, self.fps)
+            found = align_segments(signals, self.fps, segments, self.clips[base]["frames"])
             items += 1
-            items_right += all(matched)
-            for segment, ok in zip(segments, matched, strict=True):
-                tally = per_action.setdefault(segment["action"], [0, 0])
+            right["aligned"] += all(found.matches)
+            right["fixed"] += all(found.fixed)
+            for segment, ok, fixed in zip(segments, found.matches, found.fixed, strict=True):
+                tally = per_action.setdefault(segment["action"], [0, 0, 0])
                 tally[0] += ok
-                tally[1] += 1
+                tally[1] += fixed
+                tally[2] += 1
         if items == 0:
             return {}
-        scores = {"all": items_right / items}
-        scores["segments"] = sum(t[0] for t in per_action.values()) / sum(
-            t[1] for t in per_action.values()
-        )
-        for action, (right, total) in sorted(per_action.items()):
-            scores[f"action_{action}"] = right / total
+        total = sum(t[2] for t in per_action.values())
+        scores = {
+            "all": right["aligned"] / items,
+            "segments": sum(t[0] for t in per_action.values()) / total,
+            "all_fixed_timing": right["fixed"] / items,
+            "segments_fixed_timing": sum(t[1] for t in per_action.values()) / total,
+        }
+        for action, (aligned, fixed, count) in sorted(per_action.items()):
+            scores[f"action_{action}"] = aligned / count
+            scores[f"fixed_timing_action_{action}"] = fixed / count
         return scores
 
 
