@@ -22,9 +22,8 @@ Three rearrangements, each the same sum in another order:
 
 from __future__ import annotations
 
-import copy
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import torch
@@ -251,12 +250,67 @@ def float_linear(weight: torch.Tensor, bias: torch.Tensor | None, copy: bool = T
     return linear
 
 
-def packed_linear(weight: torch.Tensor, bias: torch.Tensor | None) -> nn.Module:
-    """A :class:`PackedLinear` for a bfloat16 weight on a CPU that supports it, else
-    :func:`float_linear`."""
+LinearFactory = Callable[[Sequence[torch.Tensor], Sequence[torch.Tensor] | None], nn.Module]
+"""Makes the Linear whose weight is the given (O_i, I) blocks stacked by rows (sum O_i, I) and
+whose bias is the bias blocks concatenated (or none)."""
+
+
+def packed_linear(weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor] | None):
+    """A :class:`PackedLinear` for bfloat16 weights on a CPU that supports it, else
+    :func:`float_linear` (a :data:`LinearFactory`)."""
+    weight = torch.cat([w.detach() for w in weights])
+    bias = None if biases is None else torch.cat([b.detach() for b in biases])
     if PackedLinear.supports(weight):
         return PackedLinear(weight, bias)
-    return float_linear(weight, bias)
+    return float_linear(weight, bias, copy=False)
+
+
+def _shared_rows(parameters: Sequence[torch.Tensor]) -> torch.Tensor:
+    """The parameters' rows stacked (sum O_i, ...), each parameter made a view of its rows
+    (``.data`` replaced: the same Parameter objects, so an optimiser's references stay valid):
+    the model and its plan hold the weights once. One parameter: itself."""
+    if len(parameters) == 1:
+        return parameters[0].detach()
+    stacked = torch.cat([p.detach() for p in parameters])
+    start = 0
+    for parameter in parameters:
+        parameter.data = stacked[start : start + parameter.shape[0]]
+        start += parameter.shape[0]
+    return stacked
+
+
+def shared_linear(weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor] | None):
+    """A :data:`LinearFactory` for float weights that the plan shares with the model: the
+    stacked weight (and bias) is the storage of the model's parameters (:func:`_shared_rows`)."""
+    bias = None if biases is None else _shared_rows(biases)
+    return float_linear(_shared_rows(weights), bias, copy=False)
+
+
+def _input_weights(vae: TemporalVAE, share: bool) -> dict[str, list[torch.Tensor]]:
+    """The prior's and generator's input-Linear weights as row blocks for the plan:
+    ``previous`` (2H, C) and ``attention`` (2H, A), the two blocks' rows, and the generator's
+    ``latent`` (H, Z). ``share``: single views of one (2H, C + A + Z) tensor whose rows are
+    [prior weight, zeros (H, Z)] and the generator's weight, the blocks' weights made views of
+    it (as :func:`_shared_rows`); otherwise views of the blocks' weights."""
+    c, a = vae.code_size, vae.config.attention_size
+    prior, generator = vae.prior.input.weight.detach(), vae.generator.input.weight.detach()
+    if not share:
+        return {
+            "previous": [prior[:, :c], generator[:, :c]],
+            "attention": [prior[:, c : c + a], generator[:, c : c + a]],
+            "latent": [generator[:, c + a :]],
+        }
+    hidden = prior.shape[0]
+    stacked = prior.new_zeros(2 * hidden, generator.shape[1])
+    stacked[:hidden, : c + a] = prior
+    stacked[hidden:] = generator
+    vae.prior.input.weight.data = stacked[:hidden, : c + a]
+    vae.generator.input.weight.data = stacked[hidden:]
+    return {
+        "previous": [stacked[:, :c]],
+        "attention": [stacked[:, c : c + a]],
+        "latent": [stacked[hidden:, c + a :]],
+    }
 
 
 class GenerationPlan(nn.Module):
@@ -272,47 +326,47 @@ class GenerationPlan(nn.Module):
       Gaussian and the output head's first Linear: each state is read by one stacked Linear,
       (3H + 2Z, H) for the prior and (3H + H, H) for the generator.
 
-    Built from a float model (:func:`generation_plan`). ``linear(weight, bias)`` makes each
-    Linear (default: :func:`packed_linear`); :func:`t2m.quantize.quantize_int8` passes one
-    that quantises it at once, so no float copy of the whole plan is ever held.
+    Built from a float model (:func:`generation_plan`). ``linear`` (a :data:`LinearFactory`)
+    makes each Linear from its row blocks; :func:`t2m.quantize.quantize_int8` passes one that
+    quantises the blocks one by one, so no float copy of a stacked weight is ever held. The
+    default: :func:`packed_linear` for bfloat16 weights, and for float32 ones
+    :func:`shared_linear`: the plan holds no weights of its own, the model's stacked
+    parameters become views into the plan's (a separate copy cost a paper-size float32
+    generation process +13% peak memory).
     """
 
-    def __init__(
-        self,
-        vae: TemporalVAE,
-        linear: Callable[[torch.Tensor, torch.Tensor | None], nn.Module] | None = None,
-    ):
+    def __init__(self, vae: TemporalVAE, linear: LinearFactory | None = None):
         super().__init__()
-        _linear = packed_linear if linear is None else linear
-        c, a = vae.code_size, vae.config.attention_size
-        self.hidden_size, self.latent_size = vae.config.hidden_size, vae.config.latent_size
         prior, gen = vae.prior, vae.generator
-        prior_in, gen_in = prior.input.weight, gen.input.weight
-        self.previous = _linear(
-            torch.cat([prior_in[:, :c], gen_in[:, :c]]),
-            torch.cat([prior.input.bias, gen.input.bias]),
-        )  # (2H, C)
-        self.latent = _linear(gen_in[:, c + a :], None)  # (H, Z)
-        # per-sequence tables: keys -> keys W_q (A -> H), values -> values W_att^T (A -> 2H)
-        self.score_table = _linear(vae.query.weight.t().contiguous(), None)
-        self.register_buffer("query_bias", vae.query.bias.detach().clone())  # (A,)
-        self.value_table = _linear(torch.cat([prior_in[:, c : c + a], gen_in[:, c : c + a]]), None)
-        self.prior_norm = copy.deepcopy(prior.norm).requires_grad_(False)
-        self.generator_norm = copy.deepcopy(gen.norm).requires_grad_(False)
-        self.prior_gates = _linear(prior.cell.weight_ih, prior.cell.bias_ih)  # (3H, H)
-        self.generator_gates = _linear(gen.cell.weight_ih, gen.cell.bias_ih)
-        gaussian = vae.prior_gaussian
-        self.prior_state = _linear(  # (3H + 2Z, H): next hidden gates, mean, log-variance
-            torch.cat([prior.cell.weight_hh, gaussian.mean.weight, gaussian.logvar.weight]),
-            torch.cat([prior.cell.bias_hh, gaussian.mean.bias, gaussian.logvar.bias]),
-        )
+        share = linear is None and not PackedLinear.supports(prior.input.weight)
+        if linear is None:
+            linear = shared_linear if share else packed_linear
+        self.hidden_size, self.latent_size = vae.config.hidden_size, vae.config.latent_size
+        inputs = _input_weights(vae, share)
+        # largest first: each int8 weight's temporaries then fit where the previous one's were
         first, norm, _, last = vae.output
-        self.generator_state = _linear(  # (3H + H, H): next hidden gates, output's first Linear
-            torch.cat([gen.cell.weight_hh, first.weight]),
-            torch.cat([gen.cell.bias_hh, first.bias]),
+        self.generator_state = linear(  # (3H + H, H): next hidden gates, output's first Linear
+            [gen.cell.weight_hh, first.weight], [gen.cell.bias_hh, first.bias]
         )
-        self.output_norm = copy.deepcopy(norm).requires_grad_(False)
-        self.output_last = _linear(last.weight, last.bias)
+        gaussian = vae.prior_gaussian
+        self.prior_state = linear(  # (3H + 2Z, H): next hidden gates, mean, log-variance
+            [prior.cell.weight_hh, gaussian.mean.weight, gaussian.logvar.weight],
+            [prior.cell.bias_hh, gaussian.mean.bias, gaussian.logvar.bias],
+        )
+        self.prior_gates = linear([prior.cell.weight_ih], [prior.cell.bias_ih])  # (3H, H)
+        self.generator_gates = linear([gen.cell.weight_ih], [gen.cell.bias_ih])
+        self.previous = linear(inputs["previous"], [prior.input.bias, gen.input.bias])  # (2H, C)
+        # per-sequence tables: keys -> keys W_q (A -> H), values -> values W_att^T (A -> 2H)
+        self.value_table = linear(inputs["attention"], None)
+        self.score_table = linear([vae.query.weight.detach().t()], None)
+        self.register_buffer("query_bias", vae.query.bias.detach().clone())  # (A,)
+        self.output_last = linear([last.weight], [last.bias])
+        self.latent = linear(inputs["latent"], None)  # (H, Z)
+        self.prior_norm, self.generator_norm, self.output_norm = (
+            prior.norm,
+            gen.norm,
+            norm,
+        )  # shared
 
     def tables(self, context: WordContext) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per sequence: score table (B, L, H), score bias (B, L, 1) (mask included) and value
