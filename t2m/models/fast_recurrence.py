@@ -174,17 +174,22 @@ def fast_forward(
     attention_linear = StepLinear(weights["attention"], None, steps, batch)
 
     h_prior, h_gen, previous, h_post = state
+    # per step: unbind, not indexing; an index's backward writes its step into a zero-filled
+    # (B, S, .) tensor, once per step
+    current, time_codes, noise = current.unbind(1), time_codes.unbind(1), noise.unbind(1)
+    if teacher_forcing:
+        previous_all = previous_all.unbind(1)
     prior_states, generator_states, codes_out, post_means, post_logvars = [], [], [], [], []
     for i in range(steps):
         attention, _ = vae.attend(h_gen, context)
-        pre = previous_all[:, i] if teacher_forcing else previous_linear(previous, i)
+        pre = previous_all[i] if teacher_forcing else previous_linear(previous, i)
         pre = pre + attention_linear(attention, i)  # (B, 3H)
         pre_prior, pre_post, pre_gen = pre.split(hidden_size, dim=-1)
-        time_code = time_codes[:, i]
-        h_post = posterior_block(pre_post + current[:, i], time_code, h_post, i)
+        time_code = time_codes[i]
+        h_post = posterior_block(pre_post + current[i], time_code, h_post, i)
         h_prior = prior_block(pre_prior, time_code, h_prior, i)
         post_mean, post_logvar = vae.posterior_gaussian(h_post)
-        z = post_mean + torch.exp(0.5 * post_logvar) * noise[:, i]
+        z = post_mean + torch.exp(0.5 * post_logvar) * noise[i]
         h_gen = generator_block(pre_gen + F.linear(z, weights["latent"]), time_code, h_gen, i)
         prior_states.append(h_prior)
         generator_states.append(h_gen)
