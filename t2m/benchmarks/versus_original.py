@@ -26,9 +26,9 @@ weights at the paper's sizes and the same inputs. What each row times:
   the anomaly detection its script switches on); ours fp32 and under bf16 autocast.
 * ``autoencoder_step`` (batch 128 x 24 frames), ``length_step`` (batch 64),
   ``evaluator_step`` (batch 32, 196 frames): forward, loss, backward, clipping where the stage
-  clips, Adam (ours fused, as in training); the original's trainers' ``forward`` / ``update`` (its
-  length loop's body);
-  ours in fp32 and under bf16 autocast (what ``--bf16`` does in training).
+  clips, Adam (ours fused, as in training); the original's trainers' ``forward`` / ``update``
+  (its length loop's body); ours in fp32 and under bf16 autocast (what ``--bf16`` does in
+  training).
 * ``peak_memory_*``: a fresh process per side that builds the paper-size generation models
   (random weights) and generates one 196-frame motion at batch 1; its peak resident set.
 """
