@@ -18,6 +18,11 @@ Three rearrangements, each the same sum in another order:
    (:func:`gru_update`) because ``nn.GRUCell`` reads its weights itself.
 3. Heads whose outputs the loop does not feed back (the prior's Gaussian; the output head under
    teacher forcing) run once over all steps.
+
+Every product inside the loop (the attention query, the posterior's Gaussian, z's projection,
+the fed-back output head too) is a :class:`StepLinear`, whose weight is packed once per
+sequence for oneDNN on a CPU: with those, a paper-size training step (batch 32, one thread)
+took 0.80x the time in float32 and 0.85x under bfloat16 autocast.
 """
 
 from __future__ import annotations
@@ -60,10 +65,43 @@ class _StepWeightGradient(torch.autograd.Function):
         return grad_weight, grad_bias, None, None
 
 
+def _packable(weight: torch.Tensor) -> bool:
+    """Whether oneDNN can pack ``weight`` for its matrix product on this CPU and torch build."""
+    if weight.device.type != "cpu" or not torch.backends.mkldnn.is_available():
+        return False
+    if weight.dtype == torch.bfloat16:
+        return torch.ops.mkldnn._is_mkldnn_bf16_supported()
+    return weight.dtype == torch.float32
+
+
+def _packed_product(
+    inputs: torch.Tensor, packed: torch.Tensor, bias: torch.Tensor | None
+) -> torch.Tensor:
+    """``F.linear`` with a weight packed by ``torch.ops.mkldnn._reorder_linear_weight``."""
+    return torch.ops.mkldnn._linear_pointwise(inputs, packed, bias, "none", [], "")
+
+
+class _PackedStepProduct(torch.autograd.Function):
+    """One step's ``x W^T + b`` through packed weights; backward gives the input's gradient
+    (``grad W``, W^T packed too), the weight's and bias's go through :class:`StepLinear`."""
+
+    @staticmethod
+    def forward(ctx, inputs, linear):
+        ctx.transposed = linear.transposed
+        return _packed_product(inputs, linear.packed, linear.bias)
+
+    @staticmethod
+    def backward(ctx, grad):
+        return _packed_product(grad.contiguous(), ctx.transposed, None), None
+
+
 class StepLinear:
     """``F.linear(x_t, weight, bias)`` for t = 0 .. S-1 inside a recurrent loop, with the weight
     gradient computed once over all steps (see :class:`_StepWeightGradient`).
 
+    On a CPU the weight (and for the input's gradient its transpose) is packed once for
+    oneDNN: at the loop's batch of 32 its products take 0.55-0.7x the time of ``F.linear``'s
+    on one thread (paper size, float32), and packing costs about one product.
     Without gradients (validation) it is a plain Linear.
     """
 
@@ -78,7 +116,14 @@ class StepLinear:
         self.bias = bias.detach().to(dtype) if bias is not None else None
         self.tape: list[torch.Tensor] = []
         self.zeros: tuple[torch.Tensor, ...] | None = None
-        if torch.is_grad_enabled() and weight.requires_grad:
+        training = torch.is_grad_enabled() and weight.requires_grad
+        self.packed = self.transposed = None
+        if _packable(self.weight):
+            self.packed = torch.ops.mkldnn._reorder_linear_weight(self.weight)
+            if torch.is_grad_enabled():
+                transposed = self.weight.t().contiguous()
+                self.transposed = torch.ops.mkldnn._reorder_linear_weight(transposed)
+        if training:
             bias = None if bias is None else bias.to(dtype)
             zeros = _StepWeightGradient.apply(
                 weight.to(dtype), bias, self.tape, (steps, batch, weight.shape[0])
@@ -88,7 +133,13 @@ class StepLinear:
             self.zeros = zeros.unbind(0)
 
     def __call__(self, inputs: torch.Tensor, step: int) -> torch.Tensor:
-        output = F.linear(inputs.to(self.weight.dtype), self.weight, self.bias)
+        inputs = inputs.to(self.weight.dtype)
+        if self.packed is None:
+            output = F.linear(inputs, self.weight, self.bias)
+        elif self.transposed is not None and inputs.requires_grad:
+            output = _PackedStepProduct.apply(inputs, self)
+        else:
+            output = _packed_product(inputs, self.packed, self.bias)
         if self.zeros is None:
             return output
         self.tape.append(inputs.detach())
@@ -170,8 +221,30 @@ def fast_forward(
     prior_block = _FastBlock(vae.prior, steps, batch)
     posterior_block = _FastBlock(vae.posterior, steps, batch)
     generator_block = _FastBlock(vae.generator, steps, batch)
-    previous_linear = StepLinear(weights["previous"], weights["bias"], steps, batch)
     attention_linear = StepLinear(weights["attention"], None, steps, batch)
+    query_linear = StepLinear(vae.query.weight, vae.query.bias, steps, batch)
+    gaussian = vae.posterior_gaussian  # mean and log-variance: one (2Z, H) product
+    gaussian_linear = StepLinear(
+        torch.cat([gaussian.mean.weight, gaussian.logvar.weight]),
+        torch.cat([gaussian.mean.bias, gaussian.logvar.bias]),
+        steps,
+        batch,
+    )
+    latent_linear = StepLinear(weights["latent"], None, steps, batch)
+    if not teacher_forcing:  # the model's own code, fed back: previous code and output head
+        previous_linear = StepLinear(weights["previous"], weights["bias"], steps, batch)
+        first, output_norm, _, last = vae.output
+        first_linear = StepLinear(first.weight, first.bias, steps, batch)
+        last_linear = StepLinear(last.weight, last.bias, steps, batch)
+
+    def attend(hidden: torch.Tensor, i: int) -> torch.Tensor:
+        """:meth:`TemporalVAE.attend`'s attention vector (B, A), its query a StepLinear."""
+        query = query_linear(hidden, i)[..., None]  # (B, A, 1)
+        scores = torch.baddbmm(
+            context.mask_bias[..., None], context.keys, query, alpha=query.shape[1] ** -0.5
+        )
+        attention_weights = torch.softmax(scores[..., 0], dim=-1)
+        return torch.bmm(attention_weights[:, None], context.values)[:, 0]
 
     h_prior, h_gen, previous, h_post = state
     # per step: unbind, not indexing; an index's backward writes its step into a zero-filled
@@ -181,22 +254,23 @@ def fast_forward(
         previous_all = previous_all.unbind(1)
     prior_states, generator_states, codes_out, post_means, post_logvars = [], [], [], [], []
     for i in range(steps):
-        attention, _ = vae.attend(h_gen, context)
+        attention = attend(h_gen, i)
         pre = previous_all[i] if teacher_forcing else previous_linear(previous, i)
         pre = pre + attention_linear(attention, i)  # (B, 3H)
         pre_prior, pre_post, pre_gen = pre.split(hidden_size, dim=-1)
         time_code = time_codes[i]
         h_post = posterior_block(pre_post + current[i], time_code, h_post, i)
         h_prior = prior_block(pre_prior, time_code, h_prior, i)
-        post_mean, post_logvar = vae.posterior_gaussian(h_post)
+        post_mean, post_logvar = gaussian_linear(h_post, i).chunk(2, dim=-1)
         z = post_mean + torch.exp(0.5 * post_logvar) * noise[i]
-        h_gen = generator_block(pre_gen + F.linear(z, weights["latent"]), time_code, h_gen, i)
+        h_gen = generator_block(pre_gen + latent_linear(z, i), time_code, h_gen, i)
         prior_states.append(h_prior)
         generator_states.append(h_gen)
         post_means.append(post_mean)
         post_logvars.append(post_logvar)
         if not teacher_forcing:  # the next step needs this code now
-            code = vae.output(h_gen)
+            hidden = F.leaky_relu(output_norm(first_linear(h_gen, i)), 0.2)
+            code = last_linear(hidden, i)
             codes_out.append(code)
             previous = code.detach()
     prior_mean, prior_logvar = vae.prior_gaussian(torch.stack(prior_states, dim=1))
