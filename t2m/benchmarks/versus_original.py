@@ -42,7 +42,6 @@ import json
 import os
 import platform
 import random
-import resource
 import statistics
 import subprocess
 import sys
@@ -390,11 +389,13 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
 
 def memory_child(side: str, original_path: str) -> float:
     """Build the paper-size generation models, generate one motion; peak RSS in MB."""
+    from t2m.benchmarks.memory import peak_rss_mb
+
     torch.set_num_threads(1)
     orig = import_original(Path(original_path))
     rows = generation_rows_for_memory(orig, side)
     rows()
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return peak_rss_mb()
 
 
 def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[], object]:
