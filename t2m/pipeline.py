@@ -151,7 +151,9 @@ class TextToMotion:
             continue from known frames (:meth:`edit`); None: edits search without it.
         copy_models: for bf16 / int8, convert copies of ``vae`` and ``decoder`` (the caller's
             modules stay float32); False converts them in place, which saves holding the float32
-            weights and their converted copy at once (``from_checkpoints`` owns what it loads).
+            weights and their converted copy at once (``from_checkpoints`` owns what it loads),
+            and, without an ``encoder``, releases the VAE's posterior
+            (:meth:`~t2m.models.temporal_vae.TemporalVAE.release_posterior`: nothing here reads it).
     """
 
     def __init__(
@@ -199,6 +201,9 @@ class TextToMotion:
         self.training_words = frozenset(training_words)
         vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
+        if not copy_models and encoder is None:
+            # nothing here reads the posterior without an encoder (it reads an edit's kept start)
+            vae.release_posterior()
         if precision == "int8":
             vae = quantize_int8(vae, inplace=not copy_models)
         elif precision == "bf16":

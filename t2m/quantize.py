@@ -28,7 +28,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from t2m.models.fast_recurrence import GenerationPlan, float_linear, set_generation_plan
+from t2m.models.fast_recurrence import GenerationPlan, set_generation_plan
 from t2m.models.temporal_vae import TemporalVAE
 
 
@@ -56,16 +56,77 @@ class PartwiseLinear(nn.Module):
         return output
 
 
+def int8_linear(
+    weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor] | None
+) -> nn.Module:
+    """The dynamically quantised Linear of the row blocks ``weights`` stacked (a
+    :data:`~t2m.models.fast_recurrence.LinearFactory`), as ``quantize_dynamic`` makes it from
+    the stacked float weight (the same observer, so the same scale and int8 values), but
+    quantised a few rows at a time into the int8 weight: no float copy of the stack, and no
+    temporaries as large as the weight (those fragmented the heap: +35 MB resident at paper
+    size)."""
+    from torch.ao.nn.quantized.dynamic import Linear as DynamicLinear
+    from torch.ao.quantization import default_dynamic_qconfig
+
+    observer = default_dynamic_qconfig.weight()  # per-tensor symmetric, as quantize_dynamic
+    for weight in weights:
+        observer(weight.detach())
+    scale, zero_point = (q.item() for q in observer.calculate_qparams())
+    rows = sum(weight.shape[0] for weight in weights)
+    qweight = torch._empty_affine_quantized(
+        (rows, weights[0].shape[1]), scale=scale, zero_point=int(zero_point), dtype=torch.qint8
+    )
+    start = 0
+    for weight in weights:
+        for part in weight.detach().split(_QUANTISE_ROWS):
+            quantized = torch.quantize_per_tensor(part.float(), scale, zero_point, torch.qint8)
+            qweight[start : start + part.shape[0]].copy_(quantized)
+            start += part.shape[0]
+    bias = None if biases is None else torch.cat([b.detach().float() for b in biases])
+    linear = DynamicLinear(qweight.shape[1], qweight.shape[0], dtype=torch.qint8)
+    linear.set_weight_bias(qweight, bias)
+    return linear
+
+
+_QUANTISE_ROWS = 128
+"""Rows quantised at a time by :func:`int8_linear`."""
+
+
+def _dynamic_int8_types() -> dict[type, type]:
+    """Float module type -> its dynamically quantised type (what ``quantize_dynamic`` maps)."""
+    import torch.ao.nn.quantized.dynamic as dynamic
+
+    return {nn.Linear: dynamic.Linear, nn.GRUCell: dynamic.GRUCell, nn.GRU: dynamic.GRU}
+
+
+def _convert(module: nn.Module, types: dict[type, type]) -> nn.Module:
+    """``module`` with its Linears, GRU cells and GRUs replaced by int8 ones, in place, one at
+    a time. Each float layer is freed as soon as it is replaced: torch's ``quantize_dynamic``
+    leaves the replaced layers in reference cycles until a garbage collection (+84 MB of a
+    paper-size generation process's peak)."""
+    from torch.ao.quantization import default_dynamic_qconfig
+
+    quantized = types.get(type(module))
+    if quantized is not None:
+        module.qconfig = default_dynamic_qconfig
+        return quantized.from_float(module)
+    for name in list(module._modules):  # names only: no list holding the float layers
+        child = module._modules[name]
+        if child is not None:
+            module._modules[name] = _convert(child, types)
+        del child
+    return module
+
+
 def quantize_int8(module: nn.Module, inplace: bool = False) -> nn.Module:
     """``module`` with every ``nn.Linear``, ``nn.GRUCell`` and ``nn.GRU`` dynamically quantised
-    to int8, a :class:`TemporalVAE`'s generator input split first (see the module docstring).
+    to int8 (as torch's ``quantize_dynamic`` does), a :class:`TemporalVAE`'s generator input
+    split first (see the module docstring).
 
     By default a copy (the original is left as is, and the process holds both for a while:
     +41% peak memory of a paper-size generation process); ``inplace``: the module's own layers
     are replaced one by one, each float weight freed as its int8 copy is made.
     """
-    from torch.ao.quantization import quantize_dynamic
-
     if not inplace:
         module = copy.deepcopy(module)
     with warnings.catch_warnings():
@@ -73,10 +134,6 @@ def quantize_int8(module: nn.Module, inplace: bool = False) -> nn.Module:
         # dependency here); the API still works in the pinned torch.
         warnings.simplefilter("ignore", DeprecationWarning)
         warnings.simplefilter("ignore", UserWarning)
-
-        def int8_linear(weight: torch.Tensor, bias: torch.Tensor | None) -> nn.Module:
-            holder = nn.Sequential(float_linear(weight, bias, copy=False))  # quantising copies
-            return quantize_dynamic(holder, {nn.Linear}, dtype=torch.qint8, inplace=True)[0]
 
         for vae in module.modules():
             if isinstance(vae, TemporalVAE):
@@ -86,6 +143,4 @@ def quantize_int8(module: nn.Module, inplace: bool = False) -> nn.Module:
                 block.input = PartwiseLinear(
                     block.input, (block.input.in_features - latent, latent)
                 )
-        return quantize_dynamic(
-            module, {nn.Linear, nn.GRUCell, nn.GRU}, dtype=torch.qint8, inplace=True
-        )
+        return _convert(module, _dynamic_int8_types())

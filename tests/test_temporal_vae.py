@@ -301,3 +301,83 @@ def test_temporal_vae_loss_and_kl():
         outputs, torch.ones(2, 3, 5), torch.zeros(2, 12, 7), torch.zeros(2, 12, 7)
     )
     assert torch.allclose(losses["loss"], torch.tensor(0.5))  # SmoothL1(0, 1) = 0.5, rest zero
+
+
+def test_float_plan_shares_the_model_weights_and_training_goes_on():
+    vae = make_vae().eval()
+    features, sentence, mask = text(vae)
+    args = (features, sentence, mask, torch.tensor([6, 3, 5]), randn(CODE, seed=2))
+    noise = randn(3, 6, LATENT, seed=3)
+    before = vae.generate(*args, noise=noise)
+    plan = generation_plan(vae)
+    model = {p.untyped_storage().data_ptr() for p in vae.parameters()}
+    planned = [p for p in plan.parameters()]
+    assert planned and all(p.untyped_storage().data_ptr() in model for p in planned)
+    # an optimiser built before the plan still updates the same parameters, now views
+    optimizer = torch.optim.Adam(vae.parameters(), lr=1e-2)
+    codes = randn(3, 6, CODE, seed=4)
+    vae.train()
+    loss_of(vae(features, sentence, mask, codes, args[4], True, noise), codes).backward()
+    optimizer.step()
+    vae.eval()
+    after = vae.generate(*args, noise=noise)
+    assert (after - before).abs().max() > 1e-3
+    plain = vae.generate(*args, noise=noise, fast=False)
+    torch.testing.assert_close(after, plain, rtol=0, atol=1e-5 * plain.abs().max().item())
+
+
+def test_int8_linear_of_blocks_is_quantize_dynamic_of_the_stack():
+    import warnings
+
+    from torch.ao.quantization import quantize_dynamic
+
+    from t2m.quantize import int8_linear
+
+    blocks = [randn(300, 16, seed=0), randn(7, 16, seed=1) * 3, randn(40, 16, seed=2)[:, :16]]
+    biases = [randn(300, seed=3), randn(7, seed=4), randn(40, seed=5)]
+    stacked = torch.nn.Linear(16, 347)
+    stacked.weight.data, stacked.bias.data = torch.cat(blocks), torch.cat(biases)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reference = quantize_dynamic(torch.nn.Sequential(stacked), {torch.nn.Linear})[0]
+        ours = int8_linear(blocks, biases)
+        inputs = randn(5, 16, seed=6)
+        assert torch.equal(ours.weight().int_repr(), reference.weight().int_repr())
+        assert ours.weight().q_scale() == reference.weight().q_scale()
+        assert torch.equal(ours(inputs), reference(inputs))
+
+
+def test_quantize_int8_frees_each_float_layer_at_once():
+    import gc
+    import weakref
+
+    vae = make_vae().eval()
+    layers = [weakref.ref(vae.prior.cell), weakref.ref(vae.text_encoder.gru), weakref.ref(vae.key)]
+    enabled = gc.isenabled()
+    gc.disable()  # torch's quantize_dynamic left them in reference cycles until a collection
+    try:
+        quantize_int8(vae, inplace=True)
+        assert all(layer() is None for layer in layers)
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def test_released_posterior_samples_the_same_and_refuses_the_rest():
+    vae = make_vae().eval()
+    features, sentence, mask = text(vae)
+    args = (features, sentence, mask, torch.tensor([6, 3, 5]), randn(CODE, seed=2))
+    noise = randn(3, 6, LATENT, seed=3)
+    expected = vae.generate(*args, noise=noise)
+    vae.release_posterior()
+    assert not any(name.startswith("posterior") for name in vae.state_dict())
+    assert torch.equal(vae.generate(*args, noise=noise), expected)
+    codes = randn(3, 4, CODE, seed=4)
+    with pytest.raises(ValueError, match="posterior was released"):
+        vae(features, sentence, mask, codes, args[4], True, noise[:, :4])
+    with pytest.raises(ValueError, match="posterior was released"):
+        vae.prefix_state(features, sentence, mask, codes, args[4], torch.tensor([6, 6, 6]))
+    prior_only = vae.prefix_state(
+        features, sentence, mask, codes, args[4], torch.tensor([6, 6, 6]), posterior=False
+    )
+    assert prior_only.posterior is None

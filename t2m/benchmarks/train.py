@@ -27,7 +27,7 @@ from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.models.length import LengthEstimator, length_loss
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
-from t2m.train.runtime import resolve_device
+from t2m.train.runtime import adam, resolve_device
 
 FEATURE_DIM, WORD_DIM, TOKENS = 263, 300, 22
 
@@ -77,7 +77,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
 
     # -- stage 1: autoencoder, batch 128 windows of 24 frames
     ae = MovementAutoencoder(FEATURE_DIM, config.autoencoder.model).to(device_)
-    ae_opt = torch.optim.Adam(ae.parameters(), lr=config.autoencoder.lr)
+    ae_opt = adam(ae.parameters(), lr=config.autoencoder.lr)
     windows = torch.randn(
         config.autoencoder.batch_size,
         config.autoencoder.window_frames,
@@ -100,7 +100,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
 
     # -- stage 2: text2length, batch 64
     estimator = LengthEstimator(WORD_DIM, config.length.model).to(device_)
-    len_opt = torch.optim.Adam(estimator.parameters(), lr=config.length.lr)
+    len_opt = adam(estimator.parameters(), lr=config.length.lr)
     words, pos, lengths = _text(config.length.batch_size, generator, device_)
     classes = torch.randint(10, 50, (config.length.batch_size,), generator=generator).to(device_)
 
@@ -121,7 +121,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     batch, snippets = config.generator.batch_size, config.generator.end_snippets
     code_size = config.autoencoder.model.code_size
     vae = TemporalVAE(WORD_DIM, code_size, config.generator.model).to(device_)
-    t2m_opt = torch.optim.Adam(
+    t2m_opt = adam(
         [
             {"params": vae.parameters(), "lr": config.generator.lr},
             {"params": ae.decoder.parameters(), "lr": config.generator.decoder_lr},
@@ -187,7 +187,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
         WORD_DIM, FEATURE_DIM, config.autoencoder.model, config.evaluator.model
     ).to(device_)
     eval_trainable = [p for p in evaluator.parameters() if p.requires_grad]
-    eval_opt = torch.optim.Adam(eval_trainable, lr=config.evaluator.lr)
+    eval_opt = adam(eval_trainable, lr=config.evaluator.lr)
     motion_lengths = torch.randint(10, 50, (batch,), generator=generator).to(device_) * 4
     motion = torch.randn(batch, 196, FEATURE_DIM, generator=generator).to(device_)
 

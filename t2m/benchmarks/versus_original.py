@@ -20,13 +20,15 @@ weights at the paper's sizes and the same inputs. What each row times:
   ours at fp32, bf16 and int8 (:class:`t2m.pipeline.TextToMotion`). Batch 32: 32 copies of
   the prompt; reported as seconds per batch (the ratio is the inverse of the throughput ratio).
 * ``vae_step_*``: one temporal-VAE training step, batch 32 x 49 snippets: encoder codes,
-  forward, loss, backward, clipping at 0.5, Adam; 0.4 x teacher-forced + 0.6 x free-running
+  forward, loss, backward, clipping at 0.5, Adam (ours: the fused Adam that training uses,
+  :func:`t2m.train.runtime.adam`); 0.4 x teacher-forced + 0.6 x free-running
   (the mix of both trainers). The original's ``CompTrainerV6.forward`` / ``update`` (without
   the anomaly detection its script switches on); ours fp32 and under bf16 autocast.
 * ``autoencoder_step`` (batch 128 x 24 frames), ``length_step`` (batch 64),
   ``evaluator_step`` (batch 32, 196 frames): forward, loss, backward, clipping where the stage
-  clips, Adam; the original's trainers' ``forward`` / ``update`` (its length loop's body);
-  ours in fp32 and under bf16 autocast (what ``--bf16`` does in training).
+  clips, Adam (ours fused, as in training); the original's trainers' ``forward`` / ``update``
+  (its length loop's body); ours in fp32 and under bf16 autocast (what ``--bf16`` does in
+  training).
 * ``peak_memory_*``: a fresh process per side that builds the paper-size generation models
   (random weights) and generates one 196-frame motion at batch 1; its peak resident set.
 """
@@ -40,7 +42,6 @@ import json
 import os
 import platform
 import random
-import resource
 import statistics
 import subprocess
 import sys
@@ -206,6 +207,7 @@ def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
     from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder
     from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+    from t2m.train.runtime import adam
 
     batch, config = 32, paper()
     generator = torch.Generator().manual_seed(1)
@@ -216,7 +218,7 @@ def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
     ae = MovementAutoencoder(FEATURES, config.autoencoder.model)
     ae.encoder.eval().requires_grad_(False)
     vae = TemporalVAE(WORD_DIM, 512, config.generator.model)
-    optimizer = torch.optim.Adam(
+    optimizer = adam(
         [{"params": vae.parameters()}, {"params": ae.decoder.parameters(), "lr": 2e-5}], lr=2e-4
     )
     trainable = list(vae.parameters()) + list(ae.decoder.parameters())
@@ -285,6 +287,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
     from t2m.models.evaluator import Evaluator, contrastive_loss
     from t2m.models.length import LengthEstimator, length_loss
+    from t2m.train.runtime import adam
 
     config, m = paper(), orig.modules
     generator = torch.Generator().manual_seed(2)
@@ -294,7 +297,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     # autoencoder, batch 128 x 24 frames
     windows = torch.randn(128, 24, FEATURES, generator=generator)
     ae = MovementAutoencoder(FEATURES, config.autoencoder.model).train()
-    ae_opt = torch.optim.Adam(ae.parameters(), lr=1e-4)
+    ae_opt = adam(ae.parameters(), lr=1e-4)
 
     def ours_ae(bf16: bool) -> None:
         with _autocast(bf16):
@@ -321,7 +324,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     text64 = random_text(64, generator)
     classes = torch.randint(10, 50, (64,), generator=generator)
     estimator = LengthEstimator(WORD_DIM, config.length.model).train()
-    length_opt = torch.optim.Adam(estimator.parameters(), lr=1e-4)
+    length_opt = adam(estimator.parameters(), lr=1e-4)
 
     def ours_length(bf16: bool) -> None:
         with _autocast(bf16):
@@ -352,7 +355,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     evaluator = Evaluator(WORD_DIM, FEATURES, config.autoencoder.model, config.evaluator.model)
     evaluator.train()
     trainable = [p for p in evaluator.parameters() if p.requires_grad]
-    eval_opt = torch.optim.Adam(trainable, lr=1e-4)
+    eval_opt = adam(trainable, lr=1e-4)
 
     def ours_evaluator(bf16: bool) -> None:
         with _autocast(bf16):
@@ -386,11 +389,13 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
 
 def memory_child(side: str, original_path: str) -> float:
     """Build the paper-size generation models, generate one motion; peak RSS in MB."""
+    from t2m.benchmarks.memory import peak_rss_mb
+
     torch.set_num_threads(1)
     orig = import_original(Path(original_path))
     rows = generation_rows_for_memory(orig, side)
     rows()
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return peak_rss_mb()
 
 
 def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[], object]:

@@ -183,6 +183,21 @@ class TemporalVAE(nn.Module):
         left = snippets_left[:, None] - torch.arange(steps, device=snippets_left.device)[None, :]
         return self.time_table[left.clamp(0, self.config.max_snippets - 1)]
 
+    def release_posterior(self) -> None:
+        """Free the posterior (its block and Gaussian) of a model that will only sample: the
+        posterior runs in training (:meth:`forward`) and in :meth:`prefix_state` with
+        ``posterior=True``, which refuse afterwards (ValueError). At paper size it is 9.2M of
+        the 32M weights."""
+        self.posterior = None
+        self.posterior_gaussian = None
+
+    def _check_posterior(self) -> None:
+        if self.posterior is None:
+            raise ValueError(
+                "this temporal VAE's posterior was released (a generation-only model): "
+                "it can sample from the prior, not train or read a known prefix"
+            )
+
     # -- one step ----------------------------------------------------------------------------
 
     def attend(
@@ -306,6 +321,7 @@ class TemporalVAE(nn.Module):
         Returns: ``codes`` (B, S, C) predicted; ``posterior_mean``, ``posterior_logvar``,
         ``prior_mean``, ``prior_logvar`` (B, S, Z).
         """
+        self._check_posterior()
         batch, steps, _ = codes.shape
         if noise is None:
             noise = torch.randn(
@@ -454,6 +470,8 @@ class TemporalVAE(nn.Module):
         to the end of the whole motion; continue with ``generate(num_snippets=snippets_left -
         K, state=...)``.
         """
+        if posterior:
+            self._check_posterior()
         batch, steps, _ = codes.shape
         if noise is None:
             noise = codes.new_zeros(batch, steps, self.config.latent_size)

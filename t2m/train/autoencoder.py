@@ -11,7 +11,7 @@ from torch import nn
 from t2m.data.dataset import MotionTextData
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.train.checkpoint import ModelSizes
-from t2m.train.runtime import seed_init
+from t2m.train.runtime import adam, seed_init
 from t2m.train.stage import (
     LossesOf,
     StageJob,
@@ -65,7 +65,7 @@ def train_autoencoder(job: StageJob) -> Path:
     objective = AutoencoderObjective(
         autoencoder, section.sparsity_weight, section.smoothness_weight, section.reconstruction_loss
     )
-    optimizer = torch.optim.Adam(autoencoder.parameters(), lr=section.lr)
+    optimizer = adam(autoencoder.parameters(), lr=section.lr)
     run = StageRun(job, sizes, models, optimizer, data.normalizer, vocabulary=None)
     trainable = runtime.wrap(objective)
     trainable.train()

@@ -10,7 +10,7 @@ from torch import nn
 
 from t2m.data.dataset import MotionTextData
 from t2m.models.evaluator import Evaluator, contrastive_loss
-from t2m.train.runtime import seed_init
+from t2m.train.runtime import adam, seed_init
 from t2m.train.stage import LossesOf, StageJob, StageRun, start_on_autoencoder, to_device
 
 
@@ -58,7 +58,7 @@ def train_evaluator(job: StageJob) -> Path:
         start.autoencoder.models["autoencoder"].encoder.state_dict()
     )
     trainable_parameters = [p for p in evaluator.parameters() if p.requires_grad]
-    optimizer = torch.optim.Adam(trainable_parameters, lr=section.lr)
+    optimizer = adam(trainable_parameters, lr=section.lr)
     run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info())
     trainable = runtime.wrap(EvaluatorObjective(evaluator, section.margin, section.negative_weight))
     trainable.train()

@@ -32,7 +32,7 @@ from t2m.data.dataset import MotionTextData
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
 from t2m.streams import Stream, stream_rng
-from t2m.train.runtime import seed_init
+from t2m.train.runtime import adam, seed_init
 from t2m.train.stage import (
     LossesOf,
     StageJob,
@@ -180,7 +180,7 @@ def train_generator(job: StageJob) -> Path:
     decoder.load_state_dict(autoencoder.decoder.state_dict())
     initial_code = mean_pose_code(autoencoder.encoder, sizes.feature_dim, runtime.device)
     objective = GeneratorObjective(vae, autoencoder.encoder, decoder, initial_code, config)
-    optimizer = torch.optim.Adam(
+    optimizer = adam(
         [
             {"params": vae.parameters(), "lr": section.lr},
             {"params": decoder.parameters(), "lr": section.decoder_lr},

@@ -10,7 +10,7 @@ from torch import nn
 
 from t2m.data.dataset import MotionTextData
 from t2m.models.length import LengthEstimator, length_loss
-from t2m.train.runtime import seed_init
+from t2m.train.runtime import adam, seed_init
 from t2m.train.stage import (
     LossesOf,
     StageJob,
@@ -46,7 +46,7 @@ def train_length(job: StageJob) -> Path:
     seed_init(config.seed)
     models = job.stage.build(config, sizes)
     estimator = models["length"].to(runtime.device)
-    optimizer = torch.optim.Adam(estimator.parameters(), lr=section.lr)
+    optimizer = adam(estimator.parameters(), lr=section.lr)
     run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info())
     trainable = runtime.wrap(LengthObjective(estimator))
     trainable.train()

