@@ -37,7 +37,7 @@ logger = logging.getLogger(__name__)
 ORDER = ("representation", "synth", "build", "train", "sample", "memory", "evaluate")
 # Benchmarks with their own command line, not parts of ``make bench`` (the side-by-side run
 # against the original needs its checkout).
-STANDALONE = ("versus_original",)
+STANDALONE = ("versus_original", "gpu")
 
 
 def _cpu_name() -> str:
