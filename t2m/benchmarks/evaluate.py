@@ -10,11 +10,12 @@ Paper size: the ``paper`` preset's models with random weights (its word vectors 
 Timings do not depend on the weights, so the models are built untrained from the presets unless a
 trained demo run (``checkpoints/demo``) and the demo dataset (``data/demo``) are present; the
 test split is the demo corpus' when present, else a synthetic one of the same size (600 items of
-40..199 frames, 15% of 2,000 clips x 2 mirrors). Torch keeps its default thread count, which is
-recorded with the load average: on a busy two-core machine two threads oversubscribe and every
-small op can wait milliseconds for a descheduled thread (measured up to ten times slower, and
-erratic), so compare numbers taken on a quiet machine, or run ``python -m t2m.evaluate
---threads 1`` there.
+40..199 frames, 15% of 2,000 clips x 2 mirrors). Everything runs on one torch thread (the number
+is recorded with the load average): on a busy two-core machine two threads oversubscribe and
+every small op can wait milliseconds for a descheduled thread (measured up to ten times slower,
+and erratic). Times are wall seconds, with the process's CPU seconds beside the generation and
+replication times (``*_cpu``): single-threaded, CPU time leaves out the time other processes held
+the cores, so on a shared machine it is the figure to compare.
 """
 
 from __future__ import annotations
@@ -147,17 +148,17 @@ def _generation_speedup(
     single_captions, single_lengths = [captions[i] for i in subset], lengths[subset]
     batch_size = backend.batch_size
     backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
-    batched, single = [], []
+    batched, single = [], []  # (wall, CPU) seconds per motion, per round
     try:
         for _ in range(rounds):
             backend.batch_size = batch_size
-            start = time.perf_counter()
-            backend.generate(captions, lengths, seed=0)
-            batched.append((time.perf_counter() - start) / count)
+            batched.append(_per_item(lambda: backend.generate(captions, lengths, seed=0), count))
             backend.batch_size = 1
-            start = time.perf_counter()
-            backend.generate(single_captions, single_lengths, seed=0)
-            single.append((time.perf_counter() - start) / single_count)
+            single.append(
+                _per_item(
+                    lambda: backend.generate(single_captions, single_lengths, seed=0), single_count
+                )
+            )
     finally:
         backend.batch_size = batch_size
     pipeline = backend.pipeline
@@ -169,15 +170,29 @@ def _generation_speedup(
         batched_bf16 = (time.perf_counter() - start) / count
     finally:
         backend.pipeline = pipeline
-    ratios = [s / b for s, b in zip(single, batched, strict=True)]
-    return {
-        f"{prefix}_generate_batched_bf16_motions_per_s": round(1 / batched_bf16, 1),
-        f"{prefix}_generate_batched_motions_per_s": round(1 / statistics.median(batched), 1),
-        f"{prefix}_generate_one_at_a_time_motions_per_s": round(1 / statistics.median(single), 2),
-        f"{prefix}_batched_generation_speedup_x": round(statistics.median(ratios), 2),
+    out = {f"{prefix}_generate_batched_bf16_motions_per_s": round(1 / batched_bf16, 1)}
+    for clock, suffix in ((0, ""), (1, "_cpu")):
+        ratios = [s[clock] / b[clock] for s, b in zip(single, batched, strict=True)]
+        out |= {
+            f"{prefix}_generate_batched_motions_per_s{suffix}": round(
+                1 / statistics.median(b[clock] for b in batched), 1
+            ),
+            f"{prefix}_generate_one_at_a_time_motions_per_s{suffix}": round(
+                1 / statistics.median(s[clock] for s in single), 2
+            ),
+            f"{prefix}_batched_generation_speedup_x{suffix}": round(statistics.median(ratios), 2),
+        }
+    return out | {
         f"{prefix}_batched_padding_pct": round(100 * padding_share(lengths, batch_size), 1),
         f"{prefix}_generation_items_batched_one_at_a_time_rounds": f"{count}/{single_count}/{rounds}",
     }
+
+
+def _per_item(function, count: int) -> tuple[float, float]:
+    """(wall, CPU) seconds of one call of ``function``, divided by ``count``."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    function()
+    return (time.perf_counter() - wall) / count, (time.process_time() - cpu) / count
 
 
 def _paper_replication(items: int, quick: bool) -> dict:
@@ -189,13 +204,14 @@ def _paper_replication(items: int, quick: bool) -> dict:
     config = evaluate.EvalConfig(replications=1)
     if quick:
         config = evaluate.EvalConfig(replications=1, mm_texts=16, mm_samples=10)
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     result = evaluate.run_protocol(clips, backend, config)
-    elapsed = time.perf_counter() - start
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     out = {
         "evaluate.paper_protocol_items": result.num_items,
         "evaluate.paper_protocol_mm": f"{config.mm_texts}x{config.mm_samples}",
         "evaluate.paper_replication_s": round(elapsed, 1),
+        "evaluate.paper_replication_s_cpu": round(cpu, 1),
         "evaluate.paper_20_replications_s_estimated_from_1": round(20 * elapsed),
     }
     for part in ("generate_s", "embed_s", "metrics_s", "physical_s"):
@@ -223,6 +239,16 @@ def _paper_evaluator_forward(repeats: int) -> float:
 
 
 def run(quick: bool = False) -> dict:
+    """Every evaluation measurement, on one torch thread (see the module docstring)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _measure(quick)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _measure(quick: bool) -> dict:
     logging.getLogger("t2m").setLevel(logging.WARNING)
     backend, clips, source, real_demo = _backend_and_clips()
     results: dict = {
@@ -251,12 +277,13 @@ def run(quick: bool = False) -> dict:
     replications = 2 if quick else 20
     config = evaluate.EvalConfig(replications=replications)
     semantic = evaluate.find_scorer(DEMO_DATASET) if real_demo else None
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     result = evaluate.run_protocol(clips, backend, config, semantic=semantic)
-    elapsed = time.perf_counter() - start
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     per_replication = elapsed / replications
     results["evaluate.protocol_items"] = result.num_items
     results["evaluate.replication_s"] = round(per_replication, 2)
+    results["evaluate.replication_s_cpu"] = round(cpu / replications, 2)
     key = "evaluate.20_replications_s" + ("_estimated_from_2" if quick else "")
     results[key] = round(per_replication * 20, 1)
     for part in ("generate_s", "embed_s", "metrics_s", "semantic_s"):
