@@ -118,3 +118,18 @@ def test_older_checkpoints_naming_the_file_still_load(tiny_run, tmp_path):
     for pipe in (old, new):
         with pytest.raises(UsageError, match="no known word in prompt 'qwxzv plughzz'"):
             pipe.prepare(["qwxzv plughzz"])
+
+
+def test_a_table_keeps_the_release_motion_word_lists():
+    from t2m.data.words import RELEASE_MOTION_WORDS, WordVectors
+
+    words = ["sos", "eos", "unk", "head", "walk", "quark"]
+    vectors = np.arange(len(words) * 4, dtype=np.float32).reshape(-1, 4)
+    release = WordVectors(words, vectors, "/release/glove", motion_words=RELEASE_MOTION_WORDS)
+    again = vectorizer_from_info(release.subset(["head"], margin=3).info())
+    assert again.motion_words is RELEASE_MOTION_WORDS and again.words == words[:4]
+    # "head" is no body part in the release's lists: spaCy's tag stays
+    np.testing.assert_array_equal(
+        again.encode_tokens(["head/NOUN"]).pos_onehot,
+        release.encode_tokens(["head/NOUN"]).pos_onehot,
+    )

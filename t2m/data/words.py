@@ -276,9 +276,8 @@ class WordVectors:
         ``source``, ``dim``, ``size``, ``max_tokens`` and ``fingerprint`` (of the origin, which
         is what a resume and a second stage are checked against); a trainable vocabulary adds
         its ``words`` (a list); a subset (:meth:`subset`) its ``words`` (one string, a word a
-        line), its ``vectors`` (N, Dw) float32
-        tensor, its own ``table_fingerprint`` and, when they are not ours, ``motion_words``
-        ("release": the original release's lists)."""
+        line), its ``vectors`` (N, Dw) float32 tensor, its own ``table_fingerprint`` and, when
+        they are not ours, ``motion_words`` ("release": the original release's lists)."""
         info: dict[str, Any] = {
             "source": str(self.source),
             "dim": int(self.dim),
