@@ -12,7 +12,7 @@ weights), 196-frame motions (49 recurrent steps), the same prompt as ``t2m.bench
   (:func:`t2m.benchmarks.train.run` on the device);
 * a two-process DDP step of the temporal VAE (NCCL) when more than one device is present.
 
-Writes a JSON (default ``bench/gpu.json``) with the device, driver and versions, and prints it.
+Writes a JSON (default ``bench/gpu.json``) with the devices and versions, and prints it.
 Without CUDA it stops at once with one line (exit status 2). Not part of ``make bench``.
 """
 
