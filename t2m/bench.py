@@ -36,8 +36,8 @@ logger = logging.getLogger(__name__)
 # The order in which the parts run (cheap first); modules not listed run after these.
 ORDER = ("representation", "synth", "build", "train", "sample", "memory", "evaluate")
 # Benchmarks with their own command line, not parts of ``make bench`` (the side-by-side run
-# against the original needs its checkout).
-STANDALONE = ("versus_original",)
+# against the original needs its checkout; the GPU check needs CUDA).
+STANDALONE = ("versus_original", "gpu")
 
 
 def _cpu_name() -> str:

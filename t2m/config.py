@@ -64,6 +64,11 @@ class DataConfig:
     (e.g. glove.6B.300d.txt), or ``trainable`` (an embedding learned from the training captions)."""
     trainable_word_dim: int = 300
     """Embedding size when ``word_vectors`` is ``trainable``."""
+    vocabulary_margin: int = 10000
+    """Words a checkpoint carries besides those of the dataset's captions, for prompts: the
+    first N of the word-vector file (GloVe files list words by descending frequency), with their
+    vectors, so that the checkpoint loads without the file; -1 stores no table (the checkpoint
+    names the file, which must then be present wherever it is loaded)."""
     feature_bias: float = 5.0
     """Root and foot-contact dimensions have their std divided by this (the original's up-weighting)."""
 
@@ -593,6 +598,8 @@ def validate(cfg: Config) -> None:
         raise ValueError(
             "data.max_text_tokens, data.trainable_word_dim and data.feature_bias must be positive"
         )
+    if data.vocabulary_margin < -1:
+        raise ValueError(f"data.vocabulary_margin must be -1 or more, got {data.vocabulary_margin}")
     autoencoder = cfg.autoencoder
     if autoencoder.reconstruction_loss not in RECONSTRUCTION_LOSSES:
         raise ValueError(

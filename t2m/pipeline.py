@@ -139,7 +139,7 @@ class TextToMotion:
         spec: the dataset the models were trained on (fps, snippet length, frame limits,
             joints); default: the one of the statistics' feature dimension.
         length_model: text2length (needed only when lengths are not given).
-        length_vectorizer: its vocabulary; must be the VAE's (same fingerprint).
+        length_vectorizer: its vocabulary; must be cut from the VAE's (same origin).
         device: where the models run (the modules are moved there).
         precision: "fp32", "bf16" or "int8" (CPU only).
         training_words: the words of the captions the model was trained on (stored in
@@ -220,7 +220,7 @@ class TextToMotion:
         self.initial_code = initial_code.to(self.device, self.dtype)
         self.length_model = length_model.to(self.device).eval() if length_model else None
         self.length_vectorizer = length_vectorizer or vectorizer
-        if self.length_vectorizer.fingerprint() != vectorizer.fingerprint():
+        if not self.length_vectorizer.compatible(vectorizer):
             raise ValueError(
                 "the text2length model and the text-to-motion model use different "
                 "word vectors (retrain with `make train-len` on the same dataset)"
@@ -311,9 +311,7 @@ class TextToMotion:
                 f"{t2m.path}: incomplete generator checkpoint (retrain with {retrain['generator']})"
             )
         if length is not None:
-            if length.vectorizer is None or (
-                length.vectorizer.fingerprint() != t2m.vectorizer.fingerprint()
-            ):
+            if length.vectorizer is None or not length.vectorizer.compatible(t2m.vectorizer):
                 raise ValueError(
                     f"{length.path} was trained with other word vectors than {t2m.path} "
                     f"(retrain with {retrain['length']} on the same dataset)"

@@ -1,20 +1,28 @@
-"""Evaluation speed: the full protocol at demo sizes, batched vs one-at-a-time generation, and
-the evaluator's forward pass at paper sizes (the original takes 0.45 s per batch of 32 here).
+"""Evaluation speed: the 20-replication protocol at demo sizes, one replication at paper size
+(extrapolated to 20), batched vs one-at-a-time generation at both sizes (interleaved round by
+round, see :func:`_generation_speedup`), and the evaluator's forward pass at paper sizes.
+
+Paper size: the ``paper`` preset's models with random weights (its word vectors are the built-in
+50-d ones, not 300-d: only the text encoder's first layer is smaller), on a synthetic split of
+4,384 items of 40..199 frames (HumanML3D's test.txt lists 4,384 names); quick mode: 256 items and
+16 x 10 MultiModality generations.
 
 Timings do not depend on the weights, so the models are built untrained from the presets unless a
 trained demo run (``checkpoints/demo``) and the demo dataset (``data/demo``) are present; the
 test split is the demo corpus' when present, else a synthetic one of the same size (600 items of
-40..199 frames, 15% of 2,000 clips x 2 mirrors). Torch keeps its default thread count, which is
-recorded with the load average: on a busy two-core machine two threads oversubscribe and every
-small op can wait milliseconds for a descheduled thread (measured up to ten times slower, and
-erratic), so compare numbers taken on a quiet machine, or run ``python -m t2m.evaluate
---threads 1`` there.
+40..199 frames, 15% of 2,000 clips x 2 mirrors). Everything runs on one torch thread (the number
+is recorded with the load average): on a busy two-core machine two threads oversubscribe and
+every small op can wait milliseconds for a descheduled thread (measured up to ten times slower,
+and erratic). Times are wall seconds, with the process's CPU seconds beside the generation and
+replication times (``*_cpu``): single-threaded, CPU time leaves out the time other processes held
+the cores, so on a shared machine it is the figure to compare.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import statistics
 import time
 from pathlib import Path
 
@@ -33,6 +41,8 @@ ROOT = Path(__file__).resolve().parents[2]
 DEMO_DATASET = ROOT / "data" / "demo"
 DEMO_RUN = ROOT / "checkpoints" / "demo"
 SYNTHETIC_ITEMS = 600
+PAPER_TEST_ITEMS = 4384
+"""Names in HumanML3D's test.txt: the synthetic split of the paper-size measurements."""
 WORDS = (
     "a/DET person/NOUN walk/VERB forward/ADV slowly/ADV then/ADV turn/VERB left/ADJ and/CCONJ "
     "jump/VERB wave/VERB right/ADJ hand/NOUN kick/VERB with/ADP the/DET foot/NOUN"
@@ -116,21 +126,41 @@ def _backend_and_clips() -> tuple[evaluate.CheckpointBackend, list[Clip], str, b
 
 
 def _generation_speedup(
-    backend: evaluate.CheckpointBackend, clips: list[Clip], count: int, prefix: str
+    backend: evaluate.CheckpointBackend,
+    clips: list[Clip],
+    count: int,
+    single_count: int,
+    rounds: int,
+    prefix: str,
 ) -> dict[str, float]:
-    """Motions per second generating ``count`` test captions batched and one at a time."""
+    """Batched against one-at-a-time generation of test captions, interleaved round by round.
+
+    Each round generates ``count`` drawn items batched (the evaluation's batches, as its
+    generated rows do) and then a random ``single_count`` of them one at a time; the speed-up is
+    the median over rounds of (seconds per generated frame one at a time) / (seconds per frame
+    batched): per frame, because the subset's mean length differs from the draw's (by 11% at
+    paper size with these seeds). Also: motions/s of each, the share of batched recurrent steps
+    spent on padding, and bf16 batched once.
+    """
+    from t2m.evaluate.backend import padding_share
+
     draw = evaluate.draw_items(clips, count, np.random.default_rng(1))
     captions, lengths = draw.caption_list(clips), draw.lengths
-    backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
-    start = time.perf_counter()
-    backend.generate(captions, lengths, seed=0)
-    batched = time.perf_counter() - start
+    subset = np.sort(np.random.default_rng(2).choice(count, single_count, replace=False))
+    single_captions, single_lengths = [captions[i] for i in subset], lengths[subset]
     batch_size = backend.batch_size
-    backend.batch_size = 1
+    backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
+    batched, single = [], []  # (wall, CPU) seconds per motion, per round
     try:
-        start = time.perf_counter()
-        backend.generate(captions, lengths, seed=0)
-        single = time.perf_counter() - start
+        for _ in range(rounds):
+            backend.batch_size = batch_size
+            batched.append(_per_item(lambda: backend.generate(captions, lengths, seed=0), count))
+            backend.batch_size = 1
+            single.append(
+                _per_item(
+                    lambda: backend.generate(single_captions, single_lengths, seed=0), single_count
+                )
+            )
     finally:
         backend.batch_size = batch_size
     pipeline = backend.pipeline
@@ -139,15 +169,59 @@ def _generation_speedup(
         backend.generate(captions[:4], lengths[:4], seed=0)  # warm-up
         start = time.perf_counter()
         backend.generate(captions, lengths, seed=0)
-        batched_bf16 = time.perf_counter() - start
+        batched_bf16 = (time.perf_counter() - start) / count
     finally:
         backend.pipeline = pipeline
-    return {
-        f"{prefix}_generate_batched_bf16_motions_per_s": round(count / batched_bf16, 1),
-        f"{prefix}_generate_batched_motions_per_s": round(count / batched, 1),
-        f"{prefix}_generate_one_at_a_time_motions_per_s": round(count / single, 1),
-        f"{prefix}_batched_generation_speedup_x": round(single / batched, 1),
+    out = {f"{prefix}_generate_batched_bf16_motions_per_s": round(1 / batched_bf16, 1)}
+    frames_ratio = float(lengths.mean() / single_lengths.mean())  # per motion -> per frame
+    for clock, suffix in ((0, ""), (1, "_cpu")):
+        ratios = [s[clock] / b[clock] * frames_ratio for s, b in zip(single, batched, strict=True)]
+        out |= {
+            f"{prefix}_generate_batched_motions_per_s{suffix}": round(
+                1 / statistics.median(b[clock] for b in batched), 1
+            ),
+            f"{prefix}_generate_one_at_a_time_motions_per_s{suffix}": round(
+                1 / statistics.median(s[clock] for s in single), 2
+            ),
+            f"{prefix}_batched_generation_speedup_x{suffix}": round(statistics.median(ratios), 2),
+        }
+    return out | {
+        f"{prefix}_batched_padding_pct": round(100 * padding_share(lengths, batch_size), 1),
+        f"{prefix}_generation_items_batched_one_at_a_time_rounds": f"{count}/{single_count}/{rounds}",
     }
+
+
+def _per_item(function, count: int) -> tuple[float, float]:
+    """(wall, CPU) seconds of one call of ``function``, divided by ``count``."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    function()
+    return (time.perf_counter() - wall) / count, (time.process_time() - cpu) / count
+
+
+def _paper_replication(items: int, quick: bool) -> dict:
+    """One replication of the protocol with paper-size untrained models on a synthetic split of
+    ``items`` items (HumanML3D's test.txt lists 4,384): seconds, and the 20-replication
+    estimate."""
+    backend = _untrained_backend("paper")
+    clips = _synthetic_clips(items, np.random.default_rng(3))
+    config = evaluate.EvalConfig(replications=1)
+    if quick:
+        config = evaluate.EvalConfig(replications=1, mm_texts=16, mm_samples=10)
+    start, cpu = time.perf_counter(), time.process_time()
+    result = evaluate.run_protocol(clips, backend, config)
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
+    out = {
+        "evaluate.paper_protocol_items": result.num_items,
+        "evaluate.paper_protocol_mm": f"{config.mm_texts}x{config.mm_samples}",
+        "evaluate.paper_replication_s": round(elapsed, 1),
+        "evaluate.paper_replication_s_cpu": round(cpu, 1),
+        "evaluate.paper_20_replications_s_estimated_from_1": round(20 * elapsed),
+    }
+    for part in ("generate_s", "embed_s", "metrics_s", "physical_s"):
+        out[f"evaluate.paper_{part.removesuffix('_s')}_share_pct"] = round(
+            100 * result.timings_s[part] / elapsed, 1
+        )
+    return out
 
 
 def _paper_evaluator_forward(repeats: int) -> float:
@@ -168,6 +242,16 @@ def _paper_evaluator_forward(repeats: int) -> float:
 
 
 def run(quick: bool = False) -> dict:
+    """Every evaluation measurement, on one torch thread (see the module docstring)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _measure(quick)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _measure(quick: bool) -> dict:
     logging.getLogger("t2m").setLevel(logging.WARNING)
     backend, clips, source, real_demo = _backend_and_clips()
     results: dict = {
@@ -177,28 +261,37 @@ def run(quick: bool = False) -> dict:
         "evaluate.batch_size": backend.batch_size,
         "evaluate.load_average_1min_at_start": round(os.getloadavg()[0], 2),
     }
-    results.update(_generation_speedup(backend, clips, 128 if quick else 512, "evaluate.demo"))
     results.update(
         _generation_speedup(
-            _untrained_backend("paper"), clips, 32 if quick else 128, "evaluate.paper"
+            backend, clips, 128 if quick else 512, 32 if quick else 128, 1 if quick else 3,
+            "evaluate.demo",
         )
-    )
+    )  # fmt: skip
+    paper_clips = _synthetic_clips(PAPER_TEST_ITEMS, np.random.default_rng(0))
+    results.update(
+        _generation_speedup(
+            _untrained_backend("paper"), paper_clips, 256 if quick else 1024, 8 if quick else 32,
+            1 if quick else 3, "evaluate.paper",
+        )
+    )  # fmt: skip
     results["evaluate.paper_evaluator_forward_batch32_s"] = round(
         _paper_evaluator_forward(2 if quick else 5), 3
     )
     replications = 2 if quick else 20
     config = evaluate.EvalConfig(replications=replications)
     semantic = evaluate.find_scorer(DEMO_DATASET) if real_demo else None
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     result = evaluate.run_protocol(clips, backend, config, semantic=semantic)
-    elapsed = time.perf_counter() - start
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
     per_replication = elapsed / replications
     results["evaluate.protocol_items"] = result.num_items
     results["evaluate.replication_s"] = round(per_replication, 2)
+    results["evaluate.replication_s_cpu"] = round(cpu / replications, 2)
     key = "evaluate.20_replications_s" + ("_estimated_from_2" if quick else "")
     results[key] = round(per_replication * 20, 1)
     for part in ("generate_s", "embed_s", "metrics_s", "semantic_s"):
         results[f"evaluate.{part.removesuffix('_s')}_share_pct"] = round(
             100 * result.timings_s[part] / elapsed, 1
         )
+    results.update(_paper_replication(256 if quick else PAPER_TEST_ITEMS, quick))
     return results

@@ -21,6 +21,16 @@ Three vocabularies:
 
 A vocabulary is described by :meth:`WordVectors.info` (stored in checkpoints) and rebuilt by
 :func:`vectorizer_from_info`, which refuses a vocabulary that no longer matches.
+
+Checkpoints carry their own word table (:meth:`WordVectors.subset`,
+:func:`checkpoint_vocabulary`): the words of the dataset's captions (every split, so that the
+evaluation encodes its test captions as before) plus a margin for prompts, the first
+``data.vocabulary_margin`` words of the vector file (GloVe files list words by descending
+frequency: 10,000 words cover everyday English). Such a checkpoint loads without the vector file;
+its words keep exactly their vectors. A prompt word outside the table reads as ``unk`` (as any
+word missing from the file always did); the model was not trained on it either, which the
+pipeline says in a warning, and a prompt with no trained word is refused as before. Checkpoints
+written before the table was stored name the file, which is read again (through the cache).
 """
 
 from __future__ import annotations
@@ -181,6 +191,7 @@ class WordVectors:
         max_tokens: int = 20,
         dim: int | None = None,
         motion_words: dict[str, frozenset[str]] | None = None,
+        origin: str | None = None,
     ):
         self.motion_words = MOTION_WORDS if motion_words is None else motion_words
         self._override = _overrides(self.motion_words)
@@ -194,6 +205,10 @@ class WordVectors:
             if required not in self.index:
                 raise ValueError(f"vocabulary {source!r} has no {required!r} entry")
         self._unk = self.index["unk"]
+        self._fingerprint: str | None = None
+        self.origin = origin or self.fingerprint()
+        """The fingerprint of the whole vocabulary this one was cut from (its own when it is
+        whole): two vocabularies of one origin give every word they both hold one vector."""
 
     @property
     def trainable(self) -> bool:
@@ -206,6 +221,11 @@ class WordVectors:
 
     def fingerprint(self) -> str:
         """A short hash of the vocabulary (and a sample of the vectors) to detect mismatches."""
+        if self._fingerprint is None:
+            self._fingerprint = self._hash()
+        return self._fingerprint
+
+    def _hash(self) -> str:
         digest = hashlib.sha1()
         digest.update(f"{self.size}:{self.dim}".encode())
         step = max(1, self.size // 997)
@@ -215,18 +235,68 @@ class WordVectors:
             digest.update(np.ascontiguousarray(self.vectors[::step, : min(8, self.dim)]).tobytes())
         return digest.hexdigest()[:16]
 
+    @property
+    def is_subset(self) -> bool:
+        """True for a table cut from a larger vocabulary (:meth:`subset`)."""
+        return self.origin != self.fingerprint()
+
+    def compatible(self, other: WordVectors) -> bool:
+        """True when both come from one vocabulary (same origin): a word either holds has the
+        same vector in both, so one encoding of a prompt serves models trained on either."""
+        return self.origin == other.origin
+
+    def subset(self, keep: Iterable[str], margin: int = 0) -> WordVectors:
+        """This vocabulary restricted to the words of ``keep`` that it holds, its first
+        ``margin`` words (a GloVe file's most frequent) and sos/eos/unk, in this vocabulary's
+        row order, with the same vectors, source, motion-word lists and origin. ``margin`` < 0
+        or a table no smaller than this one: this vocabulary itself."""
+        if self.trainable:
+            raise ValueError("a trainable vocabulary is stored whole")
+        if margin < 0:
+            return self
+        rows = set(range(min(margin, self.size)))
+        rows.update(self.index[word] for word in keep if word in self.index)
+        rows.update(self.index[word] for word in ("sos", "eos", "unk"))
+        if len(rows) == self.size:
+            return self
+        ordered = np.fromiter(sorted(rows), dtype=np.int64, count=len(rows))
+        return WordVectors(
+            [self.words[row] for row in ordered],
+            np.ascontiguousarray(self.vectors[ordered], dtype=np.float32),  # type: ignore[index]
+            self.source,
+            self.max_tokens,
+            motion_words=self.motion_words,
+            origin=self.origin,
+        )
+
     def info(self) -> dict[str, Any]:
-        """What a checkpoint stores to rebuild (and check) this vocabulary: plain types only
-        (str, int, a list of str), so that the checkpoint loads with ``weights_only=True``."""
+        """What a checkpoint stores to rebuild (and check) this vocabulary: plain types and
+        tensors only, so that the checkpoint loads with ``weights_only=True``.
+
+        ``source``, ``dim``, ``size``, ``max_tokens`` and ``fingerprint`` (of the origin, which
+        is what a resume and a second stage are checked against); a trainable vocabulary adds
+        its ``words`` (a list); a subset (:meth:`subset`) its ``words`` (one string, a word a
+        line), its ``vectors`` (N, Dw) float32 tensor, its own ``table_fingerprint`` and, when
+        they are not ours, ``motion_words`` ("release": the original release's lists)."""
         info: dict[str, Any] = {
             "source": str(self.source),
             "dim": int(self.dim),
             "size": int(self.size),
             "max_tokens": int(self.max_tokens),
-            "fingerprint": self.fingerprint(),
+            "fingerprint": self.origin,
         }
         if self.trainable:
             info["words"] = [str(word) for word in self.words]
+        elif self.is_subset:
+            import torch
+
+            if any("\n" in word for word in self.words):
+                raise ValueError(f"{self.source}: a word contains a line break")
+            info["words"] = "\n".join(self.words)  # one string: unpickled 30x faster than a list
+            info["vectors"] = torch.from_numpy(np.array(self.vectors, dtype=np.float32))
+            info["table_fingerprint"] = self.fingerprint()
+            if self.motion_words is RELEASE_MOTION_WORDS:
+                info["motion_words"] = "release"
         return info
 
     def token_ids(self, tokens: Sequence[str]) -> tuple[np.ndarray, np.ndarray, int]:
@@ -501,15 +571,73 @@ def build_trainable_vocabulary(
     return WordVectors(words, None, TRAINABLE, max_tokens, dim=dim)
 
 
+def checkpoint_vocabulary(
+    vectorizer: WordVectors, dataset_dir: str | Path, margin: int
+) -> dict[str, Any]:
+    """The vocabulary ``info`` a checkpoint of a run on ``dataset_dir`` stores: the words of
+    every caption of the dataset (``texts/``, all splits) and the first ``margin`` words of
+    ``vectorizer`` with their vectors (:meth:`WordVectors.subset`); a trainable vocabulary, or
+    ``margin`` < 0, as :meth:`WordVectors.info` of the whole (the checkpoint then names its
+    file, as before)."""
+    if vectorizer.trainable or margin < 0:
+        return vectorizer.info()
+    from dataset_tools import humanml3d
+
+    words: set[str] = set()
+    for path in sorted((Path(dataset_dir) / humanml3d.TEXTS_DIR).glob("*.txt")):
+        for caption in humanml3d.read_texts(dataset_dir, path.stem):
+            words.update(split_token(token)[0] for token in caption.tokens)
+    return vectorizer.subset(words, margin).info()
+
+
+def _embedded_table(info: dict[str, Any]) -> WordVectors:
+    """The word table stored in a checkpoint's vocabulary ``info`` (see :meth:`WordVectors.info`)."""
+    import torch
+
+    words, vectors = info["words"].split("\n"), info["vectors"]
+    if len(words) != info["size"]:
+        raise ValueError(f"vocabulary info: {len(words)} stored words, size {info['size']}")
+    if len(set(words)) != len(words):
+        raise ValueError("vocabulary info: the stored words are not distinct")
+    if not (
+        isinstance(vectors, torch.Tensor)
+        and vectors.dtype == torch.float32
+        and tuple(vectors.shape) == (len(words), info["dim"])
+    ):
+        raise ValueError(
+            f"vocabulary info: the stored vectors are not ({len(words)}, {info['dim']}) float32"
+        )
+    lists = info.get("motion_words")
+    if lists not in (None, "release"):
+        raise ValueError(f"vocabulary info: unknown motion-word lists {lists!r}")
+    table = WordVectors(
+        words,
+        vectors.numpy(),
+        info["source"],
+        info["max_tokens"],
+        motion_words=RELEASE_MOTION_WORDS if lists == "release" else None,
+        origin=info["fingerprint"],
+    )
+    if table.fingerprint() != info.get("table_fingerprint"):
+        raise ValueError("vocabulary info: the stored word table does not match its fingerprint")
+    return table
+
+
 def vectorizer_from_info(info: dict[str, Any]) -> WordVectors:
-    """Rebuild the vocabulary described by a checkpoint's ``info`` (:meth:`WordVectors.info`);
-    ValueError (one line) when ``info`` is malformed or the vocabulary differs."""
+    """Rebuild the vocabulary described by a checkpoint's ``info`` (:meth:`WordVectors.info`):
+    the stored word table when it has one (no file is read), else the named vectors (which must
+    still be the ones it was trained with). ValueError (one line) when ``info`` is malformed or
+    the vocabulary differs."""
     expected = {"source": str, "dim": int, "size": int, "max_tokens": int, "fingerprint": str}
     if info.get("source") == TRAINABLE:
         expected["words"] = list
+    elif "vectors" in info:
+        expected["words"] = str
     for key, kind in expected.items():
         if not isinstance(info.get(key), kind):
             raise ValueError(f"vocabulary info: {key!r} is missing or not a {kind.__name__}")
+    if "vectors" in info and info["source"] != TRAINABLE:
+        return _embedded_table(info)
     if info["source"] == TRAINABLE:
         if not all(isinstance(word, str) for word in info["words"]):
             raise ValueError("vocabulary info: the trainable words are not all strings")

@@ -133,6 +133,24 @@ def _chunks(count: int, size: int) -> list[slice]:
     return [slice(start, min(start + size, count)) for start in range(0, count, size)]
 
 
+def generation_batches(frames: np.ndarray, batch_size: int) -> list[np.ndarray]:
+    """The batches :meth:`CheckpointBackend.generate` runs: item indices in order of decreasing
+    length (``frames`` (N,)), cut every ``batch_size``; batches of similar length waste fewer
+    recurrent steps on padding (a batch runs as many steps as its longest item)."""
+    order = np.argsort(-np.asarray(frames), kind="stable")
+    return [order[chunk] for chunk in _chunks(len(order), batch_size)]
+
+
+def padding_share(frames: np.ndarray, batch_size: int) -> float:
+    """The share of the recurrent item-steps of :func:`generation_batches` spent on padding:
+    1 - sum(lengths) / sum(batch size x its longest length)."""
+    frames = np.asarray(frames)
+    run = sum(
+        len(batch) * int(frames[batch].max()) for batch in generation_batches(frames, batch_size)
+    )
+    return 1.0 - float(frames.sum()) / run
+
+
 class CheckpointBackend:
     """An evaluator (embeddings) and the shared text-to-motion pipeline (generation).
 
@@ -268,11 +286,8 @@ class CheckpointBackend:
             frames = np.asarray(lengths, dtype=np.int64)
             if len(frames) != len(captions):
                 raise ValueError(f"{len(frames)} lengths for {len(captions)} captions")
-        # Batches of similar length waste fewer recurrent steps on padding.
-        order = np.argsort(-frames, kind="stable")
         out: list[np.ndarray | None] = [None] * len(captions)
-        for chunk in _chunks(len(order), self.batch_size):
-            index = order[chunk]
+        for index in generation_batches(frames, self.batch_size):
             features = pipeline.generate_features(
                 [encoded[i] for i in index], [int(frames[i]) for i in index], generator
             )

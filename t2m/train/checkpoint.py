@@ -19,7 +19,11 @@ code from the file (:func:`read_checkpoint` refuses one that would need it)::
     optimizer       optimizer state_dict
     progress        epoch, epoch_step, step, best, and the stage's own counters (the curriculum)
     normalizer      {"mean", "std"} (D,) float32 tensors, the root/contact-weighted statistics
-    vocabulary      WordVectors.info(), plain types (None for the autoencoder)
+    vocabulary      WordVectors.info(), plain types (None for the autoencoder); since the
+                    word tables: the words of the dataset's captions plus data.vocabulary_margin
+                    words with their (N, Dw) float32 vectors, so that no vector file is needed
+                    to load it (t2m.data.words.checkpoint_vocabulary); earlier checkpoints name
+                    the file (read again when loaded)
     extra           stage extras (generator: the mean-pose ``initial_code`` (C,))
 
 :func:`t2m.train.stages.load_stage` rebuilds the models of a stage from the stored config.

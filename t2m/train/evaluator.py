@@ -59,7 +59,7 @@ def train_evaluator(job: StageJob) -> Path:
     )
     trainable_parameters = [p for p in evaluator.parameters() if p.requires_grad]
     optimizer = adam(trainable_parameters, lr=section.lr)
-    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info())
+    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vocabulary)
     trainable = runtime.wrap(EvaluatorObjective(evaluator, section.margin, section.negative_weight))
     trainable.train()
 

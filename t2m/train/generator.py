@@ -192,7 +192,7 @@ def train_generator(job: StageJob) -> Path:
         models,
         optimizer,
         data.normalizer,
-        data.vectorizer.info(),
+        data.vocabulary,
         extra={
             "initial_code": initial_code.cpu(),
             # the words the model sees (prompts are checked against them): a list of str

@@ -47,7 +47,7 @@ def train_length(job: StageJob) -> Path:
     models = job.stage.build(config, sizes)
     estimator = models["length"].to(runtime.device)
     optimizer = adam(estimator.parameters(), lr=section.lr)
-    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vectorizer.info())
+    run = StageRun(job, sizes, models, optimizer, data.normalizer, data.vocabulary)
     trainable = runtime.wrap(LengthObjective(estimator))
     trainable.train()
 

@@ -30,7 +30,13 @@ from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.config import Config, StageConfig, from_dict, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
-from t2m.data.words import TRAINABLE, WordVectors, build_trainable_vocabulary, load_vectorizer
+from t2m.data.words import (
+    TRAINABLE,
+    WordVectors,
+    build_trainable_vocabulary,
+    checkpoint_vocabulary,
+    load_vectorizer,
+)
 from t2m.models.autoencoder import check_snippet_length
 from t2m.streams import Stream, stream_rng
 from t2m.train.checkpoint import (
@@ -91,6 +97,9 @@ class StageData:
     vectorizer: WordVectors
     normalizer: Normalizer
     spec: DatasetSpec
+    vocabulary: dict[str, Any] = field(default_factory=dict)
+    """What the stage's checkpoints store of the vocabulary (:func:`checkpoint_vocabulary`:
+    the words of the dataset's captions and the configured margin, with their vectors)."""
 
     def sizes(self, code_size: int = 0) -> ModelSizes:
         """The model sizes these data give (``code_size``: of the autoencoder built upon)."""
@@ -148,7 +157,8 @@ def load_stage_data(
         val = MotionTextData(val_clips, normalizer, vectorizer, spec)
     except ValueError as error:  # the folder's content, or the configured word vectors
         raise UsageError(str(error)) from None
-    return StageData(train, val, vectorizer, normalizer, spec)
+    vocabulary = checkpoint_vocabulary(vectorizer, dataset_dir, config.data.vocabulary_margin)
+    return StageData(train, val, vectorizer, normalizer, spec, vocabulary)
 
 
 @dataclass

@@ -1,0 +1,38 @@
+"""The prepared GPU check (t2m.benchmarks.gpu): one line without CUDA; its generation and
+recurrent-loop parts run (on the CPU here; the CUDA timings themselves need a GPU)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from t2m.benchmarks import gpu
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
+def test_without_cuda_it_stops_with_one_line(tmp_path, capsys):
+    assert gpu.main(["--out", str(tmp_path / "gpu.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: no CUDA device") and err.count("\n") == 1, err
+    assert not (tmp_path / "gpu.json").exists()
+
+
+def test_the_parts_run_on_the_cpu(monkeypatch):
+    import t2m.config
+
+    monkeypatch.setattr(t2m.config, "paper", t2m.config.tiny)  # the same code, small models
+    monkeypatch.setattr(gpu, "FRAMES", 16)
+    monkeypatch.setattr(gpu, "BATCH", 2)
+    cpu = torch.device("cpu")
+    results = gpu.generation(cpu, repeats=1)
+    assert set(results) == {
+        f"gpu.{p}_{what}"
+        for p in ("fp32", "bf16")
+        for what in ("batch1_ms", "batch32_motions_per_s")
+    }
+    assert all(value > 0 for value in results.values())
+    try:
+        loop = gpu.cuda_graph(cpu, repeats=1)
+    except (AssertionError, RuntimeError) as error:  # CPU-only torch: no CUDA stream
+        pytest.fail(f"the eager loop should run before the capture: {error}")
+    assert loop["gpu.loop_batch1_eager_ms"] > 0 and "gpu.cuda_graph" in loop
