@@ -6,7 +6,8 @@ Steps, each skipped when its result already exists (so a second run reuses the f
    stage; with ``parallel`` (the default) the autoencoder and then the generator train in this
    process while a second process trains the length model and, once the autoencoder has
    finished, the evaluator (:func:`train_stages`);
-3. sample three example prompts, several motions each, rendered (``outputs/demo``);
+3. sample three example prompts, several motions each, rendered (``outputs/demo``; with
+   ``parallel`` in a second process, its log in ``outputs/demo.log``);
 4. run a quick evaluation (``outputs/demo_eval``);
 and print where everything is with a short summary.
 """
@@ -21,9 +22,10 @@ import resource
 import sys
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from dataset_tools.command import (
     CommandParser,
@@ -104,55 +106,57 @@ def _train_one(name: str, preset_name: str, dataset: Path, run_dir: Path) -> str
     return f"trained in {watch}"
 
 
-def _side_process(
-    names: list[str], preset_name: str, dataset: Path, run_dir: Path, results: multiprocessing.Queue
+def _in_second_process(
+    function: Callable[..., Any], args: tuple, log_path: Path, results: multiprocessing.Queue
 ) -> None:
-    """The second process: train ``names`` in order, each once its needs have finished; its
-    output goes to the run folder's :data:`SIDE_LOG`. Puts ``("ok", status)``, or ``("usage",
-    message)`` / ``("error", message)``, on ``results``."""
-    with open(run_dir / SIDE_LOG, "a", encoding="utf-8") as log:
-        sys.stdout = sys.stderr = log  # the progress bars and the log records
+    """The body of a :class:`SecondProcess`: ``function(*args)`` with its output (progress bars,
+    log records) in ``log_path``; puts ``("ok", result)``, ``("usage", message)`` or
+    ``("error", message)`` on ``results``."""
+    with open(log_path, "a", encoding="utf-8") as log:
+        sys.stdout = sys.stderr = log
         configure_logging()
         try:
-            status = {}
-            for name in names:
-                while not all(_finished(run_dir, need) for need in find_stage(name).needs):
-                    parent = multiprocessing.parent_process()
-                    if parent is not None and not parent.is_alive():
-                        return
-                    time.sleep(1.0)
-                status[name] = _train_one(name, preset_name, dataset, run_dir) + " (2nd process)"
-            results.put(("ok", status))
+            results.put(("ok", function(*args)))
         except UsageError as error:
             results.put(("usage", str(error)))
-        except BaseException as error:  # noqa: BLE001 - reported to the parent, then re-raised
+        except BaseException as error:  # reported to the parent, then re-raised
             traceback.print_exc()
             results.put(("error", f"{type(error).__name__}: {error}"))
             raise
 
 
-class SideStages:
-    """The stages trained in a second process (spawned: no state shared with this one)."""
+class SecondProcess:
+    """``function(*args)`` in a spawned process (no state shared with this one) while this one
+    works on; a context manager that ends the process if this one fails or is interrupted.
 
-    def __init__(self, names: list[str], preset_name: str, dataset: Path, run_dir: Path):
-        run_dir.mkdir(parents=True, exist_ok=True)
-        self.names, self.log = names, run_dir / SIDE_LOG
+    Args:
+        what: what it does, for the log lines and errors ("training length, evaluator").
+        function, args: a module-level function and its (picklable) arguments.
+        log: the file that gets its output.
+    """
+
+    def __init__(self, what: str, function: Callable[..., Any], args: tuple, log: Path):
+        log.parent.mkdir(parents=True, exist_ok=True)
+        self.what, self.log = what, log
         context = multiprocessing.get_context("spawn")
         self.results = context.Queue()
         self.process = context.Process(
-            target=_side_process,
-            args=(names, preset_name, dataset, run_dir, self.results),
-            name="t2m.demo side stages",
-            daemon=True,
+            target=_in_second_process, args=(function, args, log, self.results), daemon=True
         )
         self.process.start()
-        logger.info(
-            "training %s in a second process meanwhile (log: %s)", ", ".join(names), self.log
-        )
+        logger.info("%s in a second process meanwhile (log: %s)", what, log)
 
-    def join(self) -> dict[str, str]:
-        """Wait for the process; its stages' status lines, or UsageError / RuntimeError."""
-        logger.info("waiting for %s (second process) ...", ", ".join(self.names))
+    def __enter__(self) -> SecondProcess:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        if self.process.is_alive():
+            self.process.terminate()
+        self.process.join()
+
+    def join(self) -> Any:
+        """Wait for the function's result; its UsageError again, or RuntimeError naming the log."""
+        logger.info("waiting for the second process (%s) ...", self.what)
         while True:
             try:
                 kind, value = self.results.get(timeout=1.0)
@@ -162,19 +166,27 @@ class SideStages:
                     kind, value = "error", f"it ended with exit code {self.process.exitcode}"
                     break
         self.process.join()
-        if kind == "ok":
-            return value
         if kind == "usage":
             raise UsageError(value)
-        raise RuntimeError(
-            f"training {', '.join(self.names)} in the second process failed: {value} (see {self.log})"
-        )
+        if kind == "error":
+            raise RuntimeError(
+                f"{self.what} in the second process failed: {value} (see {self.log})"
+            )
+        return value
 
-    def stop(self) -> None:
-        """End the process if it still runs (this one failed or was interrupted)."""
-        if self.process.is_alive():
-            self.process.terminate()
-        self.process.join()
+
+def _train_side(names: list[str], preset_name: str, dataset: Path, run_dir: Path) -> dict:
+    """The second process's training: ``names`` in order, each once its needs have finished
+    (trained by the first process); returns their status lines."""
+    status = {}
+    for name in names:
+        while not all(_finished(run_dir, need) for need in find_stage(name).needs):
+            parent = multiprocessing.parent_process()
+            if parent is not None and not parent.is_alive():
+                raise RuntimeError("the demo's main process ended")
+            time.sleep(1.0)
+        status[name] = _train_one(name, preset_name, dataset, run_dir) + " (2nd process)"
+    return status
 
 
 def train_stages(
@@ -183,7 +195,7 @@ def train_stages(
     """Step 2: every stage not yet finished; an interrupted one resumes from latest.pt.
 
     With ``parallel``, the stages off :data:`MAIN_LANE` train in a second process at the same
-    time (:class:`SideStages`); every stage seeds itself, so the result is the same as training
+    time (:class:`SecondProcess`); every stage seeds itself, so the result is the same as training
     them one after the other. Returns stage name -> status line, in :data:`STAGES` order.
     """
     status, todo = {}, []
@@ -193,16 +205,17 @@ def train_stages(
         else:
             todo.append(stage.name)
     side = [name for name in todo if name not in MAIN_LANE] if parallel else []
-    helper = SideStages(side, preset_name, dataset, run_dir) if side else None
-    try:
-        for name in todo:
-            if name not in side:
+    main = [name for name in todo if name not in side]
+    if not side:
+        for name in main:
+            status[name] = _train_one(name, preset_name, dataset, run_dir)
+    else:
+        args = (side, preset_name, dataset, run_dir)
+        what = f"training {', '.join(side)}"
+        with SecondProcess(what, _train_side, args, run_dir / SIDE_LOG) as helper:
+            for name in main:
                 status[name] = _train_one(name, preset_name, dataset, run_dir)
-        if helper is not None:
             status.update(helper.join())
-    finally:
-        if helper is not None:
-            helper.stop()
     return {stage.name: status[stage.name] for stage in STAGES}
 
 
@@ -262,8 +275,9 @@ class DemoConfig:
     workers: int = 2
     """processes for the corpus and the dataset build"""
     parallel: bool = True
-    """train the length model and the evaluator in a second process while the autoencoder and
-    the generator train (two cores: the same models, sooner)"""
+    """use a second process: the length model and the evaluator train while the autoencoder and
+    the generator do, the samples are made while the evaluation runs (the same results, sooner
+    on two cores)"""
     dataset: Path = field(default=Path("data/demo"), metadata=option(metavar="DIR"))
     """the HumanML3D-layout dataset folder"""
     source: Path = field(default=Path("data/demo_src"), metadata=option(metavar="DIR"))
@@ -302,14 +316,21 @@ def run_demo(config: DemoConfig) -> str:
     watch = Stopwatch()
     status = train_stages(dataset, run_dir, config.preset, parallel=config.parallel)
     times["training"] = str(watch)
-    # 3. samples
+    # 3. samples and 4. evaluation (with ``parallel``: the samples, mostly video encoding, in a
+    # second process)
     watch = Stopwatch()
-    sample_prompts(run_dir, out, config.samples, config.render, config.seed)
-    times["samples"] = str(watch)
-    # 4. evaluation
-    watch = Stopwatch()
-    quick_evaluation(dataset, run_dir, eval_dir)
-    times["evaluation"] = str(watch)
+    sampling = (run_dir, out, config.samples, config.render, config.seed)
+    if config.parallel:
+        log = out.parent / f"{out.name}.log"
+        with SecondProcess("sampling the example prompts", sample_prompts, sampling, log) as side:
+            quick_evaluation(dataset, run_dir, eval_dir)
+            side.join()
+        times["samples and evaluation"] = str(watch)
+    else:
+        sample_prompts(*sampling)
+        times["samples"], watch = str(watch), Stopwatch()
+        quick_evaluation(dataset, run_dir, eval_dir)
+        times["evaluation"] = str(watch)
     table = (eval_dir / "results.md").read_text(encoding="utf-8")
 
     lines = [
