@@ -193,10 +193,6 @@ class GeneratorStageConfig(StageConfig):
     whole_clips: bool = False
     """At each curriculum length, train the clips shorter than it whole (batched by length)
     instead of leaving them out; the original (false) trains crops of the length only."""
-    final_lr: float = 1.0
-    """At the last curriculum length, both learning rates fall along a half cosine, epoch by
-    epoch, from their values to this fraction of them at its last epoch (``max_stage_epochs +
-    final_epochs``); 1 keeps them constant (the original)."""
     checkpoint_every: int = 200
     log_every: int = 20
 
@@ -320,10 +316,9 @@ def demo() -> Config:
         end_snippets=49,
         curriculum_step=13,
         patience=3,
-        max_stage_epochs=2,
+        max_stage_epochs=4,
         final_epochs=10,
         whole_clips=True,
-        final_lr=0.1,
         checkpoint_every=100,
     )
     cfg.evaluator = EvaluatorStageConfig(
@@ -623,8 +618,6 @@ def validate(cfg: Config) -> None:
             "generator.patience and generator.max_stage_epochs must be at least 1, "
             "generator.final_epochs at least 0"
         )
-    if not 0.0 < generator.final_lr <= 1.0:
-        raise ValueError(f"generator.final_lr must be in (0, 1], got {generator.final_lr}")
     if not generator.decoder_lr > 0:
         raise ValueError(f"generator.decoder_lr must be positive, got {generator.decoder_lr}")
     for name, section in cfg.stage_sections().items():

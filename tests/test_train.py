@@ -440,48 +440,6 @@ def test_curriculum_moves_on_after_patience_or_the_stage_limit(tiny_config):
     assert curriculum.done and curriculum.snippets == 16
 
 
-def test_learning_rates_fall_along_a_half_cosine_at_the_last_length(tiny_config):
-    section = apply_overrides(
-        tiny_config,
-        {
-            "generator.end_snippets": "13",
-            "generator.curriculum_step": "3",
-            "generator.max_stage_epochs": "2",
-            "generator.final_epochs": "2",
-            "generator.final_lr": "0.1",
-        },
-    ).generator
-    assert Curriculum(snippets=10, stage_epochs=1).lr_scale(section) == 1.0  # not the last length
-    scales = [Curriculum(snippets=13, stage_epochs=e).lr_scale(section) for e in range(5)]
-    # epochs 0..3 of the last length (2 + 2 final): 1, 0.775, 0.325, 0.1; then held at 0.1
-    assert scales == pytest.approx([1.0, 0.775, 0.325, 0.1, 0.1])
-    constant = apply_overrides(tiny_config, {"generator.end_snippets": "13"}).generator
-    assert Curriculum(snippets=13, stage_epochs=3).lr_scale(constant) == 1.0
-    with pytest.raises(UsageError, match="final_lr"):
-        apply_overrides(tiny_config, {"generator.final_lr": "0"})
-
-
-def test_the_generator_trains_its_last_epoch_at_the_lowered_rates(
-    tiny_dataset, tiny_config, tiny_run, tmp_path
-):
-    shutil.copytree(tiny_run / "autoencoder", tmp_path / "autoencoder")
-    overrides = {
-        "generator.start_snippets": "10",
-        "generator.end_snippets": "10",
-        "generator.max_stage_epochs": "1",
-        "generator.final_epochs": "2",
-        "generator.patience": "5",
-        "generator.final_lr": "0.5",
-    }
-    config = apply_overrides(tiny_config, overrides)
-    train_stage("generator", config, tiny_dataset, tmp_path)
-    records = [json.loads(line) for line in (tmp_path / "generator" / "metrics.jsonl").open()]
-    assert sorted({r["lr_scale"] for r in records if r["split"] == "train"}) == [0.5, 0.75, 1.0]
-    groups = read_checkpoint(tmp_path / "generator" / "latest.pt")["optimizer"]["param_groups"]
-    section = config.generator
-    assert [g["lr"] for g in groups] == pytest.approx([section.lr / 2, section.decoder_lr / 2])
-
-
 def test_length_buckets_batch_clips_of_similar_length():
     import numpy as np
 

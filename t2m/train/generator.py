@@ -126,17 +126,6 @@ class Curriculum:
     """Best validation value at this length."""
     done: bool = False
 
-    def lr_scale(self, section: GeneratorStageConfig) -> float:
-        """The learning rates' factor for the coming epoch: 1 before the last length, then a
-        half cosine from 1 down to ``final_lr`` at the last length's last possible epoch."""
-        if section.final_lr == 1.0 or self.snippets < section.end_snippets:
-            return 1.0
-        last = max(1, section.max_stage_epochs + section.final_epochs - 1)
-        progress = min(1.0, self.stage_epochs / last)
-        return section.final_lr + (1.0 - section.final_lr) * 0.5 * (
-            1.0 + math.cos(math.pi * progress)
-        )
-
     def record(self, value: float, section: GeneratorStageConfig) -> bool:
         """Record an epoch's validation value; move to the next length when the stage is over.
         True when ``value`` is the best at the current length."""
@@ -256,16 +245,13 @@ def train_generator(job: StageJob) -> Path:
             )
             curriculum.done = True
             break
-        scale = curriculum.lr_scale(section)
-        for group, base in zip(optimizer.param_groups, (section.lr, section.decoder_lr)):
-            group["lr"] = base * scale
         description = f"generator epoch {run.progress.epoch + 1} ({frames} frames)"
         if not run.train_epoch(
             batches,
             description,
             losses_on(data.train, snippets, True),
             trainable_parameters,
-            log_extra={"snippets": snippets, "lr_scale": scale},
+            log_extra={"snippets": snippets},
         ):
             break
         # 4. end of epoch: validate on the clips long enough, then move along the curriculum;
