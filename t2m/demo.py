@@ -3,8 +3,11 @@
 Steps, each skipped when its result already exists (so a second run reuses the first):
 1. build the procedural demo dataset (``data/demo``);
 2. train the four stages at the ``demo`` preset (``checkpoints/demo``), resuming an interrupted
-   stage;
-3. sample three example prompts, several motions each, rendered (``outputs/demo``);
+   stage; with ``parallel`` (the default) the autoencoder and then the generator train in this
+   process while a second process trains the length model and, once the autoencoder has
+   finished, the evaluator (:func:`train_stages`);
+3. sample three example prompts, several motions each, rendered (``outputs/demo``; with
+   ``parallel`` in a second process, its log in ``outputs/demo.log``);
 4. run a quick evaluation (``outputs/demo_eval``);
 and print where everything is with a short summary.
 """
@@ -13,16 +16,22 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
+import queue
+import resource
 import sys
 import time
+import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from dataset_tools.command import (
     CommandParser,
     UsageError,
     command,
+    configure_logging,
     option,
     parse_config,
 )
@@ -30,7 +39,7 @@ from dataset_tools.io import check_output_folder
 from t2m.config import PRESETS, check_seed, preset
 from t2m.train.logbook import read_records
 from t2m.train.stage import FINISHED
-from t2m.train.stages import STAGES, train_stage
+from t2m.train.stages import STAGES, find_stage, train_stage
 
 logger = logging.getLogger("t2m.demo")
 
@@ -57,21 +66,157 @@ def build_dataset(dataset: Path, source: Path, clips: int, seed: int, workers: i
         raise UsageError(f"building {dataset} from {source} gave no clip (see build_report.json)")
 
 
-def train_stages(dataset: Path, run_dir: Path, preset_name: str) -> dict[str, str]:
-    """Step 2: every stage not yet finished; an interrupted one resumes from latest.pt."""
-    config = preset(preset_name)
+# The stages trained in the demo's own process, in this order: the longest chain (the generator
+# is most of the training time, and it needs the autoencoder). With ``parallel``, the others train
+# meanwhile in one second process, each once the stages it needs have finished.
+MAIN_LANE = ("autoencoder", "generator")
+# The second process's log (its progress bars and records), in the run folder.
+SIDE_LOG = "side_stages.log"
+
+
+def _finished(run_dir: Path, name: str) -> bool:
+    return (find_stage(name).folder(run_dir) / FINISHED).is_file()
+
+
+class Stopwatch:
+    """Wall time and CPU time (this process and its finished child processes, user + system)
+    since it was made: on a shared machine the CPU time says what the wall time would be alone."""
+
+    def __init__(self) -> None:
+        self.wall, self.cpu = time.perf_counter(), self._cpu()
+
+    @staticmethod
+    def _cpu() -> float:
+        own, children = (
+            resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+        )
+        return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+    def __str__(self) -> str:
+        return f"{time.perf_counter() - self.wall:.0f} s (CPU {self._cpu() - self.cpu:.0f} s)"
+
+
+def _train_one(name: str, preset_name: str, dataset: Path, run_dir: Path) -> str:
+    """Train one stage (resuming an interrupted run of it); returns its status line."""
+    resume = (find_stage(name).folder(run_dir) / "latest.pt").is_file()
+    logger.info("training %s (%s) ...", name, "resuming" if resume else "from scratch")
+    watch = Stopwatch()
+    train_stage(name, preset(preset_name), dataset, run_dir, resume=resume)
+    logger.info("%s trained in %s", name, watch)
+    return f"trained in {watch}"
+
+
+def _in_second_process(
+    function: Callable[..., Any], args: tuple, log_path: Path, results: multiprocessing.Queue
+) -> None:
+    """The body of a :class:`SecondProcess`: ``function(*args)`` with its output (progress bars,
+    log records) in ``log_path``; puts ``("ok", result)``, ``("usage", message)`` or
+    ``("error", message)`` on ``results``."""
+    with open(log_path, "a", encoding="utf-8") as log:
+        sys.stdout = sys.stderr = log
+        configure_logging()
+        try:
+            results.put(("ok", function(*args)))
+        except UsageError as error:
+            results.put(("usage", str(error)))
+        except BaseException as error:  # reported to the parent, then re-raised
+            traceback.print_exc()
+            results.put(("error", f"{type(error).__name__}: {error}"))
+            raise
+
+
+class SecondProcess:
+    """``function(*args)`` in a spawned process (no state shared with this one) while this one
+    works on; a context manager that ends the process if this one fails or is interrupted.
+
+    Args:
+        what: what it does, for the log lines and errors ("training length, evaluator").
+        function, args: a module-level function and its (picklable) arguments.
+        log: the file that gets its output.
+    """
+
+    def __init__(self, what: str, function: Callable[..., Any], args: tuple, log: Path):
+        log.parent.mkdir(parents=True, exist_ok=True)
+        self.what, self.log = what, log
+        context = multiprocessing.get_context("spawn")
+        self.results = context.Queue()
+        self.process = context.Process(
+            target=_in_second_process, args=(function, args, log, self.results), daemon=True
+        )
+        self.process.start()
+        logger.info("%s in a second process meanwhile (log: %s)", what, log)
+
+    def __enter__(self) -> SecondProcess:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        if self.process.is_alive():
+            self.process.terminate()
+        self.process.join()
+
+    def join(self) -> Any:
+        """Wait for the function's result; its UsageError again, or RuntimeError naming the log."""
+        logger.info("waiting for the second process (%s) ...", self.what)
+        while True:
+            try:
+                kind, value = self.results.get(timeout=1.0)
+                break
+            except queue.Empty:  # still running, unless it died
+                if not self.process.is_alive() and self.results.empty():
+                    kind, value = "error", f"it ended with exit code {self.process.exitcode}"
+                    break
+        self.process.join()
+        if kind == "usage":
+            raise UsageError(value)
+        if kind == "error":
+            raise RuntimeError(
+                f"{self.what} in the second process failed: {value} (see {self.log})"
+            )
+        return value
+
+
+def _train_side(names: list[str], preset_name: str, dataset: Path, run_dir: Path) -> dict:
+    """The second process's training: ``names`` in order, each once its needs have finished
+    (trained by the first process); returns their status lines."""
     status = {}
-    for stage in STAGES:
-        stage_dir = stage.folder(run_dir)
-        if (stage_dir / FINISHED).is_file():
-            status[stage.name] = "reused"
-            continue
-        resume = (stage_dir / "latest.pt").is_file()
-        logger.info("training %s (%s) ...", stage.name, "resuming" if resume else "from scratch")
-        start = time.perf_counter()
-        train_stage(stage.name, config, dataset, run_dir, resume=resume)
-        status[stage.name] = f"trained in {time.perf_counter() - start:.0f} s"
+    for name in names:
+        while not all(_finished(run_dir, need) for need in find_stage(name).needs):
+            parent = multiprocessing.parent_process()
+            if parent is not None and not parent.is_alive():
+                raise RuntimeError("the demo's main process ended")
+            time.sleep(1.0)
+        status[name] = _train_one(name, preset_name, dataset, run_dir) + " (2nd process)"
     return status
+
+
+def train_stages(
+    dataset: Path, run_dir: Path, preset_name: str, parallel: bool = False
+) -> dict[str, str]:
+    """Step 2: every stage not yet finished; an interrupted one resumes from latest.pt.
+
+    With ``parallel``, the stages off :data:`MAIN_LANE` train in a second process at the same
+    time (:class:`SecondProcess`); every stage seeds itself, so the result is the same as training
+    them one after the other. Returns stage name -> status line, in :data:`STAGES` order.
+    """
+    status, todo = {}, []
+    for stage in STAGES:
+        if _finished(run_dir, stage.name):
+            status[stage.name] = "reused"
+        else:
+            todo.append(stage.name)
+    side = [name for name in todo if name not in MAIN_LANE] if parallel else []
+    main = [name for name in todo if name not in side]
+    if not side:
+        for name in main:
+            status[name] = _train_one(name, preset_name, dataset, run_dir)
+    else:
+        args = (side, preset_name, dataset, run_dir)
+        what = f"training {', '.join(side)}"
+        with SecondProcess(what, _train_side, args, run_dir / SIDE_LOG) as helper:
+            for name in main:
+                status[name] = _train_one(name, preset_name, dataset, run_dir)
+            status.update(helper.join())
+    return {stage.name: status[stage.name] for stage in STAGES}
 
 
 def final_losses(run_dir: Path) -> dict[str, dict]:
@@ -129,6 +274,10 @@ class DemoConfig:
     """seed of the corpus, the dataset build and the samples"""
     workers: int = 2
     """processes for the corpus and the dataset build"""
+    parallel: bool = True
+    """use a second process: the length model and the evaluator train while the autoencoder and
+    the generator do, the samples are made while the evaluation runs (the same results, sooner
+    on two cores)"""
     dataset: Path = field(default=Path("data/demo"), metadata=option(metavar="DIR"))
     """the HumanML3D-layout dataset folder"""
     source: Path = field(default=Path("data/demo_src"), metadata=option(metavar="DIR"))
@@ -147,7 +296,7 @@ class DemoConfig:
 
 def run_demo(config: DemoConfig) -> str:
     """Run every step that has no result yet; return the summary text."""
-    start = time.perf_counter()
+    start, times = time.perf_counter(), {}
     dataset, run_dir, out = config.dataset, config.checkpoints, config.out
     eval_dir = out.parent / f"{out.name}_eval"
     # 0. the output folders, before the long work (the samples replace only an earlier demo's)
@@ -156,23 +305,39 @@ def run_demo(config: DemoConfig) -> str:
     check_out(out, overwrite=True)
     check_output_folder(eval_dir, "the evaluation folder")
     # 1. dataset
+    watch = Stopwatch()
     if _dataset_ready(dataset):
         logger.info("dataset %s exists: reused", dataset)
     else:
         build_dataset(dataset, config.source, config.clips, config.seed, config.workers)
     report = json.loads((dataset / "build_report.json").read_text(encoding="utf-8"))
+    times["dataset"] = str(watch)
     # 2. training
-    status = train_stages(dataset, run_dir, config.preset)
-    # 3. samples
-    sample_prompts(run_dir, out, config.samples, config.render, config.seed)
-    # 4. evaluation
-    quick_evaluation(dataset, run_dir, eval_dir)
+    watch = Stopwatch()
+    status = train_stages(dataset, run_dir, config.preset, parallel=config.parallel)
+    times["training"] = str(watch)
+    # 3. samples and 4. evaluation (with ``parallel``: the samples, mostly video encoding, in a
+    # second process)
+    watch = Stopwatch()
+    sampling = (run_dir, out, config.samples, config.render, config.seed)
+    if config.parallel:
+        log = out.parent / f"{out.name}.log"
+        with SecondProcess("sampling the example prompts", sample_prompts, sampling, log) as side:
+            quick_evaluation(dataset, run_dir, eval_dir)
+            side.join()
+        times["samples and evaluation"] = str(watch)
+    else:
+        sample_prompts(*sampling)
+        times["samples"], watch = str(watch), Stopwatch()
+        quick_evaluation(dataset, run_dir, eval_dir)
+        times["evaluation"] = str(watch)
     table = (eval_dir / "results.md").read_text(encoding="utf-8")
 
     lines = [
         "",
         "=" * 78,
         f"make demo finished in {(time.perf_counter() - start) / 60:.1f} min",
+        "steps        " + ", ".join(f"{step} {took}" for step, took in times.items()),
         f"dataset      {dataset}: {report['clips_out']} clips ({report['hours_out']:.2f} h), "
         f"splits {report.get('splits')}",
         f"checkpoints  {run_dir}: "

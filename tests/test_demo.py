@@ -1,5 +1,6 @@
 import pytest
 
+from dataset_tools.command import UsageError
 from t2m.demo import PROMPTS, DemoConfig, main, run_demo
 
 
@@ -23,6 +24,9 @@ def test_demo_runs_end_to_end_then_reuses_everything(tmp_path):
     assert len(motions) == len(PROMPTS) * 2
     assert len(list(config.out.glob("*.bvh"))) == len(PROMPTS) * 2
     assert (tmp_path / "out_eval" / "results.md").is_file()
+    # the second process's logs: training length and evaluator, sampling beside the evaluation
+    assert "length trained in" in (config.checkpoints / "side_stages.log").read_text()
+    assert "generating" in (tmp_path / "out.log").read_text()
     # A second run trains nothing and rebuilds nothing.
     again = run_demo(config)
     assert "autoencoder reused, length reused, generator reused, evaluator reused" in again
@@ -47,3 +51,29 @@ def test_demo_bad_options_are_one_line_and_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error: argument --render: invalid choice") and err.count("\n") == 1
     assert not (tmp_path / "never").exists()
+
+
+def test_parallel_stages_train_the_same_models_and_report_a_side_failure(
+    tiny_dataset, tiny_run, tmp_path
+):
+    import torch
+
+    from t2m.demo import SIDE_LOG, train_stages
+    from t2m.train.checkpoint import read_checkpoint
+
+    # The second process trains length and evaluator exactly as one process does (tiny_run).
+    status = train_stages(tiny_dataset, tmp_path / "run", "tiny", parallel=True)
+    assert status["length"].endswith("(2nd process)") and "(2nd" not in status["generator"]
+    assert "evaluator trained in" in (tmp_path / "run" / SIDE_LOG).read_text()
+    for stage in ("length", "evaluator"):
+        ours = read_checkpoint(tmp_path / "run" / stage / "best.pt")["models"][stage]
+        alone = read_checkpoint(tiny_run / stage / "best.pt")["models"][stage]
+        assert all(torch.equal(ours[key], alone[key]) for key in alone)
+    # A refused checkpoint in the second process's stage: one line, after the main lane.
+    broken = tmp_path / "broken"
+    (broken / "length").mkdir(parents=True)
+    (broken / "length" / "latest.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(UsageError, match="latest.pt") as error:
+        train_stages(tiny_dataset, broken, "tiny", parallel=True)
+    assert "\n" not in str(error.value)
+    assert (broken / "generator" / "finished.json").is_file()
