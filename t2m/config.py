@@ -321,7 +321,7 @@ def demo() -> Config:
         end_snippets=49,
         curriculum_step=13,
         patience=3,
-        max_stage_epochs=4,
+        max_stage_epochs=2,
         final_epochs=10,
         whole_clips=True,
         checkpoint_every=100,

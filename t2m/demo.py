@@ -24,7 +24,7 @@ import sys
 import time
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -38,6 +38,7 @@ from dataset_tools.command import (
 )
 from dataset_tools.io import check_output_folder
 from t2m.config import PRESETS, check_seed, preset
+from t2m.train import runtime as runtime_module
 from t2m.train.logbook import read_records
 from t2m.train.stage import FINISHED
 from t2m.train.stages import STAGES, find_stage, train_stage
@@ -73,10 +74,11 @@ def build_dataset(dataset: Path, source: Path, clips: int, seed: int, workers: i
 MAIN_LANE = ("autoencoder", "generator")
 # The second process's log (its progress bars and records), in the run folder.
 SIDE_LOG = "side_stages.log"
-# Torch threads of the generator stage (the preset's one thread elsewhere). At demo size a
-# temporal-VAE training step took 0.53-0.71x the time with two threads than with one (quiet
-# 2-core machine, 2026-12-01, interleaved); the second process has finished its stages about
-# 80 s into the generator's 9-10 minutes, so the two lanes share the cores only briefly.
+# Torch threads of the generator stage once the second process is done (the preset's one thread
+# elsewhere and before). At demo size a temporal-VAE training step took 0.53-0.71x the time with
+# two threads than with one (quiet 2-core machine, 2026-12-01, interleaved); with two threads
+# beside the second process's evaluator it ran at a third of one thread's speed (oversubscribed
+# cores), hence the switch between epochs.
 GENERATOR_THREADS = 2
 
 
@@ -102,24 +104,27 @@ class Stopwatch:
         return f"{time.perf_counter() - self.wall:.0f} s (CPU {self._cpu() - self.cpu:.0f} s)"
 
 
-def _stage_threads(name: str) -> int:
-    """Torch threads for a stage of the demo: :data:`GENERATOR_THREADS` for the generator when
-    this process may use that many cores, else the preset's own setting (0)."""
-    if name != "generator":
-        return 0
-    return min(GENERATOR_THREADS, len(os.sched_getaffinity(0)))
+def _train_one(
+    name: str,
+    preset_name: str,
+    dataset: Path,
+    run_dir: Path,
+    side_busy: Callable[[], bool] = lambda: False,
+) -> str:
+    """Train one stage (resuming an interrupted run of it); returns its status line.
 
-
-def _train_one(name: str, preset_name: str, dataset: Path, run_dir: Path) -> str:
-    """Train one stage (resuming an interrupted run of it); returns its status line."""
+    The generator takes :data:`GENERATOR_THREADS` CPU threads (as many as this process may use)
+    from the first epoch that starts while ``side_busy()`` is false, one before."""
     resume = (find_stage(name).folder(run_dir) / "latest.pt").is_file()
     logger.info("training %s (%s) ...", name, "resuming" if resume else "from scratch")
     watch = Stopwatch()
     config = preset(preset_name)
-    threads = _stage_threads(name)
-    if threads > 1:
-        config = replace(config, num_threads=threads)
-    train_stage(name, config, dataset, run_dir, resume=resume)
+    runtime = None
+    cores = min(GENERATOR_THREADS, len(os.sched_getaffinity(0)))
+    if name == "generator" and cores > 1:
+        runtime = runtime_module.start(config.device, config.bf16, config.num_threads)
+        runtime.epoch_threads = lambda: 1 if side_busy() else cores
+    train_stage(name, config, dataset, run_dir, runtime=runtime, resume=resume)
     logger.info("%s trained in %s", name, watch)
     return f"trained in {watch}"
 
@@ -232,7 +237,9 @@ def train_stages(
         what = f"training {', '.join(side)}"
         with SecondProcess(what, _train_side, args, run_dir / SIDE_LOG) as helper:
             for name in main:
-                status[name] = _train_one(name, preset_name, dataset, run_dir)
+                status[name] = _train_one(
+                    name, preset_name, dataset, run_dir, helper.process.is_alive
+                )
             status.update(helper.join())
     return {stage.name: status[stage.name] for stage in STAGES}
 

@@ -475,3 +475,22 @@ def test_whole_clips_train_the_clips_shorter_than_the_curriculum_length(
     train_stage("generator", apply_overrides(tiny_config, overrides), tiny_dataset, tmp_path)
     progress = load_stage(tmp_path, "generator", which="latest").progress
     assert progress["step"] == (2 * batches if whole_clips else batches)
+
+
+def test_runtime_sets_the_threads_each_epoch_asks_for():
+    """``Runtime.epoch_threads`` (t2m.demo: one thread while its second process trains, two
+    after) is applied by ``before_epoch``; no answer leaves the threads alone."""
+    from t2m.train.runtime import Runtime
+
+    before = torch.get_num_threads()
+    answers = iter([1, 2, 0])
+    runtime = Runtime(torch.device("cpu"), epoch_threads=lambda: next(answers))
+    try:
+        runtime.before_epoch()
+        assert torch.get_num_threads() == 1
+        runtime.before_epoch()
+        assert torch.get_num_threads() == 2
+        runtime.before_epoch()  # 0: keep
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import torch
@@ -38,6 +38,19 @@ class Runtime:
     @property
     def distributed(self) -> bool:
         return self.world_size > 1
+
+    epoch_threads: Callable[[], int] | None = None
+    """Asked before each training epoch; a positive answer becomes torch's CPU thread count
+    (``t2m.demo``: one thread while its second process trains, two once it is done)."""
+
+    def before_epoch(self) -> None:
+        """Apply :attr:`epoch_threads` (set between epochs, never inside a parallel region)."""
+        if self.epoch_threads is None:
+            return
+        threads = self.epoch_threads()
+        if threads > 0 and threads != torch.get_num_threads():
+            torch.set_num_threads(threads)
+            logger.info("%d CPU threads from this epoch on", threads)
 
     def autocast(self) -> contextlib.AbstractContextManager:
         """bfloat16 autocast when enabled (CUDA or CPU), else a no-op."""

@@ -347,6 +347,7 @@ class StageRun:
         a record every ``log_every`` steps and ``latest.pt`` every ``checkpoint_every``.
         """
         section, runtime, progress = self.section, self.runtime, self.progress
+        runtime.before_epoch()
         seed, epoch = self.config.seed, progress.epoch
         bar = tqdm(
             total=len(batches),
