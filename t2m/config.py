@@ -286,7 +286,8 @@ the release's meta/std.npy holds the dataset std / 25 on those dimensions."""
 
 
 def demo() -> Config:
-    """Small models that train all four stages on the demo corpus in about 14 minutes of CPU."""
+    """Small models that train all four stages on the demo corpus (``make demo``: about 12
+    minutes on 2 cores)."""
     # One thread: these sizes are dominated by per-op overhead, where a second thread gains
     # little and loses a lot whenever another process wants the core (--num_threads=2 to try).
     cfg = Config(preset="demo", num_threads=1)
@@ -337,7 +338,7 @@ def demo() -> Config:
     return cfg
 
 
-DEMO_NOTES = """Small models that train all four stages on the demo corpus in about 14 minutes of CPU.
+DEMO_NOTES = """Small models that train all four stages on the demo corpus in about 12 minutes (make demo, 2 cores).
 Measured on the 2-core development machine (one thread): autoencoder 1.4 min, length 0.5,
 generator 12, evaluator 1.3. The curriculum grows by 3 snippets per stage, at most five epochs
 per stage. Quick-evaluation semantic accuracy by epochs per stage: 1 -> 0.19, 3 -> 0.40,
@@ -363,7 +364,10 @@ from a fresh clone; the earlier 24 epochs about 18 (20 in one process). Semantic
 16 epochs 0.548, 18 epochs 0.603 (this preset, with 28-word captions: 0.598, quick evaluation
 0.560 +- 0.015; 0.604 with a cosine learning-rate decay too, 0.577 with the decay alone: it was
 removed), 24 epochs 0.628, 26 epochs 0.649; quality is still rising with epochs at the last
-length when the time budget ends."""
+length when the time budget ends. With t2m.demo's thread switch (the generator on two threads
+once the second process is done), a fresh-clone make demo took 12.2 minutes (+ 76 s install;
+2026-12-01, load about 1.7): quick evaluation semantic accuracy 0.622 +- 0.004 (order and
+counts; 0.562 with fixed timing)."""
 
 
 def tiny() -> Config:
