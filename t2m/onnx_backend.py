@@ -227,10 +227,9 @@ def quantize_blockwise(model):
     level = quantizer_log.level
     quantizer_log.setLevel(logging.WARNING)  # it logs every node at INFO
     try:
+        copied = type(model).FromString(model.SerializeToString())  # it rewrites its model
         quantizer = MatMulNBitsQuantizer(
-            type(model).FromString(
-                model.SerializeToString()
-            ),  # it rewrites the model it gets bits=8, block_size=INT8_BLOCK, is_symmetric=True, accuracy_level=4
+            copied, bits=8, block_size=INT8_BLOCK, is_symmetric=True, accuracy_level=4
         )
         quantizer.process()
     finally:
