@@ -78,9 +78,11 @@ def available() -> bool:
 
 
 def require() -> None:
-    """Raise ImportError (one line, what to install) unless :func:`available`."""
+    """Raise UsageError (one line, what to install) unless :func:`available`."""
+    from dataset_tools.command import UsageError
+
     if not available():
-        raise ImportError(
+        raise UsageError(
             "the onnx backend needs the onnx and onnxruntime packages: "
             "pip install onnx onnxruntime (or the project's [onnx] extra)"
         )
@@ -272,7 +274,7 @@ class OnnxGenerationPlan:
     use it).
 
     Args:
-        plan: a float32 plan; its weights are copied into the sessions (its step Linears may
+        plan: a float32 plan (or a float32 :class:`OnnxGenerationPlan`: its ``base``); its weights are copied into the sessions (its step Linears may
             be quantised or freed afterwards: only :meth:`GenerationPlan.tables` is read later).
         precision: ``"fp32"`` or ``"int8"``.
         threads: ONNX Runtime's intra-op threads (default: torch's thread count now).
@@ -289,6 +291,8 @@ class OnnxGenerationPlan:
         base: GenerationPlan | None = None,
     ) -> None:
         require()
+        if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
+            plan = plan.base
         if precision not in ONNX_PRECISIONS:
             raise ValueError(
                 f"the onnx backend runs {' and '.join(ONNX_PRECISIONS)}, not {precision!r}"

@@ -24,7 +24,8 @@ lengths, batch size and precision give the same motions, bit for bit, on the sam
 Precision: ``fp32`` (reference), ``bf16`` (weights and activations in bfloat16) or ``int8``
 (dynamic int8 quantisation of the recurrent cells and linear layers, CPU only; the decoder runs
 in bfloat16). At batch 1 the prior / generator step reads every weight once per 4 frames, so
-smaller weights are faster.
+smaller weights are faster. ``backend="onnx"`` runs that step in ONNX Runtime instead of torch
+(fp32 and int8, :mod:`t2m.onnx_backend`).
 """
 
 from __future__ import annotations
@@ -51,8 +52,11 @@ from t2m.models.autoencoder import (
     MovementEncoder,
     check_snippet_length,
 )
+from t2m.models.fast_recurrence import generation_plan, set_generation_plan
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
+from t2m.onnx_backend import BACKENDS, ONNX_PRECISIONS, OnnxGenerationPlan
+from t2m.onnx_backend import require as require_onnx
 from t2m.quantize import quantize_int8
 
 logger = logging.getLogger(__name__)
@@ -154,6 +158,9 @@ class TextToMotion:
             weights and their converted copy at once (``from_checkpoints`` owns what it loads),
             and, without an ``encoder``, releases the VAE's posterior
             (:meth:`~t2m.models.temporal_vae.TemporalVAE.release_posterior`: nothing here reads it).
+        backend: ``"torch"``, or ``"onnx"``: the prior / generator steps run in ONNX Runtime
+            (:mod:`t2m.onnx_backend`; fp32 and int8 on the CPU, needs the ``onnx`` extra), from
+            a snapshot of the weights taken here.
     """
 
     def __init__(
@@ -173,7 +180,17 @@ class TextToMotion:
         encoder: MovementEncoder | None = None,
         *,
         copy_models: bool = True,
+        backend: str = "torch",
     ) -> None:
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown backend {backend!r}; use one of {', '.join(BACKENDS)}")
+        if backend == "onnx" and (
+            precision not in ONNX_PRECISIONS or torch.device(device).type != "cpu"
+        ):
+            raise ValueError(f"the onnx backend runs {' and '.join(ONNX_PRECISIONS)} on the CPU")
+        if backend == "onnx":
+            require_onnx()
+        self.backend = backend
         if precision not in PRECISIONS:
             raise ValueError(f"unknown precision {precision!r}; use one of {', '.join(PRECISIONS)}")
         self.device = torch.device(device)
@@ -199,15 +216,22 @@ class TextToMotion:
             )
             training_words = set(vectorizer.words) - {"sos", "eos", "unk"}
         self.training_words = frozenset(training_words)
-        vae = vae.to(self.device).eval()
+        vae = original_vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
         if not copy_models and encoder is None:
             # nothing here reads the posterior without an encoder (it reads an edit's kept start)
             vae.release_posterior()
+        if backend == "onnx":  # from the float weights, before they are converted
+            onnx_plan = OnnxGenerationPlan(generation_plan(vae), precision)
         if precision == "int8":
             vae = quantize_int8(vae, inplace=not copy_models)
         elif precision == "bf16":
             vae = (copy.deepcopy(vae) if copy_models else vae).to(torch.bfloat16)
+        if backend == "onnx":
+            onnx_plan.base = generation_plan(vae)  # the tables and first gates, in torch
+            if vae is original_vae and copy_models:  # the caller's module keeps its own plan
+                vae = copy.copy(vae)  # shares the weights
+            set_generation_plan(vae, onnx_plan)
         self.vae = vae
         # The decoder's transposed convolutions have no dynamic-int8 kernels; in both reduced
         # modes they run in bfloat16 (3x faster at batch 32 with AMX, ~0.5% relative error).
@@ -245,6 +269,7 @@ class TextToMotion:
             training_words=self.training_words,
             spacy_pos=self.spacy_pos,
             encoder=self.encoder,
+            backend=self.backend,
         )
 
     # -- loading -----------------------------------------------------------------------------
@@ -258,6 +283,7 @@ class TextToMotion:
         need_length_model: bool = True,
         which: str = "best",
         glove_dir: str | Path | None = None,
+        backend: str = "torch",
     ) -> TextToMotion:
         """Load the ``generator`` (and ``length``) stages of a run folder, or the original T2M
         release's models from any folder of its layout (:func:`t2m.release.load_release`;
@@ -285,6 +311,7 @@ class TextToMotion:
                 precision=precision,
                 encoder=release.encoder,
                 copy_models=False,
+                backend=backend,
             )
         if not run_dir.is_dir():
             raise ValueError(
@@ -340,6 +367,7 @@ class TextToMotion:
             training_words=t2m.extra.get("training_words"),
             encoder=encoder,
             copy_models=False,
+            backend=backend,
         )
 
     # -- steps -------------------------------------------------------------------------------

@@ -17,7 +17,8 @@ weights at the paper's sizes and the same inputs. What each row times:
   tagging (the same function on both sides), word vectors (the same 300-d table), text encoder,
   49 prior / generator steps, movement decoder, de-normalisation, each side's
   ``recover_from_ric``. The original at fp32 (its ``CompTrainerV6.generate`` on the batch);
-  ours at fp32, bf16 and int8 (:class:`t2m.pipeline.TextToMotion`). Batch 32: 32 copies of
+  ours at fp32, bf16 and int8 (:class:`t2m.pipeline.TextToMotion`), and with the ONNX
+  Runtime backend (``backend="onnx"``) at fp32 and int8 when it is installed. Batch 32: 32 copies of
   the prompt; reported as seconds per batch (the ratio is the inverse of the throughput ratio).
 * ``vae_step_*``: one temporal-VAE training step, batch 32 x 49 snippets: encoder codes,
   forward, loss, backward, clipping at 0.5, Adam (ours: the fused Adam that training uses,
@@ -156,6 +157,7 @@ def features_row(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
 
 def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[], object]]:
     from dataset_tools.texts import tag_prompts
+    from t2m import onnx_backend
     from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.models.autoencoder import MovementDecoder
@@ -174,6 +176,17 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
         )
         for precision in ("fp32", "bf16", "int8")
     }
+    if onnx_backend.available():  # the optional ONNX Runtime backend, same weights
+        for precision in onnx_backend.ONNX_PRECISIONS:
+            pipes[f"onnx_{precision}"] = TextToMotion(
+                vae,
+                decoder,
+                Normalizer(mean, std),
+                vectorizer,
+                torch.zeros(512),
+                precision=precision,
+                backend="onnx",
+            )
     models = original_generation_models(orig)
     for module in models.values():
         module.eval()

@@ -1,0 +1,141 @@
+"""The ONNX Runtime generation backend against the torch plan.
+
+Tolerances, as for the torch plans (``tests/test_temporal_vae.py``): the fp32 graph sums the
+same products in another order, so it agrees with the torch plan to 1e-5 of the largest value
+(observed 7e-7 at paper size); int8 to 5% of the largest value (observed 1.4% at paper size,
+the torch int8 plan 2.1%).
+
+Skipped, with the reason, only where the optional ``onnx`` / ``onnxruntime`` packages are not
+installed (``pip install -e .[onnx]``; ``make install`` installs them).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+pytest.importorskip("onnx", reason="the onnx backend's optional packages are not installed")
+pytest.importorskip("onnxruntime", reason="the onnx backend's optional packages are not installed")
+
+from t2m.config import TemporalVAEConfig, TextEncoderConfig  # noqa: E402
+from t2m.models.fast_recurrence import generation_plan, set_generation_plan  # noqa: E402
+from t2m.models.temporal_vae import TemporalVAE  # noqa: E402
+from t2m.onnx_backend import BATCHED_FROM, OnnxGenerationPlan  # noqa: E402
+from t2m.pipeline import TextToMotion  # noqa: E402
+from t2m.quantize import quantize_int8  # noqa: E402
+
+WORD_DIM, L, CODE, LATENT = 12, 9, 16, 6
+CONFIG = TemporalVAEConfig(
+    text=TextEncoderConfig(hidden_size=10), hidden_size=20, latent_size=LATENT, attention_size=8
+)
+
+
+def inputs(vae: TemporalVAE, batch: int, steps: int):
+    """encode_text of random words, per-item snippet counts (steps, steps - 3, ...), noise."""
+    generator = torch.Generator().manual_seed(0)
+    words = torch.randn(batch, L, WORD_DIM, generator=generator)
+    pos = F.one_hot(torch.randint(0, 15, (batch, L), generator=generator), 15).float()
+    lengths = torch.tensor([L - i % 6 for i in range(batch)])
+    with torch.inference_mode():
+        text = vae.encode_text(words, pos, lengths)
+    snippets = torch.tensor([steps - 3 * (i % 2) for i in range(batch)])
+    noise = torch.randn(batch, steps, LATENT, generator=generator)
+    return text, snippets, noise
+
+
+def onnx_copy(vae: TemporalVAE, precision: str) -> TemporalVAE:
+    """A copy of ``vae`` whose generation runs in ONNX Runtime (as the pipeline sets it up)."""
+    copied = copy.deepcopy(vae)
+    plan = OnnxGenerationPlan(generation_plan(copied), precision)
+    if precision == "int8":
+        copied = quantize_int8(copied, inplace=True)
+    plan.base = generation_plan(copied)
+    set_generation_plan(copied, plan)
+    return copied
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_fp32_graph_is_the_torch_plan(batch):
+    torch.manual_seed(0)
+    vae = TemporalVAE(WORD_DIM, CODE, CONFIG).eval()
+    text, snippets, noise = inputs(vae, batch, 10)
+    initial = torch.randn(CODE)
+    fast = onnx_copy(vae, "fp32")
+    with torch.inference_mode():
+        expected, end = vae.generate(*text, snippets, initial, noise=noise, return_state=True)
+        codes, onnx_end = fast.generate(*text, snippets, initial, noise=noise, return_state=True)
+    scale = expected.abs().max()
+    assert (codes - expected).abs().max() < 1e-5 * scale
+    assert not codes[snippets < 10, 7:].any()  # past an item's length
+    for ours, theirs in zip(onnx_end[:3], end[:3], strict=True):  # each item's own last step
+        assert (ours - theirs).abs().max() < 1e-5 * theirs.abs().max()
+    # split in two and resumed from the returned state: the same motion
+    with torch.inference_mode():
+        first, middle = fast.generate(
+            *text,
+            torch.full((batch,), 4),
+            initial,
+            noise=noise[:, :4],
+            snippets_left=snippets,
+            return_state=True,
+        )
+        rest = fast.generate(*text, snippets - 4, state=middle, noise=noise[:, 4:])
+    torch.testing.assert_close(torch.cat([first, rest], 1), codes, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("batch", [1, BATCHED_FROM + 1])  # the blockwise and the dynamic session
+def test_int8_graph_is_close_to_float32(batch):
+    torch.manual_seed(1)
+    vae = TemporalVAE(WORD_DIM, CODE, CONFIG).eval()
+    text, snippets, noise = inputs(vae, batch, 12)
+    initial = torch.randn(CODE)
+    fast = onnx_copy(vae, "int8")
+    with torch.inference_mode():
+        expected = vae.generate(*text, snippets, initial, noise=noise)
+        codes = fast.generate(*text, snippets, initial, noise=noise)
+    assert 0 < (codes - expected).abs().max() < 0.05 * expected.abs().max()
+    assert type(vae.prior.cell) is torch.nn.GRUCell  # the original is untouched
+
+
+@pytest.mark.parametrize("precision", ["fp32", "int8"])
+def test_pipeline_backend_onnx_stays_close_to_torch(tiny_run, precision):
+    torch_pipe = TextToMotion.from_checkpoints(tiny_run, precision=precision)
+    onnx_pipe = TextToMotion.from_checkpoints(tiny_run, precision=precision, backend="onnx")
+    assert onnx_pipe.backend == "onnx"
+    assert isinstance(generation_plan(onnx_pipe.vae), OnnxGenerationPlan)
+    kwargs = dict(num_samples=2, lengths=48, seed=5)
+    reference = torch_pipe.generate(["a person walks forward"], **kwargs)[0]
+    result = onnx_pipe.generate(["a person walks forward"], **kwargs)[0]
+    again = onnx_pipe.generate(["a person walks forward"], **kwargs)[0]
+    tolerance = 1e-4 if precision == "fp32" else 0.01  # metres (tiny models)
+    for a, b, c in zip(reference, result, again, strict=True):
+        np.testing.assert_array_equal(b.joints, c.joints)  # deterministic
+        assert np.abs(a.joints - b.joints).max() < tolerance
+
+
+def test_fp32_pipeline_leaves_the_callers_model_on_torch(tiny_run):
+    pipe = TextToMotion.from_checkpoints(tiny_run)
+    onnx_pipe = TextToMotion(
+        pipe.vae,
+        pipe.decoder,
+        pipe.normalizer,
+        pipe.vectorizer,
+        pipe.initial_code,
+        training_words=pipe.training_words,
+        backend="onnx",
+    )
+    assert onnx_pipe.vae is not pipe.vae
+    assert not isinstance(generation_plan(pipe.vae), OnnxGenerationPlan)
+    int8 = onnx_pipe.with_precision("int8")  # from the float plan under the ONNX one
+    assert int8.backend == "onnx" and isinstance(generation_plan(int8.vae), OnnxGenerationPlan)
+
+
+def test_onnx_backend_refuses_what_it_cannot_run(tiny_run):
+    with pytest.raises(ValueError, match="onnx backend runs fp32 and int8"):
+        TextToMotion.from_checkpoints(tiny_run, precision="bf16", backend="onnx")
+    with pytest.raises(ValueError, match="unknown backend"):
+        TextToMotion.from_checkpoints(tiny_run, backend="tensorrt")
