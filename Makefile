@@ -59,7 +59,7 @@ install: $(STAMP)
 $(STAMP): setup.cfg pyproject.toml
 	test -x $(py) || $(call arg,PYTHON) -m venv $(call arg,VENV)
 	$(py) -m pip install -q --upgrade pip
-	$(py) -m pip install -q -e '.[test]'
+	$(py) -m pip install -q -e '.[test,onnx]'
 	touch $(call quote,$(STAMP))
 
 test: install

@@ -28,6 +28,7 @@ Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Ne
 from __future__ import annotations
 
 import importlib.util
+import logging
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -221,8 +222,6 @@ def step_model(plan: GenerationPlan):
 def quantize_blockwise(model):
     """A copy of ``model`` with every MatMul on a constant weight made ``MatMulNBits`` (8 bits,
     symmetric, blocks of :data:`INT8_BLOCK`, int8 arithmetic: ``accuracy_level`` 4)."""
-    import logging
-
     from onnxruntime.quantization.matmul_nbits_quantizer import MatMulNBitsQuantizer
 
     quantizer_log = logging.getLogger("onnxruntime.quantization.matmul_nbits_quantizer")
@@ -246,11 +245,17 @@ def quantize_dynamic(model):
     from onnxruntime.quantization import QuantType
     from onnxruntime.quantization import quantize_dynamic as ort_quantize_dynamic
 
-    with tempfile.TemporaryDirectory() as folder:  # the quantiser works on files
-        source, target = Path(folder) / "float.onnx", Path(folder) / "int8.onnx"
-        onnx.save(model, source)
-        ort_quantize_dynamic(source, target, weight_type=QuantType.QInt8)
-        return onnx.load(target)
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)  # it advises pre-processing on the root logger, every time
+    try:
+        with tempfile.TemporaryDirectory() as folder:  # the quantiser works on files
+            source, target = Path(folder) / "float.onnx", Path(folder) / "int8.onnx"
+            onnx.save(model, source)
+            ort_quantize_dynamic(source, target, weight_type=QuantType.QInt8)
+            return onnx.load(target)
+    finally:
+        root.setLevel(level)
 
 
 def session(model, threads: int):

@@ -515,6 +515,8 @@ class OutputOptions:
     """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
     precision: Literal["fp32", "bf16", "int8"] = "fp32"
     """inference precision (int8 is CPU only, and an edit cannot optimise through it)"""
+    backend: Literal["torch", "onnx"] = "torch"
+    """what runs the generation steps: torch, or ONNX Runtime (fp32 and int8 on the CPU)"""
 
     def __post_init__(self) -> None:
         check_threads(self.threads)
@@ -542,6 +544,7 @@ class OutputOptions:
                 self.checkpoints,
                 device=device,
                 precision=self.precision,
+                backend=self.backend,
                 need_length_model=need_length_model,
                 glove_dir=self.glove,
             )

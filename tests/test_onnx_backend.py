@@ -139,3 +139,19 @@ def test_onnx_backend_refuses_what_it_cannot_run(tiny_run):
         TextToMotion.from_checkpoints(tiny_run, precision="bf16", backend="onnx")
     with pytest.raises(ValueError, match="unknown backend"):
         TextToMotion.from_checkpoints(tiny_run, backend="tensorrt")
+
+
+def test_sample_command_runs_the_onnx_backend(tiny_run, tmp_path, capsys):
+    from t2m import sample
+
+    argv = ["--text", "a person walks", "--checkpoints", str(tiny_run), "--render", "none"]
+    argv += ["--length", "40", "--precision", "int8", "--threads", "1"]
+    assert sample.main([*argv, "--out", str(tmp_path / "torch")]) == 0
+    assert sample.main([*argv, "--out", str(tmp_path / "onnx"), "--backend", "onnx"]) == 0
+    motions = [np.load(tmp_path / side / "sample00_rep00.npy") for side in ("torch", "onnx")]
+    assert motions[0].shape == motions[1].shape
+    assert 0 < np.abs(motions[0] - motions[1]).max() < 0.01  # metres: int8 in two runtimes
+    code = sample.main(
+        [*argv[:-4], "--precision", "bf16", "--backend", "onnx", "--out", str(tmp_path / "x")]
+    )
+    assert code == 2 and "onnx backend runs fp32 and int8" in capsys.readouterr().err
