@@ -3,19 +3,18 @@
 
 The graph is written here from the plan's weights (``onnx.helper``, no tracing): the same sums as
 :meth:`GenerationPlan.forward` (stacked products, attention through the per-sequence tables,
-the GRU gates written out). The per-sequence tables (:meth:`GenerationPlan.tables`) stay in
-torch: they run once per motion. ONNX Runtime runs the step's ~90 nodes with less overhead than
+the GRU gates written out). ONNX Runtime runs the step as about 55 kernels, with less overhead than
 torch's ~250 operator calls, and its matrix-vector kernels read the weights faster.
 
 Two weight formats:
 
 * ``fp32``: ``MatMul`` on float32 weights (ONNX Runtime's own GEMM kernels);
-* ``int8``: weights quantised to int8 by ONNX Runtime's own tools, symmetric, one scale per
-  block of 128 inputs of a row, activations quantised on the fly: ``MatMulNBits`` (8 bits,
-  int8 arithmetic) for one or a few sequences, and ``MatMulInteger`` after a dynamic
-  quantisation (one scale per tensor, as torch's) for batches, whose kernel is faster there
-  (:data:`BATCHED_FROM`). Each session holds its own int8 copy of the weights (15.6 MB each at
-  paper size).
+* ``int8``: weights quantised to int8 (symmetric) by ONNX Runtime's own quantisers,
+  activations quantised on the fly. One sequence runs ``MatMulNBits`` (8 bits, one scale per
+  block of :data:`INT8_BLOCK` inputs of a row, int8 arithmetic), batches run ``MatMulInteger``
+  after ``quantize_dynamic`` (one scale per tensor, as torch's), whose kernel is the faster
+  one from two sequences on (:data:`BATCHED_FROM`). Each of the two sessions holds its own int8
+  copy of the weights (15.6 MB at paper size).
 
 The per-sequence tables and the first step's hidden-gate products stay in torch, in a torch
 plan (``base``): they run once per motion.
@@ -48,10 +47,11 @@ ONNX_PRECISIONS = ("fp32", "int8")
 
 OPSET = 17  # LayerNormalization is in the default domain from opset 17
 
-BATCHED_FROM = 4
+BATCHED_FROM = 2
 """int8: batches of this many sequences or more run the ``MatMulInteger`` session, smaller
-ones the ``MatMulNBits`` session (1 thread, paper size: 0.61 vs 0.80 ms per step at batch 1,
-8.3 vs 5.3 ms at batch 32)."""
+ones the ``MatMulNBits`` session. One step, 1 thread, paper size, ms ``MatMulNBits`` /
+``MatMulInteger``: batch 1 0.93 / 1.25, 2 5.1 / 1.3, 4 5.9 / 1.6, 8 7.8 / 2.3, 32 8.7 / 5.2
+(``MatMulNBits`` has a matrix-vector kernel for a single row only)."""
 
 INT8_BLOCK = 128
 """Inputs per quantisation block of ``MatMulNBits``."""

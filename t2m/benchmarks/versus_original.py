@@ -437,21 +437,31 @@ def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[],
 
         return original
     config = paper()
+    backend, precision = side.split("_") if side.startswith("onnx_") else ("torch", side)
     pipe = TextToMotion(
         TemporalVAE(WORD_DIM, 512, config.generator.model),
         MovementDecoder(FEATURES, config.autoencoder.model),
         Normalizer(np.zeros(FEATURES, np.float32), np.ones(FEATURES, np.float32)),
         vectorizer_300d(),
         torch.zeros(512),
-        precision=side,
+        precision=precision,
         copy_models=False,
+        backend=backend,
     )
     return lambda: pipe.generate(PROMPT, lengths=FRAMES, clean=False, seed=0)
 
 
+def memory_sides() -> tuple[str, ...]:
+    """Ours: the precisions, and the ONNX Runtime backend's when it is installed."""
+    from t2m import onnx_backend
+
+    onnx = onnx_backend.ONNX_PRECISIONS if onnx_backend.available() else ()
+    return ("fp32", "bf16", "int8", *(f"onnx_{precision}" for precision in onnx))
+
+
 def peak_memory(original: Path) -> dict[str, float]:
     results = {}
-    for side in ("original", "fp32", "bf16", "int8"):
+    for side in ("original", *memory_sides()):
         out = subprocess.run(
             [
                 sys.executable,
@@ -555,7 +565,7 @@ def measure(original: Path, rounds: int, threads: int, only: set[str] | None) ->
             add(name, sides, rounds)
         add("vae_step", vae_step_rows(orig), max(2, rounds // 2))
     memory = peak_memory(original) if wanted("memory") else {}
-    for side in ("fp32", "bf16", "int8"):
+    for side in memory_sides():
         if memory:
             results.append(
                 {
