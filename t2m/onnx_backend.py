@@ -6,15 +6,15 @@ The graph is written here from the plan's weights (``onnx.helper``, no tracing):
 the GRU gates written out). ONNX Runtime runs the step as about 55 kernels, with less overhead than
 torch's ~250 operator calls, and its matrix-vector kernels read the weights faster.
 
-Two weight formats:
+Two precisions:
 
 * ``fp32``: ``MatMul`` on float32 weights (ONNX Runtime's own GEMM kernels);
-* ``int8``: weights quantised to int8 (symmetric) by ONNX Runtime's own quantisers,
-  activations quantised on the fly. One sequence runs ``MatMulNBits`` (8 bits, one scale per
-  block of :data:`INT8_BLOCK` inputs of a row, int8 arithmetic), batches run ``MatMulInteger``
-  after ``quantize_dynamic`` (one scale per tensor, as torch's), whose kernel is the faster
-  one from two sequences on (:data:`BATCHED_FROM`). Each of the two sessions holds its own int8
-  copy of the weights (15.6 MB at paper size).
+* ``int8``: symmetric int8 weights, activations quantised on the fly, in two sessions, each
+  with its own int8 copy of the weights (15.6 MB at paper size). One sequence runs
+  ``MatMulNBits`` (one scale per block of :data:`INT8_BLOCK` inputs of a row, made by ONNX
+  Runtime's own quantiser, int8 arithmetic); batches run ``DynamicQuantizeMatMul`` (one scale
+  per weight, as torch's dynamic quantisation), whose kernel is the faster one from two
+  sequences on (:data:`BATCHED_FROM`).
 
 The per-sequence tables and the first step's hidden-gate products stay in torch, in a torch
 plan (``base``): they run once per motion.
@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import importlib.util
 import logging
-import tempfile
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -52,6 +50,13 @@ BATCHED_FROM = 2
 ones the ``MatMulNBits`` session. One step, 1 thread, paper size, ms ``MatMulNBits`` /
 ``MatMulInteger``: batch 1 0.93 / 1.25, 2 5.1 / 1.3, 4 5.9 / 1.6, 8 7.8 / 2.3, 32 8.7 / 5.2
 (``MatMulNBits`` has a matrix-vector kernel for a single row only)."""
+
+WEIGHT_FORMATS = ("fp32", "blockwise", "dynamic")
+"""How :func:`step_model` stores the products' weights: float32 (``MatMul``), int8 with a scale
+per block of :data:`INT8_BLOCK` inputs (``MatMulNBits``), int8 with one scale per weight and
+activations quantised per call (``DynamicQuantizeMatMul``)."""
+
+MICROSOFT = "com.microsoft"  # ONNX Runtime's own operators (MatMulNBits, DynamicQuantizeMatMul)
 
 INT8_BLOCK = 128
 """Inputs per quantisation block of ``MatMulNBits``."""
@@ -93,7 +98,8 @@ class _Graph:
     """Collects the nodes and initialisers of one graph; each method adds nodes and returns
     the name of its output."""
 
-    def __init__(self) -> None:
+    def __init__(self, weights: str) -> None:
+        self.weights = weights
         self.nodes: list = []
         self.initializers: list = []
         self._count = 0
@@ -120,14 +126,65 @@ class _Graph:
         return names[0] if len(names) == 1 else names
 
     def linear(self, stem: str, inputs: str, linear: torch.nn.Linear) -> str:
-        """``linear`` (weight (O, I), bias (O,) or none) as MatMul on the transposed weight
-        (I, O), then Add: the form ONNX Runtime's weight quantisers rewrite."""
-        weight = linear.weight.detach().float().t().numpy()
-        output = self.op("MatMul", [inputs, self.constant(f"{stem}.weight", weight)])
-        if linear.bias is None:
-            return output
-        bias = self.constant(f"{stem}.bias", linear.bias.detach().float().numpy())
-        return self.op("Add", [output, bias])
+        """``linear`` (weight (O, I), bias (O,) or none) on ``inputs`` (B, I), its weight in
+        this graph's format (:data:`WEIGHT_FORMATS`)."""
+        weight = linear.weight.detach().float().t().contiguous().numpy()  # (I, O)
+        bias = None
+        if linear.bias is not None:
+            bias = self.constant(f"{stem}.bias", linear.bias.detach().float().numpy())
+        if self.weights == "dynamic":  # int8 per tensor, activations quantised per call
+            scale = max(float(np.abs(weight).max()), 1e-12) / 127.0
+            quantized = np.clip(np.round(weight / scale), -127, 127).astype(np.int8)
+            operands = [
+                inputs,
+                self.constant(f"{stem}.weight", quantized),
+                self.constant(f"{stem}.scale", np.array(scale, np.float32)),
+                self.constant(f"{stem}.zero", np.array(0, np.int8)),
+            ]
+            return self.op(
+                "DynamicQuantizeMatMul", operands + ([bias] if bias else []), domain=MICROSOFT
+            )
+        if self.weights == "blockwise":
+            output = self._blockwise(stem, inputs, weight)
+        else:
+            output = self.op("MatMul", [inputs, self.constant(f"{stem}.weight", weight)])
+        return output if bias is None else self.op("Add", [output, bias])
+
+    def _blockwise(self, stem: str, inputs: str, weight: np.ndarray) -> str:
+        """``inputs @ weight`` (I, O) as the ``MatMulNBits`` node that ONNX Runtime's quantiser
+        makes of a one-node MatMul model (8 bits, symmetric, blocks of :data:`INT8_BLOCK`,
+        int8 arithmetic: ``accuracy_level`` 4), its tensors renamed into this graph."""
+        from onnx import TensorProto, helper, numpy_helper
+        from onnxruntime.quantization.matmul_nbits_quantizer import MatMulNBitsQuantizer
+
+        one = helper.make_model(
+            helper.make_graph(
+                [helper.make_node("MatMul", ["x", "w"], ["y"])],
+                "one_product",
+                [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, weight.shape[0]])],
+                [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, weight.shape[1]])],
+                [numpy_helper.from_array(weight, "w")],
+            ),
+            opset_imports=[helper.make_opsetid("", OPSET)],
+        )
+        quantizer_log = logging.getLogger("onnxruntime.quantization.matmul_nbits_quantizer")
+        level = quantizer_log.level
+        quantizer_log.setLevel(logging.WARNING)  # it logs every node at INFO
+        try:
+            quantizer = MatMulNBitsQuantizer(
+                one, bits=8, block_size=INT8_BLOCK, is_symmetric=True, accuracy_level=4
+            )
+            quantizer.process()
+        finally:
+            quantizer_log.setLevel(level)
+        graph = quantizer.model.model.graph
+        (node,) = [n for n in graph.node if n.op_type == "MatMulNBits"]
+        tensors = {t.name: t for t in graph.initializer}
+        operands = [inputs]
+        for name in node.input[1:]:
+            operands.append(self.constant(f"{stem}.{name}", numpy_helper.to_array(tensors[name])))
+        attributes = {a.name: helper.get_attribute_value(a) for a in node.attribute}
+        return self.op("MatMulNBits", operands, domain=node.domain, **attributes)
 
     def layer_norm_leaky(self, stem: str, inputs: str, norm: torch.nn.LayerNorm) -> str:
         """LeakyReLU(0.2) of LayerNorm (last axis)."""
@@ -154,14 +211,16 @@ class _Graph:
         return self.op("Add", [candidate, change])
 
 
-def step_model(plan: GenerationPlan):
+def step_model(plan: GenerationPlan, weights: str = "fp32"):
     """The ONNX model (``onnx.ModelProto``) of one step of ``plan`` (float32 weights), inputs
-    :data:`STEP_INPUTS`, outputs :data:`STEP_OUTPUTS`, batch and word counts dynamic."""
+    :data:`STEP_INPUTS`, outputs :data:`STEP_OUTPUTS`, batch and word counts dynamic, the
+    products' weights in the format ``weights`` (:data:`WEIGHT_FORMATS`). The int8 formats are
+    made weight by weight: no float32 copy of all the weights is held."""
     from onnx import TensorProto, helper
 
     h, z = plan.hidden_size, plan.latent_size
     code_size = plan.output_last.weight.shape[0]
-    g = _Graph()
+    g = _Graph(weights)
     (h_prior, h_gen, previous, prior_hidden, gen_hidden, time_code, noise) = STEP_INPUTS[:7]
     score_table, score_bias, value_table = STEP_INPUTS[7:]
     # attention over the words: softmax(h_gen (keys W_q) + bias) (values W_att^T)
@@ -216,46 +275,8 @@ def step_model(plan: GenerationPlan):
         [tensor(name, *out_sizes[name]) for name in STEP_OUTPUTS],
         g.initializers,
     )
-    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)])
-
-
-def quantize_blockwise(model):
-    """A copy of ``model`` with every MatMul on a constant weight made ``MatMulNBits`` (8 bits,
-    symmetric, blocks of :data:`INT8_BLOCK`, int8 arithmetic: ``accuracy_level`` 4)."""
-    from onnxruntime.quantization.matmul_nbits_quantizer import MatMulNBitsQuantizer
-
-    quantizer_log = logging.getLogger("onnxruntime.quantization.matmul_nbits_quantizer")
-    level = quantizer_log.level
-    quantizer_log.setLevel(logging.WARNING)  # it logs every node at INFO
-    try:
-        copied = type(model).FromString(model.SerializeToString())  # it rewrites its model
-        quantizer = MatMulNBitsQuantizer(
-            copied, bits=8, block_size=INT8_BLOCK, is_symmetric=True, accuracy_level=4
-        )
-        quantizer.process()
-    finally:
-        quantizer_log.setLevel(level)
-    return quantizer.model.model
-
-
-def quantize_dynamic(model):
-    """A copy of ``model`` with every MatMul on a constant weight made ``MatMulInteger`` on int8
-    weights (one scale per tensor), activations quantised per call (``DynamicQuantizeLinear``)."""
-    import onnx
-    from onnxruntime.quantization import QuantType
-    from onnxruntime.quantization import quantize_dynamic as ort_quantize_dynamic
-
-    root = logging.getLogger()
-    level = root.level
-    root.setLevel(logging.ERROR)  # it advises pre-processing on the root logger, every time
-    try:
-        with tempfile.TemporaryDirectory() as folder:  # the quantiser works on files
-            source, target = Path(folder) / "float.onnx", Path(folder) / "int8.onnx"
-            onnx.save(model, source)
-            ort_quantize_dynamic(source, target, weight_type=QuantType.QInt8)
-            return onnx.load(target)
-    finally:
-        root.setLevel(level)
+    opsets = [helper.make_opsetid("", OPSET), helper.make_opsetid(MICROSOFT, 1)]
+    return helper.make_model(graph, opset_imports=opsets)
 
 
 def session(model, threads: int):
@@ -308,13 +329,12 @@ class OnnxGenerationPlan:
         self.hidden_size = plan.hidden_size
         self.base = base or plan
         threads = threads or torch.get_num_threads()
-        model = step_model(plan)
         if precision == "fp32":
-            self.sessions = {1: session(model, threads)}
+            self.sessions = {1: session(step_model(plan), threads)}
         else:  # batch size from which each session runs
             self.sessions = {
-                1: session(quantize_blockwise(model), threads),
-                BATCHED_FROM: session(quantize_dynamic(model), threads),
+                1: session(step_model(plan, "blockwise"), threads),
+                BATCHED_FROM: session(step_model(plan, "dynamic"), threads),
             }
 
     def _session(self, batch: int):
