@@ -8,7 +8,8 @@ torch's ~250 operator calls, and its matrix-vector kernels read the weights fast
 
 Two precisions:
 
-* ``fp32``: ``MatMul`` on float32 weights (ONNX Runtime's own GEMM kernels);
+* ``fp32``: ``Gemm`` on the plan's float32 weights, handed to ONNX Runtime without a copy
+  (it keeps its own packed copy of them);
 * ``int8``: symmetric int8 weights, activations quantised on the fly, in two sessions, each
   with its own int8 copy of the weights (15.6 MB at paper size). One sequence runs
   ``MatMulNBits`` (one scale per block of :data:`INT8_BLOCK` inputs of a row, made by ONNX
@@ -52,7 +53,7 @@ ones the ``MatMulNBits`` session. One step, 1 thread, paper size, ms ``MatMulNBi
 (``MatMulNBits`` has a matrix-vector kernel for a single row only)."""
 
 WEIGHT_FORMATS = ("fp32", "blockwise", "dynamic")
-"""How :func:`step_model` stores the products' weights: float32 (``MatMul``), int8 with a scale
+"""How :func:`step_model` stores the products' weights: float32 (``Gemm``), int8 with a scale
 per block of :data:`INT8_BLOCK` inputs (``MatMulNBits``), int8 with one scale per weight and
 activations quantised per call (``DynamicQuantizeMatMul``)."""
 
@@ -100,6 +101,7 @@ class _Graph:
 
     def __init__(self, weights: str) -> None:
         self.weights = weights
+        self.external: dict[str, np.ndarray] = {}
         self.nodes: list = []
         self.initializers: list = []
         self._count = 0
@@ -115,6 +117,20 @@ class _Graph:
         self.initializers.append(numpy_helper.from_array(np.ascontiguousarray(value), name))
         return name
 
+    def shared(self, stem: str, value: np.ndarray) -> str:
+        """A float32 initialiser whose data stays in ``value``'s memory (an external
+        initialiser: :func:`session` hands ONNX Runtime the array itself, no copy in the
+        model)."""
+        from onnx import TensorProto
+
+        name = self.name(stem)
+        tensor = TensorProto(name=name, data_type=TensorProto.FLOAT, dims=value.shape)
+        tensor.data_location = TensorProto.EXTERNAL
+        tensor.external_data.add(key="location", value=name)
+        self.initializers.append(tensor)
+        self.external[name] = value
+        return name
+
     def op(self, op_type: str, inputs: list[str], outputs: int | list[str] = 1, **attrs):
         """One node; returns its output name (or the list of them for several)."""
         from onnx import helper
@@ -128,10 +144,15 @@ class _Graph:
     def linear(self, stem: str, inputs: str, linear: torch.nn.Linear) -> str:
         """``linear`` (weight (O, I), bias (O,) or none) on ``inputs`` (B, I), its weight in
         this graph's format (:data:`WEIGHT_FORMATS`)."""
-        weight = linear.weight.detach().float().t().contiguous().numpy()  # (I, O)
         bias = None
         if linear.bias is not None:
             bias = self.constant(f"{stem}.bias", linear.bias.detach().float().numpy())
+        if self.weights == "fp32":  # Gemm on the weight (O, I) itself, in the model's memory
+            weight = self.shared(
+                f"{stem}.weight", linear.weight.detach().float().contiguous().numpy()
+            )
+            return self.op("Gemm", [inputs, weight] + ([bias] if bias else []), transB=1)
+        weight = linear.weight.detach().float().t().contiguous().numpy()  # (I, O)
         if self.weights == "dynamic":  # int8 per tensor, activations quantised per call
             scale = max(float(np.abs(weight).max()), 1e-12) / 127.0
             quantized = np.clip(np.round(weight / scale), -127, 127).astype(np.int8)
@@ -144,10 +165,7 @@ class _Graph:
             return self.op(
                 "DynamicQuantizeMatMul", operands + ([bias] if bias else []), domain=MICROSOFT
             )
-        if self.weights == "blockwise":
-            output = self._blockwise(stem, inputs, weight)
-        else:
-            output = self.op("MatMul", [inputs, self.constant(f"{stem}.weight", weight)])
+        output = self._blockwise(stem, inputs, weight)
         return output if bias is None else self.op("Add", [output, bias])
 
     def _blockwise(self, stem: str, inputs: str, weight: np.ndarray) -> str:
@@ -214,8 +232,9 @@ class _Graph:
 def step_model(plan: GenerationPlan, weights: str = "fp32"):
     """The ONNX model (``onnx.ModelProto``) of one step of ``plan`` (float32 weights), inputs
     :data:`STEP_INPUTS`, outputs :data:`STEP_OUTPUTS`, batch and word counts dynamic, the
-    products' weights in the format ``weights`` (:data:`WEIGHT_FORMATS`). The int8 formats are
-    made weight by weight: no float32 copy of all the weights is held."""
+    products' weights in the format ``weights`` (:data:`WEIGHT_FORMATS`), and its external
+    initialisers {name: array}: ``fp32``'s product weights are the plan's own arrays (no copy);
+    the int8 formats are made weight by weight (no float32 copy of all the weights)."""
     from onnx import TensorProto, helper
 
     h, z = plan.hidden_size, plan.latent_size
@@ -276,14 +295,17 @@ def step_model(plan: GenerationPlan, weights: str = "fp32"):
         g.initializers,
     )
     opsets = [helper.make_opsetid("", OPSET), helper.make_opsetid(MICROSOFT, 1)]
-    return helper.make_model(graph, opset_imports=opsets)
+    return helper.make_model(graph, opset_imports=opsets), g.external
 
 
-def session(model, threads: int):
-    """An ONNX Runtime CPU session of ``model`` with ``threads`` threads (no spinning)."""
+def session(model, external: dict[str, object], threads: int):
+    """An ONNX Runtime CPU session of ``model`` with ``threads`` threads (no spinning);
+    ``external``: its external initialisers' values (OrtValues, which must outlive it)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
+    if external:
+        options.add_external_initializers(list(external), list(external.values()))
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
@@ -328,14 +350,17 @@ class OnnxGenerationPlan:
         self.precision = precision
         self.hidden_size = plan.hidden_size
         self.base = base or plan
+        import onnxruntime as ort
+
         threads = threads or torch.get_num_threads()
-        if precision == "fp32":
-            self.sessions = {1: session(step_model(plan), threads)}
-        else:  # batch size from which each session runs
-            self.sessions = {
-                1: session(step_model(plan, "blockwise"), threads),
-                BATCHED_FROM: session(step_model(plan, "dynamic"), threads),
-            }
+        formats = {1: "fp32"} if precision == "fp32" else {1: "blockwise", BATCHED_FROM: "dynamic"}
+        self.sessions = {}  # batch size from which each session runs
+        self.shared_weights: dict[str, object] = {}  # OrtValues on the plan's own arrays
+        for batch, weights in formats.items():
+            model, external = step_model(plan, weights)
+            values = {k: ort.OrtValue.ortvalue_from_numpy(v) for k, v in external.items()}
+            self.shared_weights.update(values)
+            self.sessions[batch] = session(model, values, threads)
 
     def _session(self, batch: int):
         return self.sessions[max(b for b in self.sessions if b <= batch)]
