@@ -28,7 +28,6 @@ Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Ne
 from __future__ import annotations
 
 import importlib.util
-import logging
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -169,40 +168,23 @@ class _Graph:
         return output if bias is None else self.op("Add", [output, bias])
 
     def _blockwise(self, stem: str, inputs: str, weight: np.ndarray) -> str:
-        """``inputs @ weight`` (I, O) as the ``MatMulNBits`` node that ONNX Runtime's quantiser
-        makes of a one-node MatMul model (8 bits, symmetric, blocks of :data:`INT8_BLOCK`,
-        int8 arithmetic: ``accuracy_level`` 4), its tensors renamed into this graph."""
-        from onnx import TensorProto, helper, numpy_helper
-        from onnxruntime.quantization.matmul_nbits_quantizer import MatMulNBitsQuantizer
-
-        one = helper.make_model(
-            helper.make_graph(
-                [helper.make_node("MatMul", ["x", "w"], ["y"])],
-                "one_product",
-                [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, weight.shape[0]])],
-                [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, weight.shape[1]])],
-                [numpy_helper.from_array(weight, "w")],
-            ),
-            opset_imports=[helper.make_opsetid("", OPSET)],
+        """``inputs @ weight`` (I, O) as ONNX Runtime's ``MatMulNBits`` (8 bits, symmetric,
+        int8 arithmetic: ``accuracy_level`` 4) on :func:`blockwise_int8` of the weight."""
+        packed, scales = blockwise_int8(weight)
+        return self.op(
+            "MatMulNBits",
+            [
+                inputs,
+                self.constant(f"{stem}.weight", packed),
+                self.constant(f"{stem}.scales", scales),
+            ],
+            domain=MICROSOFT,
+            K=weight.shape[0],
+            N=weight.shape[1],
+            bits=8,
+            block_size=INT8_BLOCK,
+            accuracy_level=4,
         )
-        quantizer_log = logging.getLogger("onnxruntime.quantization.matmul_nbits_quantizer")
-        level = quantizer_log.level
-        quantizer_log.setLevel(logging.WARNING)  # it logs every node at INFO
-        try:
-            quantizer = MatMulNBitsQuantizer(
-                one, bits=8, block_size=INT8_BLOCK, is_symmetric=True, accuracy_level=4
-            )
-            quantizer.process()
-        finally:
-            quantizer_log.setLevel(level)
-        graph = quantizer.model.model.graph
-        (node,) = [n for n in graph.node if n.op_type == "MatMulNBits"]
-        tensors = {t.name: t for t in graph.initializer}
-        operands = [inputs]
-        for name in node.input[1:]:
-            operands.append(self.constant(f"{stem}.{name}", numpy_helper.to_array(tensors[name])))
-        attributes = {a.name: helper.get_attribute_value(a) for a in node.attribute}
-        return self.op("MatMulNBits", operands, domain=node.domain, **attributes)
 
     def layer_norm_leaky(self, stem: str, inputs: str, norm: torch.nn.LayerNorm) -> str:
         """LeakyReLU(0.2) of LayerNorm (last axis)."""
@@ -227,6 +209,26 @@ class _Graph:
         candidate = self.op("Tanh", [self.op("Add", [input_n, self.op("Mul", [reset, hidden_n])])])
         change = self.op("Mul", [update, self.op("Sub", [hidden, candidate])])
         return self.op("Add", [candidate, change])
+
+
+def blockwise_int8(weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``MatMulNBits``' 8-bit symmetric layout of ``weight`` (I, O) float32: each output's
+    inputs in blocks of :data:`INT8_BLOCK` (the last zero-padded); a block's scale maps its
+    entry of largest magnitude to -128, and the stored bytes are round(w / scale) + 128 (0 in
+    the padding).
+    Returns packed (O, blocks, INT8_BLOCK) uint8 and scales (O, blocks) float32; the same bytes
+    as ONNX Runtime's ``MatMulNBitsQuantizer`` (tested)."""
+    inputs, outputs = weight.shape
+    blocks = -(-inputs // INT8_BLOCK)
+    padded = np.zeros((outputs, blocks * INT8_BLOCK), np.float32)
+    padded[:, :inputs] = weight.T
+    padded = padded.reshape(outputs, blocks, INT8_BLOCK)
+    largest = np.take_along_axis(padded, np.abs(padded).argmax(-1)[..., None], -1)[..., 0]
+    scales = (largest / -128.0).astype(np.float32)  # (O, blocks)
+    divisor = np.where(scales == 0, 1.0, scales)[..., None]
+    packed = (np.clip(np.round(padded / divisor), -128, 127) + 128).astype(np.uint8)
+    packed.reshape(outputs, -1)[:, inputs:] = 0  # the padding, as the quantiser leaves it
+    return packed, scales
 
 
 def step_model(plan: GenerationPlan, weights: str = "fp32"):

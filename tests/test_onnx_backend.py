@@ -155,3 +155,36 @@ def test_sample_command_runs_the_onnx_backend(tiny_run, tmp_path, capsys):
         [*argv[:-4], "--precision", "bf16", "--backend", "onnx", "--out", str(tmp_path / "x")]
     )
     assert code == 2 and "onnx backend runs fp32 and int8" in capsys.readouterr().err
+
+
+def test_blockwise_int8_is_what_onnx_runtimes_quantiser_makes():
+    from onnx import TensorProto, helper, numpy_helper
+    from onnxruntime.quantization.matmul_nbits_quantizer import MatMulNBitsQuantizer
+
+    from t2m.onnx_backend import INT8_BLOCK, blockwise_int8
+
+    weight = np.random.default_rng(0).standard_normal((300, 7)).astype(np.float32)  # (I, O)
+    weight[:, 3] = 0.0  # an all-zero column
+    one = helper.make_model(
+        helper.make_graph(
+            [helper.make_node("MatMul", ["x", "w"], ["y"])],
+            "one_product",
+            [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 300])],
+            [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 7])],
+            [numpy_helper.from_array(weight, "w")],
+        ),
+        opset_imports=[helper.make_opsetid("", 17)],
+    )
+    quantizer = MatMulNBitsQuantizer(
+        one, bits=8, block_size=INT8_BLOCK, is_symmetric=True, accuracy_level=4
+    )
+    quantizer.process()
+    graph = quantizer.model.model.graph
+    (node,) = [n for n in graph.node if n.op_type == "MatMulNBits"]
+    tensors = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+    packed, scales = blockwise_int8(weight)
+    np.testing.assert_allclose(scales.reshape(-1), tensors[node.input[2]].reshape(-1), rtol=1e-6)
+    expected = tensors[node.input[1]]
+    assert packed.shape == expected.shape and packed.dtype == expected.dtype
+    assert (packed.astype(int) - expected).__abs__().max() <= 1  # rounding of exact halves
+    assert (packed == expected).mean() > 0.999
