@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from dataset_tools import humanml3d
+from t2m import onnx_backend
 from t2m.config import paper
 from t2m.data.normalization import Normalizer
 from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
@@ -37,7 +38,9 @@ FRAMES = 196
 BATCH = 32
 
 
-def _paper_pipeline(precision: str, modules: tuple | None = None) -> tuple[TextToMotion, tuple]:
+def _paper_pipeline(
+    precision: str, modules: tuple | None = None, backend: str = "torch"
+) -> tuple[TextToMotion, tuple]:
     """A pipeline of paper-sized random-weight models (the same weights for every precision)."""
     config = paper()
     vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)
@@ -51,7 +54,9 @@ def _paper_pipeline(precision: str, modules: tuple | None = None) -> tuple[TextT
         modules = (vae, decoder, initial_code)
     vae, decoder, initial_code = modules
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
-    pipe = TextToMotion(vae, decoder, normalizer, vectorizer, initial_code, precision=precision)
+    pipe = TextToMotion(
+        vae, decoder, normalizer, vectorizer, initial_code, precision=precision, backend=backend
+    )
     return pipe, modules
 
 
@@ -115,8 +120,13 @@ def _measure(quick: bool) -> dict:
     repeats = 3 if quick else 7
     modules = None
     reference = None
-    for precision in PRECISIONS:
-        pipe, modules = _paper_pipeline(precision, modules)
+    sides = [(precision, "torch") for precision in PRECISIONS]
+    if onnx_backend.available():  # the optional ONNX Runtime backend: keys onnx_fp32, onnx_int8
+        sides += [(precision, "onnx") for precision in onnx_backend.ONNX_PRECISIONS]
+    for precision, backend in sides:
+        pipe, modules = _paper_pipeline(precision, modules, backend)
+        if backend != "torch":
+            precision = f"{backend}_{precision}"
         pipe.generate(
             PROMPT, lengths=FRAMES, clean=False, seed=0
         )  # warm-up (spaCy, word vectors, kernels)
