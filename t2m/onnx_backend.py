@@ -239,6 +239,8 @@ def step_model(plan: GenerationPlan, weights: str = "fp32"):
     the int8 formats are made weight by weight (no float32 copy of all the weights)."""
     from onnx import TensorProto, helper
 
+    if weights not in WEIGHT_FORMATS:
+        raise ValueError(f"unknown weight format {weights!r}; use one of {WEIGHT_FORMATS}")
     h, z = plan.hidden_size, plan.latent_size
     code_size = plan.output_last.weight.shape[0]
     g = _Graph(weights)
@@ -247,9 +249,9 @@ def step_model(plan: GenerationPlan, weights: str = "fp32"):
     # attention over the words: softmax(h_gen (keys W_q) + bias) (values W_att^T)
     query = g.op("Unsqueeze", [h_gen, g.constant("axis", np.array([1]))])  # (B, 1, H)
     scores = g.op("Add", [g.op("MatMul", [query, score_table]), score_bias])  # (B, 1, L)
-    weights = g.op("Softmax", [scores], axis=-1)
+    word_weights = g.op("Softmax", [scores], axis=-1)
     attention = g.op(
-        "Squeeze", [g.op("MatMul", [weights, value_table]), g.constant("axis", np.array([1]))]
+        "Squeeze", [g.op("MatMul", [word_weights, value_table]), g.constant("axis", np.array([1]))]
     )  # (B, 2H)
     pre_prior, pre_gen = g.split(
         g.op("Add", [g.linear("previous", previous, plan.previous), attention]), [h, h]
@@ -324,13 +326,16 @@ class OnnxGenerationPlan:
     use it).
 
     Args:
-        plan: a float32 plan (or a float32 :class:`OnnxGenerationPlan`: its ``base``); its weights are copied into the sessions (its step Linears may
-            be quantised or freed afterwards: only :meth:`GenerationPlan.tables` is read later).
+        plan: a float32 plan (or a float32 :class:`OnnxGenerationPlan`: its ``base``). int8
+            sessions hold their own int8 weights; the fp32 session reads the plan's float32
+            arrays (kept alive here) and packs its own copy of them, so later changes to the
+            model's weights are not seen.
         precision: ``"fp32"`` or ``"int8"``.
         threads: ONNX Runtime's intra-op threads (default: torch's thread count now).
         base: the torch plan that makes the per-sequence tables (:meth:`GenerationPlan.tables`)
-            and the first step's hidden-gate pre-activations (default ``plan``; an int8 model
-            passes its quantised plan, so that the float one need not be kept).
+            and the first step's hidden-gate pre-activations (default ``plan``); a public
+            attribute: an int8 pipeline sets it to its model's quantised plan once the model is
+            quantised, so that the float32 one is not kept.
     """
 
     def __init__(
@@ -341,6 +346,8 @@ class OnnxGenerationPlan:
         base: GenerationPlan | None = None,
     ) -> None:
         require()
+        import onnxruntime as ort
+
         if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
             plan = plan.base
         if precision not in ONNX_PRECISIONS:
@@ -352,8 +359,6 @@ class OnnxGenerationPlan:
         self.precision = precision
         self.hidden_size = plan.hidden_size
         self.base = base or plan
-        import onnxruntime as ort
-
         threads = threads or torch.get_num_threads()
         formats = {1: "fp32"} if precision == "fp32" else {1: "blockwise", BATCHED_FROM: "dynamic"}
         self.sessions = {}  # batch size from which each session runs
