@@ -158,20 +158,53 @@ def gru_update(
     return candidate + update * (hidden - candidate)
 
 
+class _GRUUpdate(torch.autograd.Function):
+    """:func:`gru_update` as one autograd node with its backward written out: the same values,
+    a third of the operators of the graph autograd records for it (no per-gate slices, whose
+    backward concatenates the gate gradients)."""
+
+    @staticmethod
+    def forward(ctx, input_gates, hidden_gates, hidden):
+        size = hidden.shape[-1]
+        gates = torch.sigmoid(input_gates[..., : 2 * size] + hidden_gates[..., : 2 * size])
+        reset, update = gates.split(size, dim=-1)
+        hidden_n = hidden_gates[..., 2 * size :]
+        candidate = torch.tanh(torch.addcmul(input_gates[..., 2 * size :], reset, hidden_n))
+        ctx.save_for_backward(gates, hidden_n, candidate, hidden)
+        return candidate + update * (hidden - candidate)
+
+    @staticmethod
+    def backward(ctx, grad):
+        gates, hidden_n, candidate, hidden = ctx.saved_tensors
+        reset, update = gates.split(hidden.shape[-1], dim=-1)
+        grad_hidden = grad * update
+        grad_n = (grad - grad_hidden) * (1 - candidate * candidate)  # tanh's input
+        grad_rz = torch.cat([grad_n * hidden_n, grad * (hidden - candidate)], dim=-1)
+        grad_rz = grad_rz * gates * (1 - gates)  # the sigmoids' inputs
+        grad_input = torch.cat([grad_rz, grad_n], dim=-1)
+        grad_hidden_gates = torch.cat([grad_rz, grad_n * reset], dim=-1)
+        return grad_input, grad_hidden_gates, grad_hidden
+
+
 class _FastBlock:
-    """A :class:`RecurrentBlock` given its input Linear's output, its GRU Linears deferred."""
+    """A :class:`RecurrentBlock` given its input Linear's output and its hidden gates, its GRU
+    input Linear deferred."""
 
     def __init__(self, block: RecurrentBlock, steps: int, batch: int):
         self.norm = block.norm
         cell = block.cell
         self.input_gates = StepLinear(cell.weight_ih, cell.bias_ih, steps, batch)
-        self.hidden_gates = StepLinear(cell.weight_hh, cell.bias_hh, steps, batch)
 
     def __call__(
-        self, preactivation: torch.Tensor, time_code: torch.Tensor, hidden: torch.Tensor, step: int
+        self,
+        preactivation: torch.Tensor,
+        time_code: torch.Tensor,
+        hidden_gates: torch.Tensor,
+        hidden: torch.Tensor,
+        step: int,
     ) -> torch.Tensor:
         inputs = F.leaky_relu(self.norm(preactivation), 0.2) + time_code
-        return gru_update(self.input_gates(inputs, step), self.hidden_gates(hidden, step), hidden)
+        return _GRUUpdate.apply(self.input_gates(inputs, step), hidden_gates, hidden)
 
 
 def split_input_weights(vae: TemporalVAE) -> dict[str, torch.Tensor]:
@@ -196,6 +229,20 @@ def split_input_weights(vae: TemporalVAE) -> dict[str, torch.Tensor]:
     }
 
 
+def _stacked(layers: Sequence[nn.Module], steps: int, batch: int) -> StepLinear:
+    """One :class:`StepLinear` for Linears (or GRU cells' hidden products) that read the same
+    input: their weights (and biases) stacked by rows."""
+    weights, biases = [], []
+    for layer in layers:
+        if isinstance(layer, nn.GRUCell):
+            weights.append(layer.weight_hh)
+            biases.append(layer.bias_hh)
+        else:
+            weights.append(layer.weight)
+            biases.append(layer.bias)
+    return StepLinear(torch.cat(weights), torch.cat(biases), steps, batch)
+
+
 def fast_forward(
     vae: TemporalVAE,
     word_features: torch.Tensor,
@@ -206,9 +253,18 @@ def fast_forward(
     teacher_forcing: bool,
     noise: torch.Tensor,
 ) -> dict[str, torch.Tensor]:
-    """:meth:`TemporalVAE.forward` (same arguments and results, ``noise`` required), faster."""
+    """:meth:`TemporalVAE.forward` (same arguments and results, ``noise`` required), faster.
+
+    Each GRU state is read by one stacked product right after it is computed: the generator's
+    by the next step's attention query and hidden gates (and, free-running, this step's output
+    head), the posterior's by its next hidden gates and this step's Gaussian, the prior's by its
+    next hidden gates. Attention scores and the attended vector are per-item dot products
+    (elementwise products and sums: torch's batched matrix products of these thin shapes cost
+    several times more, forward and backward)."""
     batch, steps, _ = codes.shape
     hidden_size = vae.config.hidden_size
+    attention_size = vae.config.attention_size
+    scale = attention_size**-0.5
     weights = split_input_weights(vae)
     context = vae.word_context(word_features, word_mask)
     state = vae.initial_state(sentence, initial_code, posterior=True)
@@ -222,31 +278,30 @@ def fast_forward(
     posterior_block = _FastBlock(vae.posterior, steps, batch)
     generator_block = _FastBlock(vae.generator, steps, batch)
     attention_linear = StepLinear(weights["attention"], None, steps, batch)
-    query_linear = StepLinear(vae.query.weight, vae.query.bias, steps, batch)
-    gaussian = vae.posterior_gaussian  # mean and log-variance: one (2Z, H) product
-    gaussian_linear = StepLinear(
-        torch.cat([gaussian.mean.weight, gaussian.logvar.weight]),
-        torch.cat([gaussian.mean.bias, gaussian.logvar.bias]),
-        steps,
-        batch,
-    )
     latent_linear = StepLinear(weights["latent"], None, steps, batch)
+    # the states' readers, each called on the initial state and after every step but the last
+    # (the prior's), the last too where that step's Gaussian or code needs it
+    prior_state = _stacked([vae.prior.cell], steps, batch)  # (3H, H)
+    gaussian = vae.posterior_gaussian
+    posterior_state = _stacked(  # (3H + 2Z, H): hidden gates, this step's mean and log-variance
+        [vae.posterior.cell, gaussian.mean, gaussian.logvar], steps + 1, batch
+    )
+    first, output_norm, _, last = vae.output
+    generator_readers = [vae.query, vae.generator.cell]  # (A + 3H, H)
     if not teacher_forcing:  # the model's own code, fed back: previous code and output head
+        generator_readers.append(first)  # + (H, H): this step's output head
         previous_linear = StepLinear(weights["previous"], weights["bias"], steps, batch)
-        first, output_norm, _, last = vae.output
-        first_linear = StepLinear(first.weight, first.bias, steps, batch)
         last_linear = StepLinear(last.weight, last.bias, steps, batch)
-
-    def attend(hidden: torch.Tensor, i: int) -> torch.Tensor:
-        """:meth:`TemporalVAE.attend`'s attention vector (B, A), its query a StepLinear."""
-        query = query_linear(hidden, i)[..., None]  # (B, A, 1)
-        scores = torch.baddbmm(
-            context.mask_bias[..., None], context.keys, query, alpha=query.shape[1] ** -0.5
-        )
-        attention_weights = torch.softmax(scores[..., 0], dim=-1)
-        return torch.bmm(attention_weights[:, None], context.values)[:, 0]
+    generator_state = _stacked(generator_readers, steps + (not teacher_forcing), batch)
+    gate_size, latent_size = 3 * hidden_size, vae.config.latent_size
+    generator_parts = [attention_size, gate_size] + ([] if teacher_forcing else [hidden_size])
+    posterior_parts = [gate_size, 2 * latent_size]
 
     h_prior, h_gen, previous, h_post = state
+    prior_gates = prior_state(h_prior, 0)
+    post_gates = posterior_state(h_post, 0).split(posterior_parts, dim=-1)[0]
+    query, gen_gates = generator_state(h_gen, 0).split(generator_parts, dim=-1)[:2]
+    keys, values, mask_bias = context
     # per step: unbind, not indexing; an index's backward writes its step into a zero-filled
     # (B, S, .) tensor, once per step
     current, time_codes, noise = current.unbind(1), time_codes.unbind(1), noise.unbind(1)
@@ -254,23 +309,32 @@ def fast_forward(
         previous_all = previous_all.unbind(1)
     prior_states, generator_states, codes_out, post_means, post_logvars = [], [], [], [], []
     for i in range(steps):
-        attention = attend(h_gen, i)
+        # attention of the previous generator state: (B, L) scores, (B, A) attended vector
+        scores = torch.linalg.vecdot(keys, query[:, None]) * scale + mask_bias
+        attention_weights = torch.softmax(scores, dim=-1)
+        attention = torch.linalg.vecdot(values.transpose(1, 2), attention_weights[:, None])
         pre = previous_all[i] if teacher_forcing else previous_linear(previous, i)
         pre = pre + attention_linear(attention, i)  # (B, 3H)
         pre_prior, pre_post, pre_gen = pre.split(hidden_size, dim=-1)
         time_code = time_codes[i]
-        h_post = posterior_block(pre_post + current[i], time_code, h_post, i)
-        h_prior = prior_block(pre_prior, time_code, h_prior, i)
-        post_mean, post_logvar = gaussian_linear(h_post, i).chunk(2, dim=-1)
+        h_post = posterior_block(pre_post + current[i], time_code, post_gates, h_post, i)
+        post_gates, post_stats = posterior_state(h_post, i + 1).split(posterior_parts, dim=-1)
+        h_prior = prior_block(pre_prior, time_code, prior_gates, h_prior, i)
+        if i + 1 < steps:
+            prior_gates = prior_state(h_prior, i + 1)
+        post_mean, post_logvar = post_stats.chunk(2, dim=-1)
         z = post_mean + torch.exp(0.5 * post_logvar) * noise[i]
-        h_gen = generator_block(pre_gen + latent_linear(z, i), time_code, h_gen, i)
+        h_gen = generator_block(pre_gen + latent_linear(z, i), time_code, gen_gates, h_gen, i)
         prior_states.append(h_prior)
         generator_states.append(h_gen)
         post_means.append(post_mean)
         post_logvars.append(post_logvar)
-        if not teacher_forcing:  # the next step needs this code now
-            hidden = F.leaky_relu(output_norm(first_linear(h_gen, i)), 0.2)
-            code = last_linear(hidden, i)
+        if teacher_forcing:
+            if i + 1 < steps:
+                query, gen_gates = generator_state(h_gen, i + 1).split(generator_parts, dim=-1)
+        else:  # the next step needs this code now
+            query, gen_gates, hidden = generator_state(h_gen, i + 1).split(generator_parts, dim=-1)
+            code = last_linear(F.leaky_relu(output_norm(hidden), 0.2), i)
             codes_out.append(code)
             previous = code.detach()
     prior_mean, prior_logvar = vae.prior_gaussian(torch.stack(prior_states, dim=1))
