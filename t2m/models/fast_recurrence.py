@@ -61,6 +61,7 @@ class _OneDNNLinear(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, inputs, weight, bias):
+        inputs = inputs.contiguous()  # once: the backward reads it as (N, I) too
         ctx.save_for_backward(inputs, weight)
         ctx.has_bias = bias is not None
         return _packed_product(inputs, weight, bias)
