@@ -1,28 +1,32 @@
 """The temporal VAE's training pass, rearranged for speed: the arithmetic of
 :meth:`t2m.models.temporal_vae.TemporalVAE.rollout` over :meth:`~TemporalVAE.step`, tested equal
-to it (``tests/test_temporal_vae.py``). :meth:`TemporalVAE.forward` runs :func:`fast_forward`
-unless called with ``fast=False``; :meth:`TemporalVAE.generate` runs a :class:`GenerationPlan`
-(the prior / generator step with stacked and folded weights, at the end of this file).
+to it (``tests/test_temporal_vae.py``, ``tests/test_fast_recurrence.py``).
+:meth:`TemporalVAE.forward` runs :func:`fast_forward` unless called with ``fast=False``;
+:meth:`TemporalVAE.generate` runs a :class:`GenerationPlan` (the prior / generator step with
+stacked and folded weights, at the end of this file).
 
-Three rearrangements, each the same sum in another order:
+The rearrangements, each the same sums in another order:
 
 1. Split projections. The blocks' input Linears act on concatenations [previous code, current
    code, attention, z]. Their weight matrices are split by input part and the prior's,
    posterior's and generator's rows stacked (3H, .), so the parts known before the loop (the
    current codes, the previous codes under teacher forcing) are projected for all steps in one
    matrix product, and the rest in one product per part per step instead of one per block.
-2. Deferred weight gradients. A Linear inside the loop (the GRU cells' input and hidden
-   Linears, the per-step projections) runs with detached weights and records its input; the
-   gradient of its weight is then one (O, S*B) x (S*B, I) product in backward instead of S
-   thin products of inner size B (:class:`StepLinear`). The GRU gates are written out
-   (:func:`gru_update`) because ``nn.GRUCell`` reads its weights itself.
-3. Heads whose outputs the loop does not feed back (the prior's Gaussian; the output head under
-   teacher forcing) run once over all steps.
+2. Stacked state readers. Each GRU state is read by one product right after it is computed:
+   the generator's by the next step's attention query and hidden gates (and, free-running, this
+   step's output head), the posterior's by its next hidden gates and this step's Gaussian, the
+   prior's by its next hidden gates.
+3. One autograd node for the loop (:class:`_Recurrence`): the forward runs without recording a
+   graph; the backward runs the steps in reverse with the gradients written out (GRU, LayerNorm,
+   LeakyReLU, attention), and each weight's gradient is one (O, S*B) x (S*B, I) product over all
+   steps instead of S thin ones. Every product in the loop runs through weights packed once per
+   sequence for oneDNN on a CPU (its transpose too, for the input gradients).
+4. Heads whose outputs the loop does not feed back (the prior's Gaussian; the output head under
+   teacher forcing) run once over all steps after it.
 
-Every product inside the loop (the attention query, the posterior's Gaussian, z's projection,
-the fed-back output head too) is a :class:`StepLinear`, whose weight is packed once per
-sequence for oneDNN on a CPU: with those, a paper-size training step (batch 32, one thread)
-took 0.79-0.82x the time in float32 and 0.80-0.84x under bfloat16 autocast.
+Measured (one process, interleaved with the previous version, CPU time, one thread): 1 and 4
+with per-product autograd nodes took 0.79-0.82x of the plain step at paper size; 2 and 3 took
+0.82-0.88x of that at demo size (README, "Demo-size generator step").
 """
 
 from __future__ import annotations
