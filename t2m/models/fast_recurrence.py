@@ -306,13 +306,13 @@ class _Recurrence(torch.autograd.Function):
         kept.update({f"{name}_{b}": [] for name in ("inputs", "gru", "norm") for b in BLOCKS})
         kept["head"], kept["head_inputs"] = [], []
         read = {block: [state] for block, state in zip(BLOCKS, states, strict=True)}
-        prior_gates = products["prior_reader"](states[0])
         posterior_gates = products["posterior_reader"](states[1])[:, :gate_size]
         query, generator_gates = products["generator_reader"](states[2]).split(
             generator_parts, dim=-1
         )[:2]
         previous = loop.previous_code
         outputs = {name: [] for name in ("prior", "second", "mean", "logvar")}
+        prior_inputs = []
 
         def block(name, preactivation, time_code, hidden_gates, state):
             inputs, saved = _norm_forward(
@@ -345,10 +345,7 @@ class _Recurrence(torch.autograd.Function):
             posterior_gates, mean, logvar = products["posterior_reader"](post).split(
                 [gate_size, latent_size, latent_size], dim=-1
             )
-            prior = block("prior", pre_prior, time_codes[i], prior_gates, states[0])
-            if i + 1 < steps:
-                read["prior"].append(prior)
-                prior_gates = products["prior_reader"](prior)
+            prior_inputs.append(pre_prior)
             std = torch.exp(0.5 * logvar)
             z = torch.addcmul(mean, std, noise[i])
             kept["z"].append(z)
@@ -360,8 +357,7 @@ class _Recurrence(torch.autograd.Function):
                 generator_gates,
                 states[2],
             )
-            states = [prior, post, generator]
-            outputs["prior"].append(prior)
+            states[1:] = post, generator
             outputs["mean"].append(mean)
             outputs["logvar"].append(logvar)
             if forced:
@@ -381,6 +377,22 @@ class _Recurrence(torch.autograd.Function):
                 kept["head_inputs"].append(head)
                 previous = products["last"](head)
                 outputs["second"].append(previous)
+        # the prior: nothing in the loop reads it. Its input path for all steps at once, then
+        # its GRU over the steps
+        inputs, kept["norm_prior"] = _norm_forward(
+            torch.stack(prior_inputs, dim=1), *norms["prior"], loop.norm_eps[0]
+        )
+        kept["inputs_prior"] = inputs = inputs + loop.time_codes.to(work)  # (B, S, H)
+        input_gates = products["prior_gates"](inputs.flatten(0, 1)).view(*inputs.shape[:2], -1)
+        prior = states[0]
+        prior_gates = products["prior_reader"](prior)
+        for i in range(steps):
+            prior, saved = _gru_forward(input_gates[:, i], prior_gates, prior)
+            kept["gru_prior"].append(saved)
+            outputs["prior"].append(prior)
+            if i + 1 < steps:
+                read["prior"].append(prior)
+                prior_gates = products["prior_reader"](prior)
         ctx.loop, ctx.products, ctx.kept, ctx.read, ctx.norms = loop, products, kept, read, norms
         ctx.keys, ctx.values = keys, values
         ctx.present = [t is not None for t in tensors[3:]]
@@ -403,7 +415,7 @@ class _Recurrence(torch.autograd.Function):
         loop, products, kept, read, norms = ctx.loop, ctx.products, ctx.kept, ctx.read, ctx.norms
         keys, values, work, forced = ctx.keys, ctx.values, loop.work, loop.teacher_forcing
         steps, batch = len(kept["z"]), keys.shape[0]
-        hidden = kept["inputs_prior"][0].shape[-1]
+        hidden = loop.time_codes.shape[-1]
         attention_size, latent_size = keys.shape[-1], loop.noise.shape[-1]
         scale = attention_size**-0.5
 
@@ -461,6 +473,23 @@ class _Recurrence(torch.autograd.Function):
             grad = products[f"{block}_gates"].backward(grad_gates)
             return _norm_backward(grad, kept[f"norm_{block}"][i], norm_grads[block])
 
+        # the prior first (nothing in the loop reads it): its GRU backward through time, then its
+        # input path for all steps at once
+        grad_gates = []
+        for i in reversed(range(steps)):
+            call = next_gates["prior"] if i + 1 < steps else None
+            grad, next_gates["prior"], carry["prior"] = _gru_backward(
+                kept["gru_prior"][i], state_grad("prior", grad_prior[i], call)
+            )
+            grad_gates.append(grad)
+        grad_gates = torch.stack(grad_gates[::-1], dim=1).flatten(0, 1)  # (B*S, 3H)
+        inputs = kept["inputs_prior"].flatten(0, 1)
+        result["prior_gates"], result["prior_gates_bias"] = _weight_gradient([grad_gates], [inputs])
+        grad_inputs = products["prior_gates"].backward(grad_gates).view(batch, steps, hidden)
+        grad_pre_prior = _norm_backward(
+            grad_inputs, kept["norm_prior"], norm_grads["prior"]
+        ).unbind(1)
+
         for i in reversed(range(steps)):
             # the generator's reader after step i: next query and hidden gates, this step's head
             call = None
@@ -480,8 +509,6 @@ class _Recurrence(torch.autograd.Function):
             grad_logvar_i = torch.addcmul(
                 grad_logvar[i], grad_z, kept["std"][i] * noise[i], value=0.5
             )
-            call = next_gates["prior"] if i + 1 < steps else None
-            grad_pre_prior = block_backward("prior", i, state_grad("prior", grad_prior[i], call))
             next_post = next_gates["posterior"]
             call = [
                 zeros(3 * hidden) if next_post is None else next_post,
@@ -491,7 +518,7 @@ class _Recurrence(torch.autograd.Function):
             grad = state_grad("posterior", None, torch.cat(call, dim=-1))
             grad_pre_post = block_backward("posterior", i, grad)
             current_grads.append(grad_pre_post)
-            grad_pre = torch.cat([grad_pre_prior, grad_pre_post, grad_pre_gen], dim=-1)
+            grad_pre = torch.cat([grad_pre_prior[i], grad_pre_post, grad_pre_gen], dim=-1)
             pre_grads.append(grad_pre)
             grad_attention = products["attention"].backward(grad_pre)  # (B, A)
             attention_grads.append(grad_attention)
@@ -525,9 +552,10 @@ class _Recurrence(torch.autograd.Function):
         else:
             result["previous"], result["input_bias"] = _weight_gradient(pre_grads, kept["previous"])
         for block in BLOCKS:
-            result[f"{block}_gates"], result[f"{block}_gates_bias"] = _weight_gradient(
-                gate_grads[block][::-1], kept[f"inputs_{block}"]
-            )
+            if block != "prior":
+                result[f"{block}_gates"], result[f"{block}_gates_bias"] = _weight_gradient(
+                    gate_grads[block][::-1], kept[f"inputs_{block}"]
+                )
             result[f"{block}_reader"], result[f"{block}_reader_bias"] = _weight_gradient(
                 reader_grads[block][::-1], read[block]
             )
