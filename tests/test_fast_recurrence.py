@@ -86,3 +86,35 @@ def test_outputs_the_loss_does_not_read_get_no_gradient_through_the_loop():
         else:
             scale = plain.abs().max().clamp_min(1e-6)
             torch.testing.assert_close(fast, plain, rtol=0, atol=1e-5 * scale, msg=name)
+
+
+@pytest.mark.parametrize("teacher_forcing", [True, False])
+def test_the_loop_trains_under_bf16_autocast(teacher_forcing):
+    """Gradients through the loop's node under bfloat16 autocast: every parameter the float32
+    pass reaches gets one, in float32, and the worst error against float32 (relative to each
+    parameter's largest gradient) is at most twice the plain step's own under autocast
+    (observed: 0.11 against 0.10 teacher-forced, 0.030 against 0.022 free-running)."""
+    codes, noise = randn(3, 6, CODE, seed=1), randn(3, 6, LATENT, seed=3)
+
+    def gradients(fast: bool, bf16: bool) -> dict[str, torch.Tensor | None]:
+        vae = make_vae()
+        parameters = dict(vae.named_parameters())
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            outputs = vae(*text(vae), codes, torch.zeros(CODE), teacher_forcing, noise, fast=fast)
+            loss = sum(value.float().square().mean() for value in outputs.values())
+        found = torch.autograd.grad(loss, list(parameters.values()), allow_unused=True)
+        return dict(zip(parameters, found, strict=True))
+
+    reference = gradients(fast=False, bf16=False)
+    worst = {}
+    for fast in (True, False):
+        low = gradients(fast, bf16=True)
+        errors = []
+        for name, want in reference.items():
+            if want is None:
+                continue
+            got = low[name]
+            assert got is not None and got.dtype == torch.float32, name
+            errors.append(float((got - want).abs().max() / want.abs().max().clamp_min(1e-6)))
+        worst[fast] = max(errors)
+    assert worst[True] <= 2 * worst[False], worst

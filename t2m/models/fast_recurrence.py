@@ -21,12 +21,14 @@ The rearrangements, each the same sums in another order:
    LeakyReLU, attention), and each weight's gradient is one (O, S*B) x (S*B, I) product over all
    steps instead of S thin ones. Every product in the loop runs through weights packed once per
    sequence for oneDNN on a CPU (its transpose too, for the input gradients).
-4. Heads whose outputs the loop does not feed back (the prior's Gaussian; the output head under
-   teacher forcing) run once over all steps after it.
+4. What the loop does not feed back runs once over all steps outside it: the prior's input path
+   (its GRU alone stays a loop, of its own) and Gaussian; the output head under teacher
+   forcing.
 
 Measured (one process, interleaved with the previous version, CPU time, one thread): 1 and 4
-with per-product autograd nodes took 0.79-0.82x of the plain step at paper size; 2 and 3 took
-0.82-0.88x of that at demo size (README, "Demo-size generator step").
+with per-product autograd nodes took 0.79-0.82x of the plain step at paper size; 2, 3 and the
+prior's loop of its own took 0.78-0.85x of that at demo size (README, "Demo-size generator
+step").
 """
 
 from __future__ import annotations
