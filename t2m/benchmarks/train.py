@@ -1,12 +1,15 @@
-"""Training-step speed of every stage at ``paper`` sizes and batch sizes, on synthetic batches.
+"""Training-step speed of every stage at a preset's sizes and batch sizes (``paper``, or
+``demo`` for ``make demo``'s models), on synthetic batches.
 
 One step = forward, backward, gradient clipping where the stage clips (length, temporal VAE,
 evaluator) and optimizer update, as in the training loops (the temporal VAE with the frozen
 encoder and the fine-tuned decoder). Reported per stage:
 seconds per step and steps/s (fp32), the temporal-VAE step under bf16 autocast too, and the peak
-memory (resident set on CPU, allocated on CUDA). Word vectors are 300-d as in the paper.
+memory (resident set on CPU, allocated on CUDA). Word vectors are 300-d as in the paper, 50-d
+(the default vectors) for the other presets.
 
-``python -m t2m.benchmarks.train [--quick] [--device auto|cpu|cuda] [--threads N]``
+``python -m t2m.benchmarks.train [--quick] [--device auto|cpu|cuda] [--threads N]
+[--preset paper|demo]``
 """
 
 from __future__ import annotations
@@ -22,18 +25,21 @@ from collections.abc import Callable
 import torch
 import torch.nn.functional as F
 
-from t2m.config import paper
+from t2m.config import preset as preset_config
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.models.length import LengthEstimator, length_loss
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+from t2m.train.generator import decode
 from t2m.train.runtime import adam, resolve_device
 
-FEATURE_DIM, WORD_DIM, TOKENS = 263, 300, 22
+FEATURE_DIM, TOKENS = 263, 22
+WORD_DIMS = {"paper": 300}
+"""Word-vector size per preset; 50 (the default vectors) for the others."""
 
 
-def _text(batch: int, generator: torch.Generator, device: torch.device):
-    words = torch.randn(batch, TOKENS, WORD_DIM, generator=generator).to(device)
+def _text(batch: int, generator: torch.Generator, device: torch.device, word_dim: int):
+    words = torch.randn(batch, TOKENS, word_dim, generator=generator).to(device)
     pos = (
         F.one_hot(torch.randint(0, 15, (batch, TOKENS), generator=generator), 15).float().to(device)
     )
@@ -61,19 +67,24 @@ def _time(step: Callable[[], None], steps: int, device: torch.device, warmup: bo
     return (time.perf_counter() - start) / steps
 
 
-def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
-    """Seconds per training step of each stage at paper sizes; see the module docstring.
+def run(quick: bool = False, device: str = "auto", threads: int = 0, preset: str = "paper") -> dict:
+    """Seconds per training step of each stage at ``preset``'s sizes; see the module docstring.
 
     ``device`` "auto" is CUDA when present, else CPU.
     """
     if threads > 0:
         torch.set_num_threads(threads)
     device_ = resolve_device(device)
-    config = paper()
+    config = preset_config(preset)
+    word_dim = WORD_DIMS.get(preset, 50)
     generator = torch.Generator().manual_seed(0)
     torch.manual_seed(0)
     steps = 1 if quick else 3
-    results: dict = {"device": str(device_), "torch_threads": torch.get_num_threads()}
+    results: dict = {
+        "device": str(device_),
+        "torch_threads": torch.get_num_threads(),
+        "preset": preset,
+    }
 
     # -- stage 1: autoencoder, batch 128 windows of 24 frames
     ae = MovementAutoencoder(FEATURE_DIM, config.autoencoder.model).to(device_)
@@ -99,9 +110,9 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     )
 
     # -- stage 2: text2length, batch 64
-    estimator = LengthEstimator(WORD_DIM, config.length.model).to(device_)
+    estimator = LengthEstimator(word_dim, config.length.model).to(device_)
     len_opt = adam(estimator.parameters(), lr=config.length.lr)
-    words, pos, lengths = _text(config.length.batch_size, generator, device_)
+    words, pos, lengths = _text(config.length.batch_size, generator, device_, word_dim)
     classes = torch.randint(10, 50, (config.length.batch_size,), generator=generator).to(device_)
 
     def length_step() -> None:
@@ -120,14 +131,14 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
     # -- stage 3: temporal VAE, batch 32, 49 snippets (196 frames)
     batch, snippets = config.generator.batch_size, config.generator.end_snippets
     code_size = config.autoencoder.model.code_size
-    vae = TemporalVAE(WORD_DIM, code_size, config.generator.model).to(device_)
+    vae = TemporalVAE(word_dim, code_size, config.generator.model).to(device_)
     t2m_opt = adam(
         [
             {"params": vae.parameters(), "lr": config.generator.lr},
             {"params": ae.decoder.parameters(), "lr": config.generator.decoder_lr},
         ]
     )
-    words, pos, lengths = _text(batch, generator, device_)
+    words, pos, lengths = _text(batch, generator, device_, word_dim)
     motion = torch.randn(batch, snippets * 4, FEATURE_DIM, generator=generator).to(device_)
     ae.encoder.eval().requires_grad_(False)
     with torch.no_grad():
@@ -146,7 +157,8 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
                     codes = ae.encode(motion)
                 features, sentence, mask = vae.encode_text(words, pos, lengths)
                 outputs = vae(features, sentence, mask, codes, initial_code, teacher_forcing)
-                losses = temporal_vae_loss(outputs, codes, ae.decode(outputs["codes"]), motion)
+                decoded = decode(ae.decoder, outputs["codes"])  # as the generator stage
+                losses = temporal_vae_loss(outputs, codes, decoded, motion)
             t2m_opt.zero_grad(set_to_none=True)
             losses["loss"].backward()
             torch.nn.utils.clip_grad_norm_(trainable, config.generator.grad_clip)
@@ -184,7 +196,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0) -> dict:
 
     # -- stage 4: evaluator, batch 32, 196 frames
     evaluator = Evaluator(
-        WORD_DIM, FEATURE_DIM, config.autoencoder.model, config.evaluator.model
+        word_dim, FEATURE_DIM, config.autoencoder.model, config.evaluator.model
     ).to(device_)
     eval_trainable = [p for p in evaluator.parameters() if p.requires_grad]
     eval_opt = adam(eval_trainable, lr=config.evaluator.lr)
@@ -214,8 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="one timed step per measurement")
     parser.add_argument("--device", default="auto", help="auto (CUDA when present), cpu, cuda")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    parser.add_argument("--preset", default="paper", choices=("paper", "demo"), help="sizes")
     args = parser.parse_args(argv)
-    print(json.dumps(run(args.quick, args.device, args.threads), indent=2))
+    print(json.dumps(run(args.quick, args.device, args.threads, args.preset), indent=2))
     return 0
 
 

@@ -1,68 +1,48 @@
 """The temporal VAE's training pass, rearranged for speed: the arithmetic of
 :meth:`t2m.models.temporal_vae.TemporalVAE.rollout` over :meth:`~TemporalVAE.step`, tested equal
-to it (``tests/test_temporal_vae.py``). :meth:`TemporalVAE.forward` runs :func:`fast_forward`
-unless called with ``fast=False``; :meth:`TemporalVAE.generate` runs a :class:`GenerationPlan`
-(the prior / generator step with stacked and folded weights, at the end of this file).
+to it (``tests/test_temporal_vae.py``, ``tests/test_fast_recurrence.py``).
+:meth:`TemporalVAE.forward` runs :func:`fast_forward` unless called with ``fast=False``;
+:meth:`TemporalVAE.generate` runs a :class:`GenerationPlan` (the prior / generator step with
+stacked and folded weights, at the end of this file).
 
-Three rearrangements, each the same sum in another order:
+The rearrangements, each the same sums in another order:
 
 1. Split projections. The blocks' input Linears act on concatenations [previous code, current
    code, attention, z]. Their weight matrices are split by input part and the prior's,
    posterior's and generator's rows stacked (3H, .), so the parts known before the loop (the
    current codes, the previous codes under teacher forcing) are projected for all steps in one
    matrix product, and the rest in one product per part per step instead of one per block.
-2. Deferred weight gradients. A Linear inside the loop (the GRU cells' input and hidden
-   Linears, the per-step projections) runs with detached weights and records its input; the
-   gradient of its weight is then one (O, S*B) x (S*B, I) product in backward instead of S
-   thin products of inner size B (:class:`StepLinear`). The GRU gates are written out
-   (:func:`gru_update`) because ``nn.GRUCell`` reads its weights itself.
-3. Heads whose outputs the loop does not feed back (the prior's Gaussian; the output head under
-   teacher forcing) run once over all steps.
+2. Stacked state readers. Each GRU state is read by one product right after it is computed:
+   the generator's by the next step's attention query and hidden gates (and, free-running, this
+   step's output head), the posterior's by its next hidden gates and this step's Gaussian, the
+   prior's by its next hidden gates.
+3. One autograd node for the loop (:class:`_Recurrence`): the forward runs without recording a
+   graph; the backward runs the steps in reverse with the gradients written out (GRU, LayerNorm,
+   LeakyReLU, attention), and each weight's gradient is one (O, S*B) x (S*B, I) product over all
+   steps instead of S thin ones. Every product in the loop runs through weights packed once per
+   sequence for oneDNN on a CPU (its transpose too, for the input gradients).
+4. What the loop does not feed back runs once over all steps outside it: the prior's input path
+   (its GRU alone stays a loop, of its own) and Gaussian; the output head under teacher
+   forcing.
 
-Every product inside the loop (the attention query, the posterior's Gaussian, z's projection,
-the fed-back output head too) is a :class:`StepLinear`, whose weight is packed once per
-sequence for oneDNN on a CPU: with those, a paper-size training step (batch 32, one thread)
-took 0.79-0.82x the time in float32 and 0.80-0.84x under bfloat16 autocast.
+Measured (one process, interleaved with the previous version, CPU time, one thread): 1 and 4
+with per-product autograd nodes took 0.79-0.82x of the plain step at paper size; 2, 3 and the
+prior's loop of its own took 0.78-0.85x of that at demo size (README, "Demo-size generator
+step").
 """
 
 from __future__ import annotations
 
 import weakref
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 if TYPE_CHECKING:
-    from t2m.models.temporal_vae import RecurrentBlock, RecurrentState, TemporalVAE, WordContext
-
-
-class _StepWeightGradient(torch.autograd.Function):
-    """Zeros (S, B, O) added to a Linear's per-step outputs, carrying its weight gradient.
-
-    The Linear runs in the loop with detached weights; each step adds its slice of these zeros
-    and records its input. In backward, the gradients of all steps arrive here together and the
-    weight (and bias) gradient is one (O, S*B) x (S*B, I) product.
-    """
-
-    @staticmethod
-    def forward(ctx, weight, bias, tape, shape):
-        ctx.tape = tape
-        ctx.has_bias = bias is not None
-        ctx.dtypes = (weight.dtype, bias.dtype if bias is not None else None)
-        return torch.zeros(shape, dtype=weight.dtype, device=weight.device)
-
-    @staticmethod
-    def backward(ctx, grad):
-        inputs = torch.stack(ctx.tape)  # (S, B, I)
-        grad = grad.reshape(-1, grad.shape[-1])  # (S*B, O)
-        grad_weight = (grad.t() @ inputs.reshape(-1, inputs.shape[-1]).to(grad.dtype)).to(
-            ctx.dtypes[0]
-        )
-        grad_bias = grad.sum(0).to(ctx.dtypes[1]) if ctx.has_bias else None
-        return grad_weight, grad_bias, None, None
+    from t2m.models.temporal_vae import RecurrentState, TemporalVAE, WordContext
 
 
 def _packable(weight: torch.Tensor) -> bool:
@@ -81,69 +61,97 @@ def _packed_product(
     return torch.ops.mkldnn._linear_pointwise(inputs, packed, bias, "none", [], "")
 
 
-class _PackedStepProduct(torch.autograd.Function):
-    """One step's ``x W^T + b`` through packed weights; backward gives the input's gradient
-    (``grad W``, W^T packed too), the weight's and bias's go through :class:`StepLinear`."""
+class _OneDNNLinear(torch.autograd.Function):
+    """``F.linear`` (inputs (..., I), weight (O, I), bias (O,)) whose forward and input gradient
+    run through oneDNN; the weight gradient is one matrix product."""
 
     @staticmethod
-    def forward(ctx, inputs, linear):
-        ctx.transposed = linear.transposed
-        return _packed_product(inputs, linear.packed, linear.bias)
+    def forward(ctx, inputs, weight, bias):
+        inputs = inputs.contiguous()  # once: the backward reads it as (N, I) too
+        ctx.save_for_backward(inputs, weight)
+        ctx.has_bias = bias is not None
+        return _packed_product(inputs, weight, bias)
 
     @staticmethod
+    @torch.autograd.function.once_differentiable
     def backward(ctx, grad):
-        return _packed_product(grad.contiguous(), ctx.transposed, None), None
+        inputs, weight = ctx.saved_tensors
+        grad = grad.contiguous()
+        flat = grad.reshape(-1, grad.shape[-1])
+        grad_inputs = _packed_product(grad, weight.t().contiguous(), None)
+        grad_weight = flat.t() @ inputs.reshape(-1, inputs.shape[-1])
+        return grad_inputs, grad_weight, flat.sum(0) if ctx.has_bias else None
 
 
-class StepLinear:
-    """``F.linear(x_t, weight, bias)`` for t = 0 .. S-1 inside a recurrent loop, with the weight
-    gradient computed once over all steps (see :class:`_StepWeightGradient`).
+def linear(inputs: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
+    """``F.linear``, through oneDNN where it takes float32 weights on a CPU outside autocast: for
+    shapes such as the decoder's (263, 263) output Linear over 32 x 196 frames, torch's own
+    product (MKL) ran at 42 GFLOP/s on one thread, oneDNN's at 90."""
+    device_type = weight.device.type
+    if (
+        weight.dtype != torch.float32
+        or inputs.dtype != torch.float32
+        or not _packable(weight)
+        or torch.is_autocast_enabled(device_type)
+    ):
+        return F.linear(inputs, weight, bias)
+    return _OneDNNLinear.apply(inputs, weight, bias)
 
-    On a CPU the weight (and for the input's gradient its transpose) is packed once for
-    oneDNN: at the loop's batch of 32 its products take 0.55-0.7x the time of ``F.linear``'s
-    on one thread (paper size, float32), and packing costs about one product.
-    Without gradients (validation) it is a plain Linear.
-    """
 
-    def __init__(self, weight: torch.Tensor, bias: torch.Tensor | None, steps: int, batch: int):
-        device_type = weight.device.type
-        dtype = (
-            torch.get_autocast_dtype(device_type)
-            if torch.is_autocast_enabled(device_type)
-            else weight.dtype
-        )
+class _StepProduct:
+    """A weight (O, I) (and bias) read at every step of the loop: ``x W^T + b`` forward and the
+    input gradient ``g W`` backward, computed in ``dtype`` (the autocast dtype, or the
+    weight's), returned in ``work``. On a CPU the weight (and its transpose, for the backward)
+    is packed once per sequence for oneDNN: at the loop's batch of 32, one thread, its
+    products take 0.55-0.8x the time of ``F.linear``'s, and packing costs one to three."""
+
+    def __init__(
+        self,
+        weight: torch.Tensor,
+        bias: torch.Tensor | None,
+        dtype: torch.dtype,
+        work: torch.dtype,
+        backward: bool = True,
+    ):
         self.weight = weight.detach().to(dtype)
-        self.bias = bias.detach().to(dtype) if bias is not None else None
-        self.tape: list[torch.Tensor] = []
-        self.zeros: tuple[torch.Tensor, ...] | None = None
-        training = torch.is_grad_enabled() and weight.requires_grad
+        self.bias = None if bias is None else bias.detach().to(dtype)
+        self.dtype, self.work = dtype, work
         self.packed = self.transposed = None
         if _packable(self.weight):
             self.packed = torch.ops.mkldnn._reorder_linear_weight(self.weight)
-            if torch.is_grad_enabled():
+            if backward:
                 transposed = self.weight.t().contiguous()
                 self.transposed = torch.ops.mkldnn._reorder_linear_weight(transposed)
-        if training:
-            bias = None if bias is None else bias.to(dtype)
-            zeros = _StepWeightGradient.apply(
-                weight.to(dtype), bias, self.tape, (steps, batch, weight.shape[0])
-            )
-            # unbind, not indexing: its backward stacks the step gradients once, where each
-            # index's backward would write its slice into a fresh (S, B, O) tensor
-            self.zeros = zeros.unbind(0)
 
-    def __call__(self, inputs: torch.Tensor, step: int) -> torch.Tensor:
-        inputs = inputs.to(self.weight.dtype)
+    def __call__(self, inputs: torch.Tensor) -> torch.Tensor:
+        """(B, I) -> (B, O)."""
+        if self.dtype != self.work:
+            inputs = inputs.to(self.dtype)
         if self.packed is None:
             output = F.linear(inputs, self.weight, self.bias)
-        elif self.transposed is not None and inputs.requires_grad:
-            output = _PackedStepProduct.apply(inputs, self)
         else:
             output = _packed_product(inputs, self.packed, self.bias)
-        if self.zeros is None:
-            return output
-        self.tape.append(inputs.detach())
-        return output + self.zeros[step]
+        return output if self.dtype == self.work else output.to(self.work)
+
+    def backward(self, grad: torch.Tensor) -> torch.Tensor:
+        """(B, O) gradient of the outputs -> (B, I) gradient of the inputs."""
+        if self.dtype != self.work:
+            grad = grad.to(self.dtype)
+        if self.transposed is None:
+            output = grad @ self.weight
+        else:
+            output = _packed_product(grad, self.transposed, None)
+        return output if self.dtype == self.work else output.to(self.work)
+
+
+def _weight_gradient(
+    grads: list[torch.Tensor], inputs: list[torch.Tensor]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A step product's weight (O, I) and bias (O,) gradients from the output gradients and
+    inputs of all its calls ((B, O) and (B, I) each, in call order): one (O, N*B) x (N*B, I)
+    product instead of N thin ones."""
+    grad = torch.cat(grads)
+    return grad.t() @ torch.cat(inputs).to(grad.dtype), grad.sum(0)
 
 
 def gru_update(
@@ -158,20 +166,418 @@ def gru_update(
     return candidate + update * (hidden - candidate)
 
 
-class _FastBlock:
-    """A :class:`RecurrentBlock` given its input Linear's output, its GRU Linears deferred."""
+def _gru_forward(
+    input_gates: torch.Tensor, hidden_gates: torch.Tensor, hidden: torch.Tensor
+) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+    """:func:`gru_update` -> (next hidden (B, H), what :func:`_gru_backward` needs)."""
+    size = hidden.shape[-1]
+    gates = torch.sigmoid(input_gates[:, : 2 * size] + hidden_gates[:, : 2 * size])
+    reset, update = gates.split(size, dim=-1)
+    hidden_n = hidden_gates[:, 2 * size :]
+    candidate = torch.tanh(torch.addcmul(input_gates[:, 2 * size :], reset, hidden_n))
+    return candidate + update * (hidden - candidate), (gates, hidden_n, candidate, hidden)
 
-    def __init__(self, block: RecurrentBlock, steps: int, batch: int):
-        self.norm = block.norm
-        cell = block.cell
-        self.input_gates = StepLinear(cell.weight_ih, cell.bias_ih, steps, batch)
-        self.hidden_gates = StepLinear(cell.weight_hh, cell.bias_hh, steps, batch)
 
-    def __call__(
-        self, preactivation: torch.Tensor, time_code: torch.Tensor, hidden: torch.Tensor, step: int
-    ) -> torch.Tensor:
-        inputs = F.leaky_relu(self.norm(preactivation), 0.2) + time_code
-        return gru_update(self.input_gates(inputs, step), self.hidden_gates(hidden, step), hidden)
+def _gru_backward(
+    saved: tuple[torch.Tensor, ...], grad: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Gradient (B, H) of :func:`_gru_forward`'s next hidden -> gradients of its input gates
+    (B, 3H), hidden gates (B, 3H) and hidden (B, H)."""
+    gates, hidden_n, candidate, hidden = saved
+    reset, update = gates.split(hidden.shape[-1], dim=-1)
+    grad_hidden = grad * update
+    grad_n = (grad - grad_hidden) * (1 - candidate * candidate)  # tanh's input
+    grad_rz = torch.cat([grad_n * hidden_n, grad * (hidden - candidate)], dim=-1)
+    grad_rz = grad_rz * gates * (1 - gates)  # the sigmoids' inputs
+    grad_input = torch.cat([grad_rz, grad_n], dim=-1)
+    return grad_input, torch.cat([grad_rz, grad_n * reset], dim=-1), grad_hidden
+
+
+def _norm_forward(
+    inputs: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor, eps: float
+) -> tuple[torch.Tensor, tuple[torch.Tensor, ...]]:
+    """``leaky_relu(layer_norm(inputs), 0.2)`` -> (it, what :func:`_norm_backward` needs)."""
+    normed, mean, rstd = torch.native_layer_norm(inputs, (inputs.shape[-1],), weight, bias, eps)
+    return F.leaky_relu(normed, 0.2), (inputs, mean, rstd, normed, weight, bias)
+
+
+def _norm_backward(
+    grad: torch.Tensor, saved: tuple[torch.Tensor, ...], parameter_grads: list
+) -> torch.Tensor:
+    """Gradient of :func:`_norm_forward`'s output -> of its inputs; adds the LayerNorm's weight
+    and bias gradients to ``parameter_grads`` (a list of two, None before the first)."""
+    inputs, mean, rstd, normed, weight, bias = saved
+    grad = torch.ops.aten.leaky_relu_backward(grad, normed, 0.2, False)
+    grad_inputs, grad_weight, grad_bias = torch.ops.aten.native_layer_norm_backward(
+        grad, inputs, (inputs.shape[-1],), mean, rstd, weight, bias, [True, True, True]
+    )
+    for k, value in enumerate((grad_weight, grad_bias)):
+        parameter_grads[k] = value if parameter_grads[k] is None else parameter_grads[k] + value
+    return grad_inputs
+
+
+class _Loop(NamedTuple):
+    """What :class:`_Recurrence` reads besides the tensors it differentiates."""
+
+    mask_bias: torch.Tensor  # (B, L) 0 on words, -inf on padding
+    time_codes: torch.Tensor  # (B, S, H)
+    noise: torch.Tensor  # (B, S, Z)
+    previous_code: torch.Tensor  # (B, C) the code fed to the first step (free-running)
+    teacher_forcing: bool
+    norm_eps: tuple[float, ...]  # prior, posterior, generator, output head LayerNorm epsilons
+    dtype: torch.dtype  # of the products
+    work: torch.dtype  # of everything else
+
+
+# _Recurrence's weights, in order: (3H, A) the three input Linears' rows read by the attention
+# vector; (H, Z) the generator's rows read by z; free-running only (else None): (3H, C) the rows
+# read by the previous code and the three biases (3H,); LayerNorm weight and bias of the prior,
+# posterior, generator and (free-running) output head; GRU weight_ih (3H, H) and bias_ih of the
+# prior, posterior, generator; the state readers (O, H) and biases of the prior (its hidden
+# gates), posterior (+ this step's mean and log-variance), generator (attention query + hidden
+# gates, free-running + the output head's first Linear); free-running: the output head's last
+# Linear (C, H) and bias.
+WEIGHTS = (
+    "attention latent previous input_bias prior_norm prior_norm_bias posterior_norm "
+    "posterior_norm_bias generator_norm generator_norm_bias output_norm output_norm_bias "
+    "prior_gates prior_gates_bias posterior_gates posterior_gates_bias generator_gates "
+    "generator_gates_bias prior_reader prior_reader_bias posterior_reader posterior_reader_bias "
+    "generator_reader generator_reader_bias last last_bias"
+).split()
+BLOCKS = ("prior", "posterior", "generator")
+
+
+class _Recurrence(torch.autograd.Function):
+    """The training loop of :func:`fast_forward` as one autograd node. The forward runs the
+    steps without recording a graph and keeps what the backward needs; the backward runs them
+    in reverse with the gradients written out (GRU, LayerNorm, attention), and each weight's
+    gradient is one product over all steps. Autograd's graph of the loop held about 60 nodes
+    per step; the engine's bookkeeping of them was much of a demo-size step's time.
+
+    Inputs: a :class:`_Loop`; keys and values (B, L, A); the posterior's projected current codes
+    (B, S, H); under teacher forcing the projected previous codes (B, S, 3H), bias included,
+    else None; the initial prior, posterior and generator states (B, H); the weights named by
+    :data:`WEIGHTS` (None where unused). Outputs: prior states (B, S, H); generator states
+    (B, S, H) under teacher forcing, else the predicted codes (B, S, C); the posterior's mean
+    and log-variance (B, S, Z).
+    """
+
+    @staticmethod
+    def forward(ctx, loop, keys, values, current, previous_all, *tensors):
+        with torch.autocast(keys.device.type, enabled=False):
+            return _Recurrence._forward(ctx, loop, keys, values, current, previous_all, *tensors)
+
+    @staticmethod
+    def _forward(ctx, loop, keys, values, current, previous_all, *tensors):
+        dtype, work, forced = loop.dtype, loop.work, loop.teacher_forcing
+        ctx.dtypes = [
+            None if t is None else t.dtype for t in (keys, values, current, previous_all, *tensors)
+        ]
+        states = [h.to(work) for h in tensors[:3]]
+        w = dict(zip(WEIGHTS, tensors[3:], strict=True))
+        attention_size = keys.shape[-1]
+        keys, values = keys.to(work) * attention_size**-0.5, values.to(work)  # keys scaled
+        hidden, steps = states[0].shape[-1], loop.time_codes.shape[1]
+        latent_size, gate_size = loop.noise.shape[-1], 3 * hidden
+        products = {
+            name: _StepProduct(w[name], None, dtype, work) for name in ("attention", "latent")
+        }
+        for name in ("gates", "reader"):
+            for block in BLOCKS:
+                key = f"{block}_{name}"
+                products[key] = _StepProduct(w[key], w[key + "_bias"], dtype, work)
+        norms = {
+            block: [w[f"{block}_norm"].to(work), w[f"{block}_norm_bias"].to(work)]
+            for block in (*BLOCKS, "output")
+            if w[f"{block}_norm"] is not None
+        }
+        generator_parts = [attention_size, gate_size] + ([] if forced else [hidden])
+        if not forced:
+            products["previous"] = _StepProduct(
+                w["previous"], w["input_bias"], dtype, work, backward=False
+            )
+            products["last"] = _StepProduct(w["last"], w["last_bias"], dtype, work, backward=False)
+        time_codes = loop.time_codes.to(work).unbind(1)
+        noise = loop.noise.to(work).unbind(1)
+        current = current.to(work).unbind(1)
+        if forced:
+            previous_all = previous_all.to(work).unbind(1)
+        # what the backward needs, per step; the readers' inputs (each state, the initial one
+        # and after the steps), per block
+        kept = {name: [] for name in ("query", "weights", "attention", "previous", "z", "std")}
+        kept.update({f"{name}_{b}": [] for name in ("inputs", "gru", "norm") for b in BLOCKS})
+        kept["head"], kept["head_inputs"] = [], []
+        read = {block: [state] for block, state in zip(BLOCKS, states, strict=True)}
+        posterior_gates = products["posterior_reader"](states[1])[:, :gate_size]
+        query, generator_gates = products["generator_reader"](states[2]).split(
+            generator_parts, dim=-1
+        )[:2]
+        previous = loop.previous_code
+        outputs = {name: [] for name in ("prior", "second", "mean", "logvar")}
+        prior_inputs = []
+
+        def block(name, preactivation, time_code, hidden_gates, state):
+            inputs, saved = _norm_forward(
+                preactivation, *norms[name], loop.norm_eps[BLOCKS.index(name)]
+            )
+            inputs = inputs + time_code
+            kept[f"norm_{name}"].append(saved)
+            kept[f"inputs_{name}"].append(inputs)
+            new, saved = _gru_forward(products[f"{name}_gates"](inputs), hidden_gates, state)
+            kept[f"gru_{name}"].append(saved)
+            return new
+
+        for i in range(steps):
+            scores = torch.linalg.vecdot(keys, query[:, None]) + loop.mask_bias
+            weights = torch.softmax(scores, dim=-1)  # (B, L)
+            attention = torch.bmm(weights[:, None], values)[:, 0]  # (B, A)
+            kept["query"].append(query)
+            kept["weights"].append(weights)
+            kept["attention"].append(attention)
+            if forced:
+                pre = previous_all[i] + products["attention"](attention)
+            else:
+                kept["previous"].append(previous)
+                pre = products["previous"](previous) + products["attention"](attention)
+            pre_prior, pre_post, pre_gen = pre.split(hidden, dim=-1)
+            post = block(
+                "posterior", pre_post + current[i], time_codes[i], posterior_gates, states[1]
+            )
+            read["posterior"].append(post)
+            posterior_gates, mean, logvar = products["posterior_reader"](post).split(
+                [gate_size, latent_size, latent_size], dim=-1
+            )
+            prior_inputs.append(pre_prior)
+            std = torch.exp(0.5 * logvar)
+            z = torch.addcmul(mean, std, noise[i])
+            kept["z"].append(z)
+            kept["std"].append(std)
+            generator = block(
+                "generator",
+                pre_gen + products["latent"](z),
+                time_codes[i],
+                generator_gates,
+                states[2],
+            )
+            states[1:] = post, generator
+            outputs["mean"].append(mean)
+            outputs["logvar"].append(logvar)
+            if forced:
+                outputs["second"].append(generator)
+                if i + 1 < steps:
+                    read["generator"].append(generator)
+                    query, generator_gates = products["generator_reader"](generator).split(
+                        generator_parts, dim=-1
+                    )
+            else:  # the next step needs this code now
+                read["generator"].append(generator)
+                query, generator_gates, first = products["generator_reader"](generator).split(
+                    generator_parts, dim=-1
+                )
+                head, saved = _norm_forward(first, *norms["output"], loop.norm_eps[3])
+                kept["head"].append(saved)
+                kept["head_inputs"].append(head)
+                previous = products["last"](head)
+                outputs["second"].append(previous)
+        # the prior: nothing in the loop reads it. Its input path for all steps at once, then
+        # its GRU over the steps
+        inputs, kept["norm_prior"] = _norm_forward(
+            torch.stack(prior_inputs, dim=1), *norms["prior"], loop.norm_eps[0]
+        )
+        kept["inputs_prior"] = inputs = inputs + loop.time_codes.to(work)  # (B, S, H)
+        input_gates = products["prior_gates"](inputs.flatten(0, 1)).view(*inputs.shape[:2], -1)
+        prior = states[0]
+        prior_gates = products["prior_reader"](prior)
+        for i in range(steps):
+            prior, saved = _gru_forward(input_gates[:, i], prior_gates, prior)
+            kept["gru_prior"].append(saved)
+            outputs["prior"].append(prior)
+            if i + 1 < steps:
+                read["prior"].append(prior)
+                prior_gates = products["prior_reader"](prior)
+        ctx.loop, ctx.products, ctx.kept, ctx.read, ctx.norms = loop, products, kept, read, norms
+        ctx.keys, ctx.values = keys, values
+        ctx.present = [t is not None for t in tensors[3:]]
+        second = torch.stack(outputs["second"], dim=1)
+        return (
+            torch.stack(outputs["prior"], dim=1),
+            second if forced else second.to(dtype),
+            torch.stack(outputs["mean"], dim=1).to(dtype),
+            torch.stack(outputs["logvar"], dim=1).to(dtype),
+        )
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, *grads):
+        with torch.autocast(ctx.keys.device.type, enabled=False):
+            return _Recurrence._backward(ctx, *grads)
+
+    @staticmethod
+    def _backward(ctx, grad_prior, grad_second, grad_mean, grad_logvar):
+        loop, products, kept, read, norms = ctx.loop, ctx.products, ctx.kept, ctx.read, ctx.norms
+        keys, values, work, forced = ctx.keys, ctx.values, loop.work, loop.teacher_forcing
+        steps, batch = len(kept["z"]), keys.shape[0]
+        hidden = loop.time_codes.shape[-1]
+        attention_size, latent_size = keys.shape[-1], loop.noise.shape[-1]
+        scale = attention_size**-0.5
+
+        def given(grad, size):
+            return keys.new_zeros(batch, steps, size) if grad is None else grad.to(work)
+
+        grad_prior = given(grad_prior, hidden).unbind(1)
+        grad_mean = given(grad_mean, latent_size).unbind(1)
+        grad_logvar = given(grad_logvar, latent_size).unbind(1)
+        noise = loop.noise.to(work).unbind(1)
+        result = {}
+        norm_grads = {name: [None, None] for name in norms}
+        if forced:
+            grad_states = given(grad_second, hidden).unbind(1)
+        else:  # no gradient through the fed-back codes: the output head at once for all steps
+            grad_codes = given(grad_second, products["last"].weight.shape[0])  # (B, S, C)
+            head_inputs = torch.stack(kept["head_inputs"], dim=1)  # (B, S, H)
+            result["last"] = grad_codes.flatten(0, 1).t() @ head_inputs.flatten(0, 1)
+            result["last_bias"] = grad_codes.sum((0, 1))
+            saved = [torch.stack(parts, dim=1) for parts in list(zip(*kept["head"]))[:4]]
+            saved += norms["output"]
+            grad_head = grad_codes @ products["last"].weight.to(work)
+            grad_first = _norm_backward(grad_head, saved, norm_grads["output"]).unbind(1)
+        reader_grads = {block: [] for block in BLOCKS}  # per call, from the last one back
+        gate_grads = {block: [] for block in BLOCKS}
+        pre_grads, latent_grads, current_grads, score_grads, attention_grads = [], [], [], [], []
+        # gradients of step i + 1's inputs: the states (through the GRUs alone), the readers'
+        # parts read at step i + 1 (hidden gates, query)
+        carry = dict.fromkeys(BLOCKS)
+        next_gates = dict.fromkeys(BLOCKS)
+        next_query = None
+
+        def zeros(size):
+            return keys.new_zeros(batch, size)
+
+        def state_grad(block, direct, call_grad):
+            """Gradient of a state after step i: its reader's call after the step (if made),
+            the next step's GRU, and ``direct`` (an output's gradient)."""
+            grad = direct
+            if carry[block] is not None:
+                grad = carry[block] if grad is None else grad + carry[block]
+            if call_grad is not None:
+                reader_grads[block].append(call_grad)
+                through = products[f"{block}_reader"].backward(call_grad)
+                grad = through if grad is None else grad + through
+            return zeros(hidden) if grad is None else grad
+
+        def block_backward(block, i, grad_state):
+            """Gradient of the state after step i -> of the block's preactivation (B, H); keeps
+            the gradients of its hidden gates and of the state before the step."""
+            grad_gates, next_gates[block], carry[block] = _gru_backward(
+                kept[f"gru_{block}"][i], grad_state
+            )
+            gate_grads[block].append(grad_gates)
+            grad = products[f"{block}_gates"].backward(grad_gates)
+            return _norm_backward(grad, kept[f"norm_{block}"][i], norm_grads[block])
+
+        # the prior first (nothing in the loop reads it): its GRU backward through time, then its
+        # input path for all steps at once
+        grad_gates = []
+        for i in reversed(range(steps)):
+            call = next_gates["prior"] if i + 1 < steps else None
+            grad, next_gates["prior"], carry["prior"] = _gru_backward(
+                kept["gru_prior"][i], state_grad("prior", grad_prior[i], call)
+            )
+            grad_gates.append(grad)
+        grad_gates = torch.stack(grad_gates[::-1], dim=1).flatten(0, 1)  # (B*S, 3H)
+        inputs = kept["inputs_prior"].flatten(0, 1)
+        result["prior_gates"], result["prior_gates_bias"] = _weight_gradient([grad_gates], [inputs])
+        grad_inputs = products["prior_gates"].backward(grad_gates).view(batch, steps, hidden)
+        grad_pre_prior = _norm_backward(
+            grad_inputs, kept["norm_prior"], norm_grads["prior"]
+        ).unbind(1)
+
+        for i in reversed(range(steps)):
+            # the generator's reader after step i: next query and hidden gates, this step's head
+            call = None
+            if not forced or i + 1 < steps:
+                call = [
+                    zeros(attention_size) if next_query is None else next_query,
+                    zeros(3 * hidden)
+                    if next_gates["generator"] is None
+                    else next_gates["generator"],
+                ]
+                call = torch.cat(call + ([] if forced else [grad_first[i]]), dim=-1)
+            grad = state_grad("generator", grad_states[i] if forced else None, call)
+            grad_pre_gen = block_backward("generator", i, grad)
+            latent_grads.append(grad_pre_gen)
+            grad_z = products["latent"].backward(grad_pre_gen)
+            grad_mean_i = grad_z + grad_mean[i]
+            grad_logvar_i = torch.addcmul(
+                grad_logvar[i], grad_z, kept["std"][i] * noise[i], value=0.5
+            )
+            next_post = next_gates["posterior"]
+            call = [
+                zeros(3 * hidden) if next_post is None else next_post,
+                grad_mean_i,
+                grad_logvar_i,
+            ]
+            grad = state_grad("posterior", None, torch.cat(call, dim=-1))
+            grad_pre_post = block_backward("posterior", i, grad)
+            current_grads.append(grad_pre_post)
+            grad_pre = torch.cat([grad_pre_prior[i], grad_pre_post, grad_pre_gen], dim=-1)
+            pre_grads.append(grad_pre)
+            grad_attention = products["attention"].backward(grad_pre)  # (B, A)
+            attention_grads.append(grad_attention)
+            grad_weights = torch.linalg.vecdot(values, grad_attention[:, None])  # (B, L)
+            grad_scores = torch.ops.aten._softmax_backward_data(
+                grad_weights, kept["weights"][i], -1, work
+            )
+            score_grads.append(grad_scores)
+            next_query = torch.bmm(grad_scores[:, None], keys)[:, 0]
+        # the readers' calls on the initial states
+        generator_call = [next_query, next_gates["generator"]] + ([] if forced else [zeros(hidden)])
+        initial = [
+            state_grad("prior", None, next_gates["prior"]),
+            state_grad(
+                "posterior", None, torch.cat([next_gates["posterior"], zeros(2 * latent_size)], -1)
+            ),
+            state_grad("generator", None, torch.cat(generator_call, dim=-1)),
+        ]
+        # per-sequence tensors and weights: one product each over all steps
+        weights = torch.stack(kept["weights"], dim=1)  # (B, S, L)
+        grad_values = weights.transpose(1, 2) @ torch.stack(attention_grads[::-1], dim=1)
+        grad_keys = torch.stack(score_grads[::-1], dim=1).transpose(1, 2) @ torch.stack(
+            kept["query"], dim=1
+        )
+        pre_grads = pre_grads[::-1]
+        result["attention"] = _weight_gradient(pre_grads, kept["attention"])[0]
+        result["latent"] = _weight_gradient(latent_grads[::-1], kept["z"])[0]
+        grad_previous_all = None
+        if forced:
+            grad_previous_all = torch.stack(pre_grads, dim=1)
+        else:
+            result["previous"], result["input_bias"] = _weight_gradient(pre_grads, kept["previous"])
+        for block in BLOCKS:
+            if block != "prior":
+                result[f"{block}_gates"], result[f"{block}_gates_bias"] = _weight_gradient(
+                    gate_grads[block][::-1], kept[f"inputs_{block}"]
+                )
+            result[f"{block}_reader"], result[f"{block}_reader_bias"] = _weight_gradient(
+                reader_grads[block][::-1], read[block]
+            )
+        for name, (weight_grad, bias_grad) in norm_grads.items():
+            result[f"{name}_norm"], result[f"{name}_norm_bias"] = weight_grad, bias_grad
+        grads = [
+            grad_keys * scale,
+            grad_values,
+            torch.stack(current_grads[::-1], dim=1),
+            grad_previous_all,
+            *initial,
+            *(
+                result[name] if present else None
+                for name, present in zip(WEIGHTS, ctx.present, strict=True)
+            ),
+        ]
+        return (
+            None,
+            *(g if g is None else g.to(d) for g, d in zip(grads, ctx.dtypes, strict=True)),
+        )
 
 
 def split_input_weights(vae: TemporalVAE) -> dict[str, torch.Tensor]:
@@ -180,20 +586,35 @@ def split_input_weights(vae: TemporalVAE) -> dict[str, torch.Tensor]:
     c, a = vae.code_size, vae.config.attention_size
     blocks = (vae.prior.input, vae.posterior.input, vae.generator.input)
     prior, post, gen = (block.weight for block in blocks)
-    bias = torch.cat([block.bias for block in blocks])
-    device_type = prior.device.type
-    if torch.is_autocast_enabled(device_type):
-        # Autocast caches the casts of parameters only: cast these derived weights once per
-        # sequence rather than once per step.
-        dtype = torch.get_autocast_dtype(device_type)
-        prior, post, gen, bias = prior.to(dtype), post.to(dtype), gen.to(dtype), bias.to(dtype)
     return {
         "previous": torch.cat([prior[:, :c], post[:, :c], gen[:, :c]]),  # (3H, C)
         "attention": torch.cat([prior[:, c:], post[:, 2 * c :], gen[:, c : c + a]]),  # (3H, A)
-        "bias": bias,  # (3H,)
+        "bias": torch.cat([block.bias for block in blocks]),  # (3H,)
         "current": post[:, c : 2 * c],  # (H, C), posterior only
         "latent": gen[:, c + a :],  # (H, Z), generator only
     }
+
+
+def _readers(vae: TemporalVAE, teacher_forcing: bool) -> dict[str, list[nn.Module]]:
+    """Per block, the layers that read its state, in the order their rows are stacked: the
+    prior's hidden gates; the posterior's hidden gates and Gaussian; the generator's attention
+    query, hidden gates and (free-running) the output head's first Linear."""
+    gaussian = vae.posterior_gaussian
+    generator = [vae.query, vae.generator.cell] + ([] if teacher_forcing else [vae.output[0]])
+    return {
+        "prior": [vae.prior.cell],
+        "posterior": [vae.posterior.cell, gaussian.mean, gaussian.logvar],
+        "generator": generator,
+    }
+
+
+def _stacked(layers: Sequence[nn.Module]) -> tuple[torch.Tensor, torch.Tensor]:
+    """The weights (O_i, I) and biases of Linears or GRU cells' hidden products, stacked."""
+    weights = [
+        layer.weight_hh if isinstance(layer, nn.GRUCell) else layer.weight for layer in layers
+    ]
+    biases = [layer.bias_hh if isinstance(layer, nn.GRUCell) else layer.bias for layer in layers]
+    return torch.cat(weights), torch.cat(biases)
 
 
 def fast_forward(
@@ -206,84 +627,79 @@ def fast_forward(
     teacher_forcing: bool,
     noise: torch.Tensor,
 ) -> dict[str, torch.Tensor]:
-    """:meth:`TemporalVAE.forward` (same arguments and results, ``noise`` required), faster."""
+    """:meth:`TemporalVAE.forward` (same arguments and results, ``noise`` required), faster:
+    the loop is one :class:`_Recurrence` node; the parts known before it (the current codes,
+    under teacher forcing the previous ones) are projected for all steps at once, and the heads
+    the loop does not feed back (the prior's Gaussian; the output head under teacher forcing)
+    run once after it."""
     batch, steps, _ = codes.shape
-    hidden_size = vae.config.hidden_size
     weights = split_input_weights(vae)
     context = vae.word_context(word_features, word_mask)
     state = vae.initial_state(sentence, initial_code, posterior=True)
     snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
     time_codes = vae.time_codes(snippets_left, steps)  # (B, S, H)
     current = F.linear(codes, weights["current"])  # (B, S, H)
+    free = not teacher_forcing
+    tensors = dict.fromkeys(WEIGHTS)
+    tensors.update(attention=weights["attention"], latent=weights["latent"])
+    previous_all = None
     if teacher_forcing:
         previous_codes = torch.cat([state.previous_code[:, None], codes[:, :-1]], dim=1)
         previous_all = F.linear(previous_codes, weights["previous"], weights["bias"])  # (B, S, 3H)
-    prior_block = _FastBlock(vae.prior, steps, batch)
-    posterior_block = _FastBlock(vae.posterior, steps, batch)
-    generator_block = _FastBlock(vae.generator, steps, batch)
-    attention_linear = StepLinear(weights["attention"], None, steps, batch)
-    query_linear = StepLinear(vae.query.weight, vae.query.bias, steps, batch)
-    gaussian = vae.posterior_gaussian  # mean and log-variance: one (2Z, H) product
-    gaussian_linear = StepLinear(
-        torch.cat([gaussian.mean.weight, gaussian.logvar.weight]),
-        torch.cat([gaussian.mean.bias, gaussian.logvar.bias]),
-        steps,
-        batch,
-    )
-    latent_linear = StepLinear(weights["latent"], None, steps, batch)
-    if not teacher_forcing:  # the model's own code, fed back: previous code and output head
-        previous_linear = StepLinear(weights["previous"], weights["bias"], steps, batch)
-        first, output_norm, _, last = vae.output
-        first_linear = StepLinear(first.weight, first.bias, steps, batch)
-        last_linear = StepLinear(last.weight, last.bias, steps, batch)
-
-    def attend(hidden: torch.Tensor, i: int) -> torch.Tensor:
-        """:meth:`TemporalVAE.attend`'s attention vector (B, A), its query a StepLinear."""
-        query = query_linear(hidden, i)[..., None]  # (B, A, 1)
-        scores = torch.baddbmm(
-            context.mask_bias[..., None], context.keys, query, alpha=query.shape[1] ** -0.5
-        )
-        attention_weights = torch.softmax(scores[..., 0], dim=-1)
-        return torch.bmm(attention_weights[:, None], context.values)[:, 0]
-
-    h_prior, h_gen, previous, h_post = state
-    # per step: unbind, not indexing; an index's backward writes its step into a zero-filled
-    # (B, S, .) tensor, once per step
-    current, time_codes, noise = current.unbind(1), time_codes.unbind(1), noise.unbind(1)
-    if teacher_forcing:
-        previous_all = previous_all.unbind(1)
-    prior_states, generator_states, codes_out, post_means, post_logvars = [], [], [], [], []
-    for i in range(steps):
-        attention = attend(h_gen, i)
-        pre = previous_all[i] if teacher_forcing else previous_linear(previous, i)
-        pre = pre + attention_linear(attention, i)  # (B, 3H)
-        pre_prior, pre_post, pre_gen = pre.split(hidden_size, dim=-1)
-        time_code = time_codes[i]
-        h_post = posterior_block(pre_post + current[i], time_code, h_post, i)
-        h_prior = prior_block(pre_prior, time_code, h_prior, i)
-        post_mean, post_logvar = gaussian_linear(h_post, i).chunk(2, dim=-1)
-        z = post_mean + torch.exp(0.5 * post_logvar) * noise[i]
-        h_gen = generator_block(pre_gen + latent_linear(z, i), time_code, h_gen, i)
-        prior_states.append(h_prior)
-        generator_states.append(h_gen)
-        post_means.append(post_mean)
-        post_logvars.append(post_logvar)
-        if not teacher_forcing:  # the next step needs this code now
-            hidden = F.leaky_relu(output_norm(first_linear(h_gen, i)), 0.2)
-            code = last_linear(hidden, i)
-            codes_out.append(code)
-            previous = code.detach()
-    prior_mean, prior_logvar = vae.prior_gaussian(torch.stack(prior_states, dim=1))
-    if teacher_forcing:
-        codes_all = vae.output(torch.stack(generator_states, dim=1))
     else:
-        codes_all = torch.stack(codes_out, dim=1)
+        tensors.update(previous=weights["previous"], input_bias=weights["bias"])
+    first, output_norm, _, last = vae.output
+    norms = {
+        "prior": vae.prior.norm,
+        "posterior": vae.posterior.norm,
+        "generator": vae.generator.norm,
+    }
+    if free:
+        norms["output"] = output_norm
+        tensors.update(last=last.weight, last_bias=last.bias)
+    for name, norm in norms.items():
+        tensors[f"{name}_norm"], tensors[f"{name}_norm_bias"] = norm.weight, norm.bias
+    blocks = {"prior": vae.prior, "posterior": vae.posterior, "generator": vae.generator}
+    for name, layers in _readers(vae, teacher_forcing).items():
+        cell = blocks[name].cell
+        tensors[f"{name}_gates"], tensors[f"{name}_gates_bias"] = cell.weight_ih, cell.bias_ih
+        tensors[f"{name}_reader"], tensors[f"{name}_reader_bias"] = _stacked(layers)
+    device_type = codes.device.type
+    dtype = vae.query.weight.dtype
+    work = dtype
+    if torch.is_autocast_enabled(device_type):
+        dtype, work = torch.get_autocast_dtype(device_type), torch.float32
+    loop = _Loop(
+        context.mask_bias,
+        time_codes,
+        noise,
+        state.previous_code,
+        teacher_forcing,
+        tuple(
+            norm.eps
+            for norm in (vae.prior.norm, vae.posterior.norm, vae.generator.norm, output_norm)
+        ),
+        dtype,
+        work,
+    )
+    prior_states, second, posterior_mean, posterior_logvar = _Recurrence.apply(
+        loop,
+        context.keys,
+        context.values,
+        current,
+        previous_all,
+        state.prior,
+        state.posterior,
+        state.generator,
+        *(tensors[name] for name in WEIGHTS),
+    )
+    prior_mean, prior_logvar = vae.prior_gaussian(prior_states)
     return {
-        "codes": codes_all,
+        "codes": vae.output(second) if teacher_forcing else second,
         "prior_mean": prior_mean,
         "prior_logvar": prior_logvar,
-        "posterior_mean": torch.stack(post_means, dim=1),
-        "posterior_logvar": torch.stack(post_logvars, dim=1),
+        "posterior_mean": posterior_mean,
+        "posterior_logvar": posterior_logvar,
     }
 
 
