@@ -323,7 +323,7 @@ def demo() -> Config:
         curriculum_step=13,
         patience=3,
         max_stage_epochs=2,
-        final_epochs=10,
+        final_epochs=13,
         whole_clips=True,
         checkpoint_every=100,
     )
