@@ -368,6 +368,12 @@ length when the time budget ends. With t2m.demo's thread switch (the generator o
 once the second process is done), a fresh-clone make demo took 12.2 minutes (+ 76 s install;
 2026-12-01, load about 1.7): quick evaluation semantic accuracy 0.622 +- 0.004 (order and
 counts; 0.562 with fixed timing).
+Recipe checks (2026-12-02; whole test split, 2 draws, ground-truth lengths; the 18-epoch
+generator 0.621): kl_weight 0.1 -> 0.519 (the latent collapses: counted one-off actions improve,
+clap, hop and wave fall to 0), 0.03 -> 0.595, 0.003 -> 0.580; grad_clip 5 -> 0.604; lr 2e-3 ->
+0.576; one curriculum stage at 49 snippets for the same CPU -> 0.592; text encoder hidden size
+192 -> 0.629 (quick evaluation 0.628 +- 0.011, 5% more CPU). None is kept: no gain beyond the
+spread between trainings (README, "Generator recipe for counts and composition").
 2026-12-02: the generator's training step 1.27x faster at these sizes; the time saved buys 3 more
 epochs at the last length (2/2/2/15, 21 epochs): fresh-clone make demo 12.1 minutes + 79 s install
 (13.4), quick evaluation semantic accuracy 0.669 +- 0.030 (whole test split 0.654; 18 epochs 0.621)."""
