@@ -34,8 +34,11 @@ CONFIG = TemporalVAEConfig(
 )
 
 
-def inputs(vae: TemporalVAE, batch: int, steps: int):
-    """encode_text of random words, per-item snippet counts (steps, steps - 3, ...), noise."""
+def case(seed: int, batch: int, steps: int):
+    """A random model (torch seed ``seed``) -> (model, encode_text of random words, per-item
+    snippet counts (steps, steps - 3, ...), noise, initial code)."""
+    torch.manual_seed(seed)
+    vae = TemporalVAE(WORD_DIM, CODE, CONFIG).eval()
     generator = torch.Generator().manual_seed(0)
     words = torch.randn(batch, L, WORD_DIM, generator=generator)
     pos = F.one_hot(torch.randint(0, 15, (batch, L), generator=generator), 15).float()
@@ -44,7 +47,7 @@ def inputs(vae: TemporalVAE, batch: int, steps: int):
         text = vae.encode_text(words, pos, lengths)
     snippets = torch.tensor([steps - 3 * (i % 2) for i in range(batch)])
     noise = torch.randn(batch, steps, LATENT, generator=generator)
-    return text, snippets, noise
+    return vae, text, snippets, noise, torch.randn(CODE)
 
 
 def onnx_copy(vae: TemporalVAE, precision: str) -> TemporalVAE:
@@ -60,10 +63,7 @@ def onnx_copy(vae: TemporalVAE, precision: str) -> TemporalVAE:
 
 @pytest.mark.parametrize("batch", [1, 3])
 def test_fp32_graph_is_the_torch_plan(batch):
-    torch.manual_seed(0)
-    vae = TemporalVAE(WORD_DIM, CODE, CONFIG).eval()
-    text, snippets, noise = inputs(vae, batch, 10)
-    initial = torch.randn(CODE)
+    vae, text, snippets, noise, initial = case(0, batch, 10)
     fast = onnx_copy(vae, "fp32")
     with torch.inference_mode():
         expected, end = vae.generate(*text, snippets, initial, noise=noise, return_state=True)
@@ -89,10 +89,7 @@ def test_fp32_graph_is_the_torch_plan(batch):
 
 @pytest.mark.parametrize("batch", [1, BATCHED_FROM + 1])  # the blockwise and the dynamic session
 def test_int8_graph_is_close_to_float32(batch):
-    torch.manual_seed(1)
-    vae = TemporalVAE(WORD_DIM, CODE, CONFIG).eval()
-    text, snippets, noise = inputs(vae, batch, 12)
-    initial = torch.randn(CODE)
+    vae, text, snippets, noise, initial = case(1, batch, 12)
     fast = onnx_copy(vae, "int8")
     with torch.inference_mode():
         expected = vae.generate(*text, snippets, initial, noise=noise)
