@@ -280,7 +280,7 @@ def quick_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict:
     """Step 4: the evaluation protocol in its quick form (marked as such in its output)."""
     from t2m.evaluate import EvalConfig, evaluate, quick_config
 
-    return evaluate(dataset, run_dir, out, quick_config(EvalConfig()))
+    return evaluate(dataset, run_dir, out, quick_config(EvalConfig(plan="clauses")))
 
 
 @dataclass

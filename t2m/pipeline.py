@@ -14,7 +14,11 @@ Steps of :meth:`TextToMotion.generate`:
    12.5 fps; :class:`dataset_tools.skeleton.DatasetSpec`, stored in the checkpoints), missing
    ones are drawn from the text2length model;
 3. generate snippet codes with the temporal VAE's prior, batched across prompts and samples
-   (items sorted by length so a batch wastes few steps), and decode them to features;
+   (items sorted by length so a batch wastes few steps), and decode them to features. With
+   ``plan="clauses"`` (the default) a prompt of several clauses ("jumps twice, then waves") is
+   generated clause by clause (:mod:`t2m.clauses`): each clause, as a caption of its own, gets
+   the share of the length the text2length model expects for it, and continues from the code
+   the previous clause ended on; ``plan="whole"`` is the paper's single pass over the prompt;
 4. de-normalise the features with the statistics stored in the checkpoint and recover joints
    (the spec's number) with ``dataset_tools.representation.recover_from_ric``.
 
@@ -43,6 +47,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
+from t2m.clauses import clause_captions, share_snippets
 from t2m.cleanup import clean_features
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
@@ -62,6 +67,8 @@ from t2m.quantize import quantize_int8
 logger = logging.getLogger(__name__)
 
 PRECISIONS = ("fp32", "bf16", "int8")
+PLANS = ("clauses", "whole")
+"""How a prompt is generated: clause by clause (:mod:`t2m.clauses`) or in one pass (the paper)."""
 
 
 @dataclass(frozen=True)
@@ -97,12 +104,15 @@ class PreparedText:
         encoded: its encoding (lower-cased, tagged, looked up).
         unknown_words: its words the model was not trained on (in prompt order).
         dropped_words: its words past the text encoder's ``max_tokens``.
+        clauses: for a prompt of several clauses (:func:`t2m.clauses.clause_captions`), each
+            clause encoded as a caption of its own; empty for a single clause.
     """
 
     text: str
     encoded: EncodedText
     unknown_words: tuple[str, ...]
     dropped_words: tuple[str, ...]
+    clauses: tuple[EncodedText, ...] = ()
 
 
 def frames_for(frames: float, spec: DatasetSpec = HUMANML3D) -> int:
@@ -414,9 +424,48 @@ class TextToMotion:
                 )
             tokens = [f"{word}/{pos}" for word, pos in pairs]
             prepared.append(
-                PreparedText(text, self.vectorizer.encode_tokens(tokens), unknown, dropped)
+                PreparedText(
+                    text,
+                    self.vectorizer.encode_tokens(tokens),
+                    unknown,
+                    dropped,
+                    self.encode_clauses(tokens),
+                )
             )
         return prepared
+
+    def encode_clauses(self, tokens: Sequence[str]) -> tuple[EncodedText, ...]:
+        """``word/POS`` tokens -> their clauses encoded as standalone captions
+        (:func:`t2m.clauses.clause_captions`), or () for a caption of one clause."""
+        clauses = clause_captions(tokens)
+        if len(clauses) < 2:
+            return ()
+        return tuple(self.vectorizer.encode_tokens(c) for c in clauses)
+
+    def clause_snippets(
+        self, clauses: Sequence[Sequence[EncodedText]], frames: Sequence[int]
+    ) -> list[list[int]]:
+        """Each item's snippets (``frames // snippet_length``) shared among its clauses in
+        proportion to the length the text2length model expects for each clause alone (its
+        mean; equal shares without a length model), at least 1 s each where there is room
+        (:func:`t2m.clauses.share_snippets`). An item with fewer snippets than clauses gets
+        one clause: ``[total]``."""
+        unit = self.spec.snippet_length
+        flat = [c for item in clauses for c in item]
+        expected = np.ones(len(flat))
+        if self.length_model is not None and flat:
+            with torch.inference_mode():
+                words, pos, lengths = self._text_batch(flat, self.length_vectorizer, torch.float32)
+                probs = torch.softmax(self.length_model(words, pos, lengths).float(), -1)
+                units = torch.arange(probs.shape[-1], dtype=probs.dtype, device=probs.device)
+                expected = (probs * units).sum(-1).cpu().numpy()
+        out, start = [], 0
+        for item, total_frames in zip(clauses, frames, strict=True):
+            total = total_frames // unit
+            weights = expected[start : start + len(item)]
+            start += len(item)
+            out.append(share_snippets(total, weights) if total >= len(item) else [total])
+        return out
 
     def _text_batch(
         self, encoded: Sequence[EncodedText], vectorizer: WordVectors, dtype: torch.dtype
@@ -465,24 +514,34 @@ class TextToMotion:
         frames: Sequence[int],
         generator: torch.Generator,
         noise: torch.Tensor | None = None,
+        clauses: Sequence[Sequence[EncodedText]] | None = None,
     ) -> list[np.ndarray]:
         """One batch: normalised-space generation -> de-normalised features (frames_i, D) each.
 
         ``noise``: the latent draws (B, max snippets, Z) (default: drawn from ``generator``);
-        given by a caller that batches requests of different seeds (``t2m.serve``)."""
+        given by a caller that batches requests of different seeds (``t2m.serve``).
+        ``clauses``: per item, its clauses as standalone captions (:meth:`encode_clauses`):
+        an item with two or more is generated clause by clause (:meth:`_clause_codes`), the
+        others in one pass; None: every item in one pass."""
         unit = self.spec.snippet_length
-        words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
-        word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
-        codes = self.vae.generate(
-            word_features,
-            sentence,
-            mask,
-            num_snippets.to(self.device),
-            self.initial_code,
-            generator,
-            noise=noise,
-        )
+        if clauses is not None and len(clauses) != len(encoded):
+            raise ValueError(f"{len(clauses)} clause lists for {len(encoded)} captions")
+        planned = clauses is not None and any(len(c) > 1 for c in clauses)
+        if planned:
+            codes = self._clause_codes(encoded, clauses, frames, generator, noise)
+        else:
+            words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
+            word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
+            codes = self.vae.generate(
+                word_features,
+                sentence,
+                mask,
+                num_snippets.to(self.device),
+                self.initial_code,
+                generator,
+                noise=noise,
+            )
         # Decode each length on its own: the transposed convolutions would carry the padding
         # past a shorter item's end into its last frames (a batch must give what batch 1 gives).
         features: list[np.ndarray] = [np.empty(0)] * len(frames)
@@ -495,6 +554,70 @@ class TextToMotion:
                 features[row] = item[: frames[row]]
         return features
 
+    def _clause_codes(
+        self,
+        encoded: Sequence[EncodedText],
+        clauses: Sequence[Sequence[EncodedText]],
+        frames: Sequence[int],
+        generator: torch.Generator,
+        noise: torch.Tensor | None,
+    ) -> torch.Tensor:
+        """Codes (B, max snippets, C) generated clause by clause.
+
+        Clause k of every item that has one runs as one batch: its standalone caption's words
+        are what the attention reads, its GRU states start from that caption's sentence feature
+        (as a caption's do in training), the time-to-arrival counts down to the clause's end,
+        and the previous code fed to its first step is the code the item's previous clause
+        ended on (the mean-pose code for the first). The latent draws are the one-pass draws
+        (B, max snippets, Z), each clause reading its own stretch of them, so an item of one
+        clause gets exactly what the one-pass plan gives it."""
+        vae, device = self.vae, self.device
+        lists = [list(c) if len(c) > 1 else [e] for c, e in zip(clauses, encoded, strict=True)]
+        snippets = self.clause_snippets(lists, frames)
+        lists = [c if len(n) == len(c) else [e] for c, n, e in zip(lists, snippets, encoded)]
+        batch = len(lists)
+        total = torch.tensor([sum(n) for n in snippets], dtype=torch.long, device=device)
+        steps = int(total.max())
+        latent = vae.config.latent_size
+        if noise is None:
+            noise = torch.randn(
+                batch, steps, latent, generator=generator, device=device, dtype=self.dtype
+            )
+        elif noise.shape != (batch, steps, latent):
+            raise ValueError(
+                f"noise must be (B, S, Z) = {(batch, steps, latent)}, got {tuple(noise.shape)}"
+            )
+        codes = torch.zeros(batch, steps, vae.code_size, device=device, dtype=self.dtype)
+        previous = self.initial_code.to(device, self.dtype).expand(batch, vae.code_size).clone()
+        offset = torch.zeros(batch, dtype=torch.long, device=device)
+        for k in range(max(len(c) for c in lists)):
+            rows = torch.tensor([b for b in range(batch) if len(lists[b]) > k], device=device)
+            words, pos, text_lengths = self._text_batch(
+                [lists[b][k] for b in rows.tolist()], self.vectorizer, self.dtype
+            )
+            word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
+            count = torch.tensor([snippets[b][k] for b in rows.tolist()], device=device)
+            width = int(count.max())
+            span = offset[rows, None] + torch.arange(width, device=device)[None, :]  # (R, W)
+            span = span.clamp(max=steps - 1)
+            draws = noise[rows[:, None], span]  # (R, W, Z)
+            made = vae.generate(
+                word_features,
+                sentence,
+                mask,
+                count,
+                noise=draws,
+                state=vae.initial_state(sentence, previous[rows]),
+            )
+            inside = torch.arange(width, device=device)[None, :] < count[:, None]
+            row_index = rows[:, None].expand(-1, width)[inside]
+            codes[row_index, span[inside]] = made[inside].to(codes.dtype)
+            previous[rows] = made[torch.arange(len(rows), device=device), count - 1].to(
+                previous.dtype
+            )
+            offset[rows] += count
+        return codes
+
     def generate(
         self,
         texts: str | Sequence[str],
@@ -504,6 +627,7 @@ class TextToMotion:
         batch_size: int = 32,
         progress: bool = False,
         clean: bool = True,
+        plan: str = "clauses",
     ) -> list[list[GeneratedMotion]]:
         """Generate ``num_samples`` motions per prompt.
 
@@ -518,6 +642,8 @@ class TextToMotion:
             clean: foot-contact clean-up (:func:`t2m.cleanup.clean_features`: planted feet
                 held still and on the floor, legs fixed by IK); False gives the raw model
                 output.
+            plan: ``"clauses"``: a prompt of several clauses is generated clause by clause
+                (:meth:`generate_features`); ``"whole"``: every prompt in one pass (the paper).
 
         Returns:
             ``motions[prompt][sample]``.
@@ -529,6 +655,8 @@ class TextToMotion:
             raise ValueError(f"num_samples must be >= 1, got {num_samples}")
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if plan not in PLANS:
+            raise ValueError(f"unknown plan {plan!r}; use one of {', '.join(PLANS)}")
         # 1. words
         prepared = self.prepare(texts)
         # 2. lengths, one per motion (prompt-major)
@@ -562,7 +690,10 @@ class TextToMotion:
         for start in range(0, len(order), batch_size):
             batch = order[start : start + batch_size]
             features = self.generate_features(
-                [prepared[p].encoded for p, _ in batch], [frames[i] for i in batch], generator
+                [prepared[p].encoded for p, _ in batch],
+                [frames[i] for i in batch],
+                generator,
+                clauses=[prepared[p].clauses for p, _ in batch] if plan == "clauses" else None,
             )
             for (p, r), feats in zip(batch, features):
                 joints, feats = self.finish(feats, clean)

@@ -402,6 +402,7 @@ def sample_to_folder(
     extra_info: dict | None = None,
     glb: bool = False,
     clean: bool = True,
+    plan: str = "clauses",
 ) -> Path:
     """Generate motions for ``prompts`` with a :class:`t2m.pipeline.TextToMotion` and write every
     file of the output contract into ``out``; returns ``out``. Nothing is left in ``out`` on error.
@@ -419,6 +420,7 @@ def sample_to_folder(
             batch_size=batch_size,
             progress=True,
             clean=clean,
+            plan=plan,
         ),
         pipe.spec,
         out,
@@ -574,6 +576,9 @@ class SampleConfig(OutputOptions):
     clean: bool = True
     """foot-contact clean-up: planted feet held still on the floor, legs fixed by IK
     (--no-clean: the model's raw output)"""
+    plan: Literal["clauses", "whole"] = "clauses"
+    """clauses: a prompt of several clauses ("jumps twice, then waves") is generated clause by
+    clause, each with its share of the length; whole: the whole prompt in one pass (the paper)"""
 
     def __post_init__(self) -> None:
         if (self.text is None) == (self.text_file is None):
@@ -649,8 +654,10 @@ def main(argv: list[str] | None = None) -> int:
             "precision": config.precision,
             "batch_size": config.batch_size,
             "clean": config.clean,
+            "plan": config.plan,
         },
         clean=config.clean,
+        plan=config.plan,
     )
     logger.info("wrote %s", out)
     return 0

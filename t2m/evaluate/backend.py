@@ -165,13 +165,16 @@ class CheckpointBackend:
         batch_size: items per forward pass.
     """
 
-    def __init__(self, evaluator: Any, pipeline: Any, batch_size: int = 128):
+    def __init__(self, evaluator: Any, pipeline: Any, batch_size: int = 128, plan: str = "whole"):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         embedder = evaluator if isinstance(evaluator, Embedder) else Embedder.from_stage(evaluator)
         self.embedder = embedder
         self.pipeline = pipeline
         self.batch_size = batch_size
+        self.plan = plan
+        """how captions are generated: "whole" (one pass, the paper) or "clauses"
+        (:meth:`t2m.pipeline.TextToMotion.generate_features` with each caption's clauses)"""
         self.evaluator = embedder.evaluator
         self.device = next(self.evaluator.parameters()).device
         if embedder.normalizer.dim != pipeline.normalizer.dim:
@@ -199,6 +202,7 @@ class CheckpointBackend:
         precision: str = "fp32",
         evaluator_dir: str | Path | None = None,
         glove_dir: str | Path | None = None,
+        plan: str = "whole",
     ) -> CheckpointBackend:
         """Load the generator and length stages of a run folder, or the original T2M release's
         models (any folder of its layout), and the evaluator (:meth:`Embedder.load`): the one
@@ -214,7 +218,7 @@ class CheckpointBackend:
         pipeline = TextToMotion.from_checkpoints(
             run_dir, str(resolved), precision, which=which, glove_dir=glove_dir
         )
-        return cls(embedder, pipeline, batch_size)
+        return cls(embedder, pipeline, batch_size, plan)
 
     def _encode(self, vectorizer: Any, captions: Sequence[Caption]) -> list[Any]:
         """Dataset tokens (``word/POS``) -> EncodedText, as the models were trained on them."""
@@ -226,6 +230,13 @@ class CheckpointBackend:
                 self._encoded[key] = vectorizer.encode_tokens(caption.tokens)
             out.append(self._encoded[key])
         return out
+
+    def _clauses(self, pipeline: Any, caption: Caption) -> tuple[Any, ...]:
+        """A caption's clauses encoded as standalone captions (cached like :meth:`_encode`)."""
+        key = ("clauses", tuple(caption.tokens))
+        if key not in self._encoded:
+            self._encoded[key] = pipeline.encode_clauses(caption.tokens)
+        return self._encoded[key]
 
     @torch.no_grad()
     def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
@@ -286,10 +297,16 @@ class CheckpointBackend:
             frames = np.asarray(lengths, dtype=np.int64)
             if len(frames) != len(captions):
                 raise ValueError(f"{len(frames)} lengths for {len(captions)} captions")
+        clauses = None
+        if self.plan == "clauses":
+            clauses = [self._clauses(pipeline, c) for c in captions]
         out: list[np.ndarray | None] = [None] * len(captions)
         for index in generation_batches(frames, self.batch_size):
             features = pipeline.generate_features(
-                [encoded[i] for i in index], [int(frames[i]) for i in index], generator
+                [encoded[i] for i in index],
+                [int(frames[i]) for i in index],
+                generator,
+                clauses=None if clauses is None else [clauses[i] for i in index],
             )
             for item, feats in zip(index, features, strict=True):
                 out[item] = feats

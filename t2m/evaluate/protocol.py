@@ -114,6 +114,9 @@ class EvalConfig:
     evaluator always runs in float32"""
     quick: bool = False
     """development run: few replications on a subset, marked as such in every output"""
+    plan: Literal["whole", "clauses"] = "whole"
+    """how a caption is generated: whole (one pass, as the paper evaluates) or clauses (a
+    caption of several clauses clause by clause, as t2m.sample does by default; t2m.clauses)"""
     clean: bool = False
     """pass generated motions through the foot-contact clean-up (t2m.cleanup, as t2m.sample
     does by default) before they are embedded and scored; the standard protocol judges the raw
@@ -172,6 +175,7 @@ def deviations(config: EvalConfig, num_items: int) -> list[str]:
         "pool_size",
         "mm_pairs",
         "precision",
+        "plan",
         "clean",
     ):
         value, standard = getattr(config, key), getattr(STANDARD, key)

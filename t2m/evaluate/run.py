@@ -117,6 +117,7 @@ def evaluate(
                 config.precision,
                 evaluator_dir,
                 glove_dir,
+                config.plan,
             )
         except ValueError as error:  # unknown device, missing stage or file, models that differ
             raise UsageError(str(error)) from None

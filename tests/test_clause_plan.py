@@ -1,0 +1,114 @@
+"""Clause-by-clause generation (TextToMotion plan="clauses") on the session's tiny models."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from t2m.evaluate.protocol import EvalConfig, deviations
+from t2m.pipeline import PLANS, TextToMotion
+
+TWO = "a person walks forward, then jumps up and down"
+THREE = "a person turns to the left and then walks forward, after that jumps"
+ONE = "a person walks forward"
+
+
+@pytest.fixture(scope="module")
+def pipe(tiny_run: Path) -> TextToMotion:
+    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
+
+
+def test_prepare_finds_the_clauses(pipe):
+    one, two, three = pipe.prepare([ONE, TWO, THREE])
+    assert one.clauses == ()
+    assert len(two.clauses) == 2 and len(three.clauses) == 3
+    # each clause is a caption of its own: "then jumps up and down" -> "a person jump up and down"
+    expected = pipe.vectorizer.encode_tokens(
+        "a/DET person/NOUN jump/VERB up/ADP and/CCONJ down/ADP".split()
+    )
+    np.testing.assert_array_equal(two.clauses[1].words, expected.words)
+    assert two.clauses[1].length == expected.length
+
+
+def test_clause_snippets_follow_the_length_model(pipe):
+    two = pipe.prepare([TWO])[0]
+    shares = pipe.clause_snippets([two.clauses], [160])[0]
+    assert sum(shares) == 40 and min(shares) >= 5
+    with torch.inference_mode():
+        words, pos, lengths = pipe._text_batch(
+            list(two.clauses), pipe.length_vectorizer, torch.float32
+        )
+        probs = torch.softmax(pipe.length_model(words, pos, lengths), -1)
+        expected = (probs * torch.arange(probs.shape[-1])).sum(-1).numpy()
+    ideal = expected / expected.sum() * 40
+    assert np.abs(np.array(shares) - ideal).max() <= 1.0 or min(shares) == 5
+    # fewer snippets than clauses: one clause
+    assert pipe.clause_snippets([two.clauses], [4])[0] == [1]
+
+
+def test_one_clause_prompts_are_what_the_whole_plan_gives(pipe):
+    texts = [ONE, TWO, "someone jumps up and down"]
+    kwargs = dict(num_samples=2, lengths=[48, 96, 60], seed=3, batch_size=8)
+    whole = pipe.generate(texts, plan="whole", **kwargs)
+    clauses = pipe.generate(texts, plan="clauses", **kwargs)
+    for p in (0, 2):  # the same draws and weights; the batch's other captions differ
+        for a, b in zip(whole[p], clauses[p]):
+            np.testing.assert_allclose(a.features, b.features, rtol=1e-3, atol=1e-4)
+    alone = [pipe.generate([ONE], plan=plan, num_samples=2, lengths=48, seed=3) for plan in PLANS]
+    for a, b in zip(alone[0][0], alone[1][0]):
+        np.testing.assert_array_equal(a.features, b.features)
+    assert all(m.num_frames == 96 for m in clauses[1])
+    assert not np.array_equal(whole[1][0].features, clauses[1][0].features)
+    with pytest.raises(ValueError, match="plan"):
+        pipe.generate(texts, plan="sentences")
+
+
+def test_clause_codes_chain_the_clauses(pipe):
+    """The batched plan equals each item generated clause by clause with the step-by-step
+    rollout: clause k reads its own caption, starts its GRU states from that caption's
+    sentence, is fed the code clause k-1 ended on, counts down to its own end, and reads its
+    stretch of the item's latent draws."""
+    prepared = pipe.prepare([THREE, ONE, TWO])
+    frames = [120, 64, 96]
+    clauses = [p.clauses for p in prepared]
+    unit = pipe.spec.snippet_length
+    steps = max(frames) // unit
+    noise = torch.randn(
+        3, steps, pipe.vae.config.latent_size, generator=torch.Generator().manual_seed(0)
+    )
+    with torch.inference_mode():
+        codes = pipe._clause_codes([p.encoded for p in prepared], clauses, frames, None, noise)
+    lists = [list(c) if c else [p.encoded] for c, p in zip(clauses, prepared)]
+    shares = pipe.clause_snippets(lists, frames)
+    vae = pipe.vae
+    for b, (items, counts) in enumerate(zip(lists, shares)):
+        previous, start, made = pipe.initial_code, 0, []
+        for caption, count in zip(items, counts):
+            words, pos, lengths = pipe._text_batch([caption], pipe.vectorizer, pipe.dtype)
+            with torch.inference_mode():
+                features, sentence, mask = vae.encode_text(words, pos, lengths)
+                out = vae.generate(
+                    features,
+                    sentence,
+                    mask,
+                    torch.tensor([count]),
+                    noise=noise[b : b + 1, start : start + count],
+                    state=vae.initial_state(sentence, previous),
+                    fast=False,
+                )
+            made.append(out[0])
+            previous, start = out[0, -1], start + count
+        expected = torch.cat(made)
+        assert len(expected) == frames[b] // unit
+        torch.testing.assert_close(codes[b, : len(expected)], expected, rtol=1e-4, atol=1e-5)
+        assert torch.all(codes[b, len(expected) :] == 0)
+
+
+def test_evaluation_plan_is_a_marked_deviation():
+    assert EvalConfig().plan == "whole"
+    notes = deviations(EvalConfig(plan="clauses"), 10)
+    assert any("plan = clauses" in note for note in notes)
+    assert not any("plan" in note for note in deviations(EvalConfig(), 10))

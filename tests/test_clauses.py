@@ -1,0 +1,106 @@
+"""Clause splitting and length sharing (t2m.clauses)."""
+
+import pytest
+
+from t2m.clauses import clause_captions, share_snippets, split_clauses, standalone
+
+
+def tokens(tagged: str) -> list[str]:
+    return tagged.split()
+
+
+def words_of(tagged: str) -> list[str]:
+    toks = tokens(tagged)
+    return [" ".join(t.split("/")[0] for t in toks[r.start : r.stop]) for r in split_clauses(toks)]
+
+
+@pytest.mark.parametrize(
+    ("tagged", "expected"),
+    [
+        ("a/DET person/NOUN walk/VERB forward/ADV", ["a person walk forward"]),
+        (
+            "a/DET person/NOUN jump/VERB twice/ADV then/ADV wave/VERB",
+            ["a person jump twice", "then wave"],
+        ),
+        (
+            "a/DET man/NOUN kick/VERB and/CCONJ then/ADV sit/VERB down/ADP",
+            ["a man kick", "and then sit down"],
+        ),
+        (
+            "someone/PRON hop/VERB after/ADP that/DET run/VERB",
+            ["someone hop", "after that run"],
+        ),
+        (
+            "a/DET figure/NOUN bow/VERB before/ADP walk/VERB backward/ADV",
+            ["a figure bow", "before walk backward"],
+        ),
+        (  # a leading "after" clause ends where the main clause's subject starts
+            "after/ADP raise/VERB the/DET right/ADJ hand/NOUN up/ADP the/DET figure/NOUN "
+            "take/VERB a/DET bow/NOUN",
+            ["after raise the right hand up", "the figure take a bow"],
+        ),
+        (
+            "after/ADP wave/VERB someone/PRON sit/VERB",
+            ["after wave", "someone sit"],
+        ),
+        (  # "and" alone and "while" keep one clause: simultaneous or unclear
+            "a/DET person/NOUN walk/VERB and/CCONJ wave/VERB while/SCONJ turn/VERB",
+            ["a person walk and wave while turn"],
+        ),
+        (
+            "a/DET person/NOUN squat/VERB then/ADV jump/VERB and/CCONJ then/ADV kick/VERB "
+            "after/ADP that/DET bow/VERB",
+            ["a person squat", "then jump", "and then kick", "after that bow"],
+        ),
+        ("then/ADV walk/VERB", ["then walk"]),
+    ],
+)
+def test_split_clauses(tagged, expected):
+    assert words_of(tagged) == expected
+
+
+def test_split_clauses_covers_every_token_once():
+    toks = tokens("a/DET person/NOUN run/VERB then/ADV then/ADV stop/VERB")
+    ranges = split_clauses(toks)
+    assert [i for r in ranges for i in r] == list(range(len(toks)))
+    assert all(len(r) > 0 for r in ranges)
+    assert split_clauses([]) == [range(0, 0)]
+
+
+def test_share_snippets_proportional_with_a_floor():
+    assert share_snippets(40, [1.0, 3.0]) == [10, 30]
+    assert sum(share_snippets(49, [1.0, 1.0, 1.0])) == 49
+    # a clause expected to be tiny still gets the floor (5 snippets = 1 s)
+    assert share_snippets(40, [0.01, 1.0]) == [5, 35]
+    # too short for the floor: as even as it gets, never zero
+    assert share_snippets(6, [1.0, 100.0, 1.0]) == [2, 2, 2]
+    assert share_snippets(3, [1.0, 1.0, 1.0]) == [1, 1, 1]
+    with pytest.raises(ValueError):
+        share_snippets(2, [1.0, 1.0, 1.0])
+
+
+@pytest.mark.parametrize(
+    ("clause", "expected"),
+    [
+        ("then/ADV wave/VERB", "a person wave"),
+        ("and/CCONJ then/ADV sit/VERB down/ADP", "a person sit down"),
+        ("after/ADP that/DET bow/VERB", "a person bow"),
+        ("before/ADP walk/VERB backward/ADV", "a person walk backward"),
+        ("after/ADP raise/VERB the/DET hand/NOUN", "a person raise the hand"),
+        ("the/DET figure/NOUN take/VERB a/DET bow/NOUN", "the figure take a bow"),
+        ("someone/PRON hop/VERB", "someone hop"),
+        ("a/DET man/NOUN kick/VERB", "a man kick"),
+    ],
+)
+def test_standalone(clause, expected):
+    assert " ".join(t.split("/")[0] for t in standalone(tokens(clause))) == expected
+
+
+def test_clause_captions():
+    one = tokens("a/DET person/NOUN walk/VERB and/CCONJ wave/VERB")
+    assert clause_captions(one) == [one]
+    two = clause_captions(tokens("a/DET woman/NOUN jump/VERB twice/ADV then/ADV clap/VERB"))
+    assert two == [
+        tokens("a/DET woman/NOUN jump/VERB twice/ADV"),
+        tokens("a/DET person/NOUN clap/VERB"),
+    ]
