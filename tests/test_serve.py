@@ -257,10 +257,12 @@ def test_batching_requests_gives_each_what_it_gets_alone(pipe):
         GenerationJob(["a person walks forward"], [None], 3, seed=1, precision="fp32"),
         GenerationJob(["someone jumps up and down", "a person turns"], [60, 100], 1, 2, "fp32"),
         GenerationJob(["qwzx"], [40], 1, seed=3, precision="fp32"),  # refused, the others run
+        # generated clause by clause, as pipe.generate does by default
+        GenerationJob(["a person walks forward, then jumps up and down"], [96], 2, 4, "fp32"),
     ]
     generate_jobs(pipe, jobs)
     assert "no known word" in str(jobs[2].error)
-    for job in jobs[:2]:
+    for job in (jobs[0], jobs[1], jobs[3]):
         alone = pipe.generate(job.texts, job.num_samples, job.frames, seed=job.seed)
         for row, expected in zip(job.result[0], alone):
             for motion, reference in zip(row, expected):

@@ -110,12 +110,15 @@ def generate_jobs(pipe: TextToMotion, jobs: list[GenerationJob]) -> None:
     if not prepared_jobs:
         return
     steps = max(rows.noise.shape[1] for rows in prepared_jobs)
-    encoded, frames, noise = [], [], []
+    encoded, clauses, frames, noise = [], [], [], []
     for rows in prepared_jobs:
         encoded += [rows.prepared[p].encoded for p, _ in rows.items]
+        clauses += [rows.prepared[p].clauses for p, _ in rows.items]  # clause by clause
         frames += rows.frames
         noise.append(torch.nn.functional.pad(rows.noise, (0, 0, 0, steps - rows.noise.shape[1])))
-    features = pipe.generate_features(encoded, frames, generator=None, noise=torch.cat(noise))
+    features = pipe.generate_features(
+        encoded, frames, generator=None, noise=torch.cat(noise), clauses=clauses
+    )
     start = 0
     for rows in prepared_jobs:
         job = rows.job
