@@ -133,3 +133,27 @@ def test_a_table_keeps_the_release_motion_word_lists():
         again.encode_tokens(["head/NOUN"]).pos_onehot,
         release.encode_tokens(["head/NOUN"]).pos_onehot,
     )
+
+
+def test_counts_column_names_the_number_a_word_names(tmp_path):
+    words = ["sos", "eos", "unk", "walk", "twice", "five", "seven", "clap"]
+    path = _glove_file(tmp_path / "glove.6d.txt", words)
+    plain = load_vectorizer(str(path))
+    counted = load_vectorizer(str(path) + words_module.COUNTS_SUFFIX)
+    assert counted.dim == plain.dim + 1 and counted.words == plain.words
+    np.testing.assert_array_equal(counted.vectors[:, :-1], plain.vectors)
+    column = dict(zip(counted.words, counted.vectors[:, -1]))
+    scale = words_module.COUNT_SCALE
+    assert column["twice"] == 2 / scale and column["five"] == 5 / scale
+    assert column["seven"] == 7 / scale and column["walk"] == column["clap"] == 0
+    encoded = counted.encode_tokens("a/DET person/NOUN clap/VERB five/NUM time/NOUN".split())
+    assert encoded.words.shape == (22, 7) and encoded.words[4, -1] == 5 / scale
+    # a checkpoint's table keeps the column, and a table naming the source rebuilds it
+    table = counted.subset(["clap", "five"], margin=0)
+    assert vectorizer_from_info(table.info()).vectors[:, -1].tolist() == [
+        column[w] for w in table.words
+    ]
+    whole = vectorizer_from_info(counted.info())
+    assert whole.fingerprint() == counted.fingerprint() != plain.fingerprint()
+    with pytest.raises(ValueError, match="trainable"):  # built from captions, not loaded
+        load_vectorizer("trainable" + words_module.COUNTS_SUFFIX)

