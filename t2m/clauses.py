@@ -24,6 +24,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from t2m.data.words import MOTION_WORDS
+
 CONNECTIVES = frozenset(
     {"then", "afterwards", "afterward", "subsequently", "finally", "later", "next"}
 )
@@ -50,6 +52,9 @@ PERSON_NOUNS = frozenset(
         "dancer",
     }
 )
+
+EXTRA_VERBS = frozenset({"bow", "clap", "march", "wave", "hop", "squat", "punch", "kick"})
+"""Motion verbs a tagger often calls nouns, besides the vocabulary's action words."""
 
 MIN_CLAUSE_SNIPPETS = 5
 """A clause gets at least this many snippets (1 s at 20 fps) when the motion has room."""
@@ -99,7 +104,38 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
         if starts_here and i > starts[-1]:
             starts.append(i)
     ends = starts[1:] + [count]
-    return [range(s, e) for s, e in zip(starts, ends)]
+    ranges = [range(s, e) for s, e in zip(starts, ends)]
+    # A part that names no action ("walks forward, then back", "raises the arm, then down") is
+    # no clause of its own: it joins the one before it (the first such part, the one after it).
+    kept: list[range] = []
+    pending: int | None = None
+    for part in ranges:
+        start = part.start if pending is None else pending
+        if _has_predicate([words[i] for i in part], [tags[i] for i in part]):
+            kept.append(range(start, part.stop))
+            pending = None
+        elif kept:
+            kept[-1] = range(kept[-1].start, part.stop)
+        else:
+            pending = start
+    if pending is not None:  # no part names an action: one clause
+        return [range(0, count)]
+    return kept
+
+
+def _has_predicate(words: Sequence[str], tags: Sequence[str]) -> bool:
+    """Whether a part names an action: a word tagged VERB, a motion verb the tagger may call a
+    noun ("waves", "lowers": the vocabulary's action words, :data:`EXTRA_VERBS`), or a noun right
+    after its connective and subject ("then sidestep to the left", "then leap forward")."""
+    actions = MOTION_WORDS["ACTION"]
+    if any(t == "VERB" or w in actions or w in EXTRA_VERBS for w, t in zip(words, tags)):
+        return True
+    start = _connective_length(words)
+    if start < len(words) and words[start] in SUBJECT_PRONOUNS:
+        start += 1
+    elif start + 1 < len(words) and tags[start] == "DET" and words[start + 1] in PERSON_NOUNS:
+        start += 2
+    return start < len(words) and tags[start] == "NOUN"
 
 
 LEADING_CONNECTIVES = (
@@ -127,6 +163,14 @@ SUBJECT = ("a/DET", "person/NOUN")
 """The subject given to a clause that has none ("then waves" -> "a person waves")."""
 
 
+def _connective_length(words: Sequence[str]) -> int:
+    """How many of ``words`` open a clause as its connective (0: none; one word is always left)."""
+    for pattern in LEADING_CONNECTIVES:
+        if tuple(words[: len(pattern)]) == pattern and len(words) > len(pattern):
+            return len(pattern)
+    return 0
+
+
 def standalone(tokens: Sequence[str]) -> list[str]:
     """One clause's tokens as a caption of its own, as the models were trained on: the opening
     connective dropped ("then", "after that", "before", ...) and, where the clause does not
@@ -134,11 +178,7 @@ def standalone(tokens: Sequence[str]) -> list[str]:
     captions): the length model's estimates of standalone clauses follow the clauses' real
     lengths with correlation 0.87 (0.73 as cut), their shares of the motion within 0.05 (0.08)."""
     words = [_word_pos(t)[0] for t in tokens]
-    start = 0
-    for pattern in LEADING_CONNECTIVES:
-        if tuple(words[: len(pattern)]) == pattern and len(words) > len(pattern):
-            start = len(pattern)
-            break
+    start = _connective_length(words)
     rest = list(tokens[start:])
     first = words[start:]
     has_subject = bool(first) and (

@@ -104,3 +104,25 @@ def test_clause_captions():
         tokens("a/DET woman/NOUN jump/VERB twice/ADV"),
         tokens("a/DET person/NOUN clap/VERB"),
     ]
+
+
+@pytest.mark.parametrize(
+    ("tagged", "expected"),
+    [
+        (  # elliptic parts join the clause before them
+            "a/DET person/NOUN walk/VERB forward/ADV then/ADV back/ADV",
+            ["a person walk forward then back"],
+        ),
+        (
+            "someone/PRON raise/VERB the/DET arm/NOUN then/ADV down/ADP then/ADV clap/NOUN",
+            ["someone raise the arm then down", "then clap"],
+        ),
+        (  # a motion verb the tagger called a noun still makes a clause
+            "a/DET human/NOUN hop/VERB twice/ADV then/ADV wave/NOUN with/ADP both/DET hand/NOUN",
+            ["a human hop twice", "then wave with both hand"],
+        ),
+        ("then/ADV quickly/ADV", ["then quickly"]),
+    ],
+)
+def test_parts_without_a_verb_are_no_clauses(tagged, expected):
+    assert words_of(tagged) == expected
