@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -112,3 +113,20 @@ def test_evaluation_plan_is_a_marked_deviation():
     notes = deviations(EvalConfig(plan="clauses"), 10)
     assert any("plan = clauses" in note for note in notes)
     assert not any("plan" in note for note in deviations(EvalConfig(), 10))
+
+
+def test_sample_cli_plan_option(tiny_run, tmp_path):
+    from t2m import sample
+
+    joints = {}
+    for plan in ("clauses", "whole"):
+        out = tmp_path / plan
+        argv = ["--text", TWO, "--length", "96", "--checkpoints", str(tiny_run)]
+        argv += ["--out", str(out), "--render", "none", "--plan", plan, "--seed", "1"]
+        assert sample.main(argv) == 0
+        summary = json.loads((out / "results.json").read_text())
+        assert summary["plan"] == plan
+        joints[plan] = np.load(out / "sample00_rep00.npy")
+    assert joints["clauses"].shape == joints["whole"].shape == (96, 22, 3)
+    assert not np.array_equal(joints["clauses"], joints["whole"])
+    assert sample.main(["--text", TWO, "--checkpoints", str(tiny_run), "--plan", "words"]) == 2
