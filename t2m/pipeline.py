@@ -451,7 +451,7 @@ class TextToMotion:
         (:func:`t2m.clauses.share_snippets`). An item with fewer snippets than clauses gets
         one clause: ``[total]``."""
         unit = self.spec.snippet_length
-        flat = [c for item in clauses for c in item]
+        flat = [c for item in clauses if len(item) > 1 for c in item]  # one clause: no sharing
         expected = np.ones(len(flat))
         if self.length_model is not None and flat:
             with torch.inference_mode():
@@ -462,6 +462,9 @@ class TextToMotion:
         out, start = [], 0
         for item, total_frames in zip(clauses, frames, strict=True):
             total = total_frames // unit
+            if len(item) < 2:
+                out.append([total])
+                continue
             weights = expected[start : start + len(item)]
             start += len(item)
             out.append(share_snippets(total, weights) if total >= len(item) else [total])
