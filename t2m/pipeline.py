@@ -579,8 +579,7 @@ class TextToMotion:
         snippets = self.clause_snippets(lists, frames)
         lists = [c if len(n) == len(c) else [e] for c, n, e in zip(lists, snippets, encoded)]
         batch = len(lists)
-        total = torch.tensor([sum(n) for n in snippets], dtype=torch.long, device=device)
-        steps = int(total.max())
+        steps = max(sum(n) for n in snippets)
         latent = vae.config.latent_size
         if noise is None:
             noise = torch.randn(
@@ -594,13 +593,15 @@ class TextToMotion:
         previous = self.initial_code.to(device, self.dtype).expand(batch, vae.code_size).clone()
         offset = torch.zeros(batch, dtype=torch.long, device=device)
         for k in range(max(len(c) for c in lists)):
-            rows = torch.tensor([b for b in range(batch) if len(lists[b]) > k], device=device)
+            members = [b for b in range(batch) if len(lists[b]) > k]  # items with a clause k
+            sizes = [snippets[b][k] for b in members]
+            rows = torch.tensor(members, device=device)
             words, pos, text_lengths = self._text_batch(
-                [lists[b][k] for b in rows.tolist()], self.vectorizer, self.dtype
+                [lists[b][k] for b in members], self.vectorizer, self.dtype
             )
             word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
-            count = torch.tensor([snippets[b][k] for b in rows.tolist()], device=device)
-            width = int(count.max())
+            count = torch.tensor(sizes, device=device)
+            width = max(sizes)  # from the host's lists: no device sync
             span = offset[rows, None] + torch.arange(width, device=device)[None, :]  # (R, W)
             span = span.clamp(max=steps - 1)
             draws = noise[rows[:, None], span]  # (R, W, Z)
