@@ -29,6 +29,7 @@ import torch
 from torch import nn
 
 from t2m.models.fast_recurrence import GenerationPlan, set_generation_plan
+from t2m.models.fused_gru import FastLinear, plain_linear
 from t2m.models.temporal_vae import TemporalVAE
 
 
@@ -106,6 +107,8 @@ def _convert(module: nn.Module, types: dict[type, type]) -> nn.Module:
     paper-size generation process's peak)."""
     from torch.ao.quantization import default_dynamic_qconfig
 
+    if isinstance(module, FastLinear):
+        module = plain_linear(module)
     quantized = types.get(type(module))
     if quantized is not None:
         module.qconfig = default_dynamic_qconfig

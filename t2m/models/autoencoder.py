@@ -16,6 +16,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from t2m.config import AutoencoderConfig
+from t2m.models.fused_gru import FastLinear
 
 CONTACT_DIMS = 4
 SNIPPET_FRAMES = 4
@@ -46,7 +47,7 @@ class MovementEncoder(nn.Module):
             nn.Dropout(config.dropout),
             nn.LeakyReLU(0.2),
         )
-        self.out = nn.Linear(config.code_size, config.code_size)
+        self.out = FastLinear(config.code_size, config.code_size)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         hidden = self.net(features.transpose(1, 2)).transpose(1, 2)  # (B, T/4, C)
@@ -64,7 +65,7 @@ class MovementDecoder(nn.Module):
             nn.ConvTranspose1d(config.hidden_size, output_size, 4, 2, 1),
             nn.LeakyReLU(0.2),
         )
-        self.out = nn.Linear(output_size, output_size)
+        self.out = FastLinear(output_size, output_size)
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:
         hidden = self.net(codes.transpose(1, 2)).transpose(1, 2)  # (B, 4S, D)

@@ -12,10 +12,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.nn.utils.rnn import pack_padded_sequence
 
 from t2m.config import AutoencoderConfig, EvaluatorConfig
 from t2m.models.autoencoder import CONTACT_DIMS, SNIPPET_FRAMES, MovementEncoder
+from t2m.models.fused_gru import FastLinear, bidirectional_gru
 from t2m.models.text_encoder import ProjectedTextEncoder
 
 
@@ -25,23 +25,20 @@ class MotionEmbedder(nn.Module):
     def __init__(self, code_size: int, hidden_size: int, embedding_size: int):
         super().__init__()
         self.hidden_size = hidden_size
-        self.input_projection = nn.Linear(code_size, hidden_size)
+        self.input_projection = FastLinear(code_size, hidden_size)
         self.gru = nn.GRU(hidden_size, hidden_size, batch_first=True, bidirectional=True)
         self.initial_hidden = nn.Parameter(torch.randn(2, 1, hidden_size) * 0.01)
         self.head = nn.Sequential(
-            nn.Linear(2 * hidden_size, hidden_size),
+            FastLinear(2 * hidden_size, hidden_size),
             nn.LayerNorm(hidden_size),
             nn.LeakyReLU(0.2),
-            nn.Linear(hidden_size, embedding_size),
+            FastLinear(hidden_size, embedding_size),
         )
 
     def forward(self, codes: torch.Tensor, num_snippets: torch.Tensor) -> torch.Tensor:
         inputs = self.input_projection(codes)
         hidden = self.initial_hidden.expand(2, codes.shape[0], self.hidden_size).contiguous()
-        packed = pack_padded_sequence(
-            inputs, num_snippets.cpu().clamp(min=1), batch_first=True, enforce_sorted=False
-        )
-        _, last = self.gru(packed, hidden)
+        _, last = bidirectional_gru(self.gru, inputs, num_snippets.cpu().clamp(min=1), hidden)
         return self.head(torch.cat([last[0], last[1]], dim=-1))
 
 

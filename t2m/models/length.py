@@ -13,6 +13,7 @@ from torch import nn
 
 from dataset_tools.skeleton import HUMANML3D
 from t2m.config import LengthModelConfig
+from t2m.models.fused_gru import FastLinear
 from t2m.models.text_encoder import TextEncoder
 
 
@@ -26,9 +27,9 @@ class LengthEstimator(nn.Module):
         layers: list[nn.Module] = []
         size = self.text_encoder.output_size
         for width in config.mlp_sizes:
-            layers += [nn.Linear(size, width), nn.LayerNorm(width), nn.LeakyReLU(0.2)]
+            layers += [FastLinear(size, width), nn.LayerNorm(width), nn.LeakyReLU(0.2)]
             size = width
-        layers.append(nn.Linear(size, config.num_classes))
+        layers.append(FastLinear(size, config.num_classes))
         self.head = nn.Sequential(*layers)
 
     def forward(

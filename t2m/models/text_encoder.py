@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import torch
 from torch import nn
-from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
 from t2m.config import TextEncoderConfig
 from t2m.data.words import NUM_POS
+from t2m.models.fused_gru import FastLinear, bidirectional_gru
 
 
 class TextEncoder(nn.Module):
@@ -35,8 +35,8 @@ class TextEncoder(nn.Module):
         self.hidden_size = config.hidden_size
         self.flip_backward_words = config.flip_backward_words
         self.embedding = nn.Embedding(vocab_size, word_dim) if vocab_size > 0 else None
-        self.pos_embedding = nn.Linear(NUM_POS, word_dim)
-        self.input_projection = nn.Linear(word_dim, config.hidden_size)
+        self.pos_embedding = FastLinear(NUM_POS, word_dim)
+        self.input_projection = FastLinear(word_dim, config.hidden_size)
         self.gru = nn.GRU(
             config.hidden_size, config.hidden_size, batch_first=True, bidirectional=True
         )
@@ -57,27 +57,23 @@ class TextEncoder(nn.Module):
         return self.input_projection(words + self.pos_embedding(pos))
 
     def _run(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor):
-        """The packed GRU over the tokens: (packed outputs, last states (2, B, H), max length)."""
+        """The GRU over each caption's tokens (:func:`t2m.models.fused_gru.bidirectional_gru`):
+        (outputs (B, L, 2H), zero past each length; last states (2, B, H))."""
         inputs = self.embed(words, pos)
-        batch, max_len = inputs.shape[:2]
-        hidden = self.initial_hidden.expand(2, batch, self.hidden_size).contiguous()
-        packed = pack_padded_sequence(inputs, lengths.cpu(), batch_first=True, enforce_sorted=False)
-        outputs, last = self.gru(packed, hidden)
-        return outputs, last, max_len
+        hidden = self.initial_hidden.expand(2, inputs.shape[0], self.hidden_size).contiguous()
+        return bidirectional_gru(self.gru, inputs, lengths, hidden)
 
     def sentence(
         self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
     ) -> torch.Tensor:
-        """The sentence feature (B, 2H) alone, as :meth:`forward` gives it: the per-word outputs
-        are not padded back (nor, in training, their gradients gathered from the padding)."""
-        _, last, _ = self._run(words, pos, lengths)
+        """The sentence feature (B, 2H) alone, as :meth:`forward` gives it."""
+        _, last = self._run(words, pos, lengths)
         return torch.cat([last[0], last[1]], dim=-1)
 
     def forward(
         self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        outputs, last, max_len = self._run(words, pos, lengths)
-        word_features, _ = pad_packed_sequence(outputs, batch_first=True, total_length=max_len)
+        word_features, last = self._run(words, pos, lengths)
         if self.flip_backward_words:
             word_features = self._flip_backward(word_features, lengths.to(word_features.device))
         sentence = torch.cat([last[0], last[1]], dim=-1)  # (B, 2H)
@@ -103,10 +99,10 @@ class ProjectedTextEncoder(nn.Module):
         self.encoder = TextEncoder(word_dim, config, vocab_size)
         hidden = config.hidden_size
         self.head = nn.Sequential(
-            nn.Linear(2 * hidden, hidden),
+            FastLinear(2 * hidden, hidden),
             nn.LayerNorm(hidden),
             nn.LeakyReLU(0.2),
-            nn.Linear(hidden, output_size),
+            FastLinear(hidden, output_size),
         )
 
     def forward(

@@ -1,0 +1,109 @@
+"""The fused oneDNN GRU and Linear (t2m/models/fused_gru.py) against torch's own layers."""
+
+import pytest
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
+
+from t2m.models.fused_gru import FastLinear, bidirectional_gru, fused_path, plain_linear
+
+pytestmark = pytest.mark.skipif(
+    not torch.backends.mkldnn.is_available(), reason="the fused path needs oneDNN"
+)
+
+
+def packed_reference(gru, inputs, lengths, h0):
+    packed = pack_padded_sequence(inputs, lengths, batch_first=True, enforce_sorted=False)
+    outputs, last = gru(packed, h0)
+    outputs, _ = pad_packed_sequence(outputs, batch_first=True, total_length=inputs.shape[1])
+    return outputs, last
+
+
+def values_and_gradients(function, gru, inputs, h0, weights):
+    """Outputs, last states and the gradients of a fixed random projection of both."""
+    for tensor in (inputs, h0, *gru.parameters()):
+        tensor.grad = None
+    outputs, last = function()
+    ((outputs * weights[0]).sum() + (last * weights[1]).sum()).backward()
+    grads = [inputs.grad, h0.grad, *(p.grad for p in gru.parameters())]
+    return [outputs.detach(), last.detach(), *(g.clone() for g in grads)]
+
+
+@pytest.mark.parametrize("lengths", [[3, 9, 1, 5, 9, 2, 4], [9] * 7, [1, 1, 2, 1, 1, 1, 1]])
+def test_fused_gru_equals_packed_nn_gru(lengths):
+    torch.manual_seed(0)
+    gru = nn.GRU(5, 6, batch_first=True, bidirectional=True)
+    inputs = torch.randn(7, max(lengths) + 1, 5, requires_grad=True)  # one padded step at least
+    h0 = torch.randn(2, 7, 6, requires_grad=True)
+    lengths = torch.tensor(lengths)
+    weights = torch.randn(7, inputs.shape[1], 12), torch.randn(2, 7, 6)
+    assert fused_path(inputs)
+    expected = values_and_gradients(
+        lambda: packed_reference(gru, inputs, lengths, h0), gru, inputs, h0, weights
+    )
+    got = values_and_gradients(
+        lambda: bidirectional_gru(gru, inputs, lengths, h0), gru, inputs, h0, weights
+    )
+    names = ["outputs", "last", "d inputs", "d h0"] + [n for n, _ in gru.named_parameters()]
+    for name, a, b in zip(names, expected, got, strict=True):
+        assert a.shape == b.shape, name
+        torch.testing.assert_close(b, a, atol=2e-6, rtol=1e-5, msg=name)
+    # zero past each length, as pad_packed_sequence pads
+    for item, length in enumerate(lengths.tolist()):
+        assert got[0][item, length:].abs().max() == 0
+
+
+def test_fused_gru_without_gradients_and_fallbacks():
+    torch.manual_seed(1)
+    gru = nn.GRU(4, 3, batch_first=True, bidirectional=True)
+    inputs, h0, lengths = torch.randn(5, 6, 4), torch.randn(2, 5, 3), torch.tensor([6, 2, 4, 1, 3])
+    with torch.no_grad():
+        expected = packed_reference(gru, inputs, lengths, h0)
+        fused = bidirectional_gru(gru, inputs, lengths, h0)
+    for a, b in zip(expected, fused, strict=True):
+        torch.testing.assert_close(b, a, atol=1e-6, rtol=1e-5)
+    # float64 and bfloat16 autocast take nn.GRU itself
+    assert not fused_path(inputs.double())
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert not fused_path(inputs)
+    double = nn.GRU(4, 3, batch_first=True, bidirectional=True).double()
+    out, last = bidirectional_gru(double, inputs.double(), lengths, h0.double())
+    assert out.dtype == torch.float64 and last.shape == (2, 5, 3)
+    with pytest.raises(ValueError, match="bidirectional"):
+        bidirectional_gru(nn.GRU(4, 3, batch_first=True), inputs, lengths, h0[:1])
+
+
+def test_fast_linear_equals_linear_and_quantises():
+    torch.manual_seed(2)
+    fast = FastLinear(7, 5)
+    plain = nn.Linear(7, 5)
+    plain.load_state_dict(fast.state_dict())
+    assert list(fast.state_dict()) == ["weight", "bias"]
+    inputs = torch.randn(3, 4, 7, requires_grad=True)
+    for layer in (plain, fast):
+        layer.zero_grad()
+    inputs.grad = None
+    a = plain(inputs)
+    a.square().sum().backward()
+    grads_plain = inputs.grad.clone(), plain.weight.grad.clone(), plain.bias.grad.clone()
+    inputs.grad = None
+    b = fast(inputs)
+    b.square().sum().backward()
+    torch.testing.assert_close(b, a, atol=1e-6, rtol=1e-5)
+    for g_fast, g_plain in zip(
+        (inputs.grad, fast.weight.grad, fast.bias.grad), grads_plain, strict=True
+    ):
+        torch.testing.assert_close(g_fast, g_plain, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(
+        fast(inputs.double().float()), F.linear(inputs, fast.weight, fast.bias)
+    )
+    # torch's dynamic quantisation maps exact types: the plain view shares the parameters
+    view = plain_linear(fast)
+    assert type(view) is nn.Linear and view.weight is fast.weight
+
+    from t2m.quantize import quantize_int8
+
+    model = nn.Sequential(FastLinear(7, 5))
+    quantized = quantize_int8(model)
+    assert type(quantized[0]).__name__ == "Linear" and "dynamic" in type(quantized[0]).__module__
