@@ -29,7 +29,7 @@ import torch
 from torch import nn
 
 from t2m.models.fast_recurrence import GenerationPlan, set_generation_plan
-from t2m.models.fused_gru import FastLinear, plain_linear
+from t2m.models.onednn import FastLinear, plain_linear
 from t2m.models.temporal_vae import TemporalVAE
 
 

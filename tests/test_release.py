@@ -1,10 +1,12 @@
 """The original T2M release as input: every array the original code computed on the reference
 release (``../shared/reference/t2m-original``: random weights at small sizes, written by the
 original implementation) is reproduced within 1e-5 by our models loaded through
-:mod:`t2m.release`; sampling runs from the command line; export round-trips."""
+:mod:`t2m.release` (the movement encoder's codes within 3e-5: float32 rounding, see
+``test_movement_encoder_and_decoder``); sampling runs from the command line; export round-trips."""
 
 from __future__ import annotations
 
+import copy
 import shutil
 from pathlib import Path
 
@@ -40,8 +42,8 @@ def text_inputs(expected):
     )
 
 
-def close(actual: torch.Tensor, wanted: np.ndarray) -> None:
-    np.testing.assert_allclose(actual.detach().numpy(), wanted, atol=TOLERANCE, rtol=0)
+def close(actual: torch.Tensor, wanted: np.ndarray, atol: float = TOLERANCE) -> None:
+    np.testing.assert_allclose(actual.detach().numpy(), wanted, atol=atol, rtol=0)
 
 
 def test_every_folder_of_the_release_names_it():
@@ -93,7 +95,16 @@ def test_text_encoder_and_length_estimator(release, expected, text_inputs):
 def test_movement_encoder_and_decoder(release, expected):
     motions = torch.from_numpy(expected["motions"])
     codes = release.encoder(motions[..., :-4])
-    close(codes, expected["mov_enc_codes"])
+    # Our encoder's convolutions are oneDNN matrix products over frame windows
+    # (t2m.models.onednn.FastConv1d): sums of 1,036 terms rounded in another order than the
+    # original's convolution kernel. Both sides are float32 roundings of the same sums: each
+    # within 2e-5 of a float64 evaluation of the same weights (the recorded codes 1.1e-5, ours
+    # 1.8e-5), so they are compared at 3e-5.
+    with torch.no_grad():
+        exact = copy.deepcopy(release.encoder).double()(motions[..., :-4].double())
+    for side in (codes.detach(), torch.from_numpy(expected["mov_enc_codes"])):
+        assert (side.double() - exact).abs().max() < 2e-5
+    close(codes, expected["mov_enc_codes"], atol=3e-5)
     close(release.decoder(codes), expected["mov_dec_features"])
 
 

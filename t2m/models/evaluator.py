@@ -15,7 +15,7 @@ from torch import nn
 
 from t2m.config import AutoencoderConfig, EvaluatorConfig
 from t2m.models.autoencoder import CONTACT_DIMS, SNIPPET_FRAMES, MovementEncoder
-from t2m.models.fused_gru import FastLinear, bidirectional_gru
+from t2m.models.onednn import FastLinear, bidirectional_gru
 from t2m.models.text_encoder import ProjectedTextEncoder
 
 

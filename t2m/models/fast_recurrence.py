@@ -41,6 +41,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from t2m.models.onednn import FastLinear
+
 if TYPE_CHECKING:
     from t2m.models.temporal_vae import RecurrentState, TemporalVAE, WordContext
 
@@ -735,7 +737,7 @@ class PackedLinear(nn.Module):
 def float_linear(weight: torch.Tensor, bias: torch.Tensor | None, copy: bool = True) -> nn.Linear:
     """A Linear holding ``weight`` (O, I) and ``bias`` (O,), no gradients: copies of them, or
     (``copy=False``) the tensors themselves, for a caller about to convert it."""
-    linear = nn.Linear(weight.shape[1], weight.shape[0], bias=bias is not None, device="meta")
+    linear = FastLinear(weight.shape[1], weight.shape[0], bias=bias is not None, device="meta")
     weight, bias = weight.detach(), None if bias is None else bias.detach()
     if copy:
         weight, bias = weight.clone(), None if bias is None else bias.clone()

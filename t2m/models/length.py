@@ -13,7 +13,7 @@ from torch import nn
 
 from dataset_tools.skeleton import HUMANML3D
 from t2m.config import LengthModelConfig
-from t2m.models.fused_gru import FastLinear
+from t2m.models.onednn import FastLinear
 from t2m.models.text_encoder import TextEncoder
 
 

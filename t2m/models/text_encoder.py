@@ -17,7 +17,7 @@ from torch import nn
 
 from t2m.config import TextEncoderConfig
 from t2m.data.words import NUM_POS
-from t2m.models.fused_gru import FastLinear, bidirectional_gru
+from t2m.models.onednn import FastLinear, bidirectional_gru
 
 
 class TextEncoder(nn.Module):
@@ -57,7 +57,7 @@ class TextEncoder(nn.Module):
         return self.input_projection(words + self.pos_embedding(pos))
 
     def _run(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor):
-        """The GRU over each caption's tokens (:func:`t2m.models.fused_gru.bidirectional_gru`):
+        """The GRU over each caption's tokens (:func:`t2m.models.onednn.bidirectional_gru`):
         (outputs (B, L, 2H), zero past each length; last states (2, B, H))."""
         inputs = self.embed(words, pos)
         hidden = self.initial_hidden.expand(2, inputs.shape[0], self.hidden_size).contiguous()

@@ -1,13 +1,14 @@
-"""A one-layer bidirectional GRU over captions of different lengths, as one autograd node whose
-products run through oneDNN on a CPU: the same sums as ``nn.GRU`` over a ``PackedSequence``
-(``pack_padded_sequence(..., enforce_sorted=False)``), tested equal to it
-(``tests/test_fused_gru.py``).
+"""Float32 products through oneDNN on the CPU, gradients included: a one-layer bidirectional GRU
+over captions of different lengths as one autograd node (:func:`bidirectional_gru`), a Linear
+(:class:`FastLinear`) and the autoencoder's halving convolution (:class:`FastConv1d`), each
+tested equal to the torch layer it stands for (``tests/test_onednn.py``) and holding the same
+parameters (checkpoints do not change).
 
 Why: torch's float32 matrix products on the CPU go to MKL, which runs its AVX2 code on AMD
 processors; oneDNN's products use AVX-512 there and took 0.41-0.52x of ``F.linear``'s time on the
-development machine (AMD EPYC, Zen 5, one thread, batch 32-6,000 rows; README "Fused GRU"). A
-packed ``nn.GRU`` also records about fifteen autograd nodes per step; here the whole recurrence is
-one node:
+development machine (AMD EPYC, Zen 5, one thread, 32-6,000 rows; README "oneDNN products"). A
+packed ``nn.GRU`` also records about fifteen autograd nodes per step; :func:`bidirectional_gru`
+is one node:
 
 * the input products of every step are one product over all (item, step) rows before the loop;
 * each step reads its hidden state through a weight packed once per call for oneDNN;
@@ -17,8 +18,9 @@ one node:
 Rows are kept time-major and sorted by length, as a ``PackedSequence`` keeps them: the items
 alive at step t are a prefix of the batch, so no step computes padding.
 
-:func:`bidirectional_gru` uses this path for float32 CPU tensors outside autocast with oneDNN
-available, and ``nn.GRU`` over a packed sequence otherwise (CUDA, bfloat16 autocast).
+Every layer here takes its fused path for float32 CPU tensors outside autocast with oneDNN
+available (:func:`fused_path`) and is the torch layer otherwise (CUDA, bfloat16 autocast,
+float64).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
+
+_ONEDNN = torch.backends.mkldnn.is_available()
 
 
 def _linear(inputs: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None = None):
@@ -44,8 +48,8 @@ def fused_path(inputs: torch.Tensor) -> bool:
     return (
         inputs.device.type == "cpu"
         and inputs.dtype == torch.float32
+        and _ONEDNN
         and not torch.is_autocast_enabled("cpu")
-        and torch.backends.mkldnn.is_available()
     )
 
 
@@ -93,7 +97,8 @@ class _BiGRU(torch.autograd.Function):
         for direction in range(2):
             w_ih, w_hh, b_ih, b_hh = weights[4 * direction : 4 * direction + 4]
             gi_all = _linear(rows, w_ih, b_ih)  # (N, 3H)
-            packed = torch.ops.mkldnn._reorder_linear_weight(w_hh)
+            # packing costs about five products of 64 rows: not worth it for a few captions
+            packed = torch.ops.mkldnn._reorder_linear_weight(w_hh) if batch >= 4 else w_hh
             h = h0[direction][layout.order].clone()  # (B, H), longest first
             states = inputs.new_empty(layout.rows, hidden)  # each row's state after its step
             if keep:
@@ -197,12 +202,18 @@ def bidirectional_gru(
 
 class FastLinear(nn.Linear):
     """``nn.Linear`` (same parameters and state dict) whose float32 CPU product runs through
-    oneDNN, its gradients too (:class:`_Linear`); elsewhere ``F.linear``."""
+    oneDNN, its gradients too (:class:`_Linear`); elsewhere ``F.linear``. A weight that is a
+    strided view (a column block of a stacked matrix) goes to ``F.linear`` too: oneDNN
+    rearranges such a weight on every call (10-100x slower)."""
 
     def forward(self, inputs: torch.Tensor) -> torch.Tensor:
-        if fused_path(inputs) and self.weight.dtype == torch.float32:
-            return _Linear.apply(inputs, self.weight, self.bias)
-        return F.linear(inputs, self.weight, self.bias)
+        weight = self.weight
+        if not (fused_path(inputs) and weight.dtype == torch.float32 and weight.is_contiguous()):
+            return F.linear(inputs, weight, self.bias)
+        if torch.is_grad_enabled() and (inputs.requires_grad or weight.requires_grad):
+            return _Linear.apply(inputs, weight, self.bias)
+        flat = inputs.reshape(-1, inputs.shape[-1]).contiguous()  # no graph: no node either
+        return _linear(flat, weight, self.bias).view(*inputs.shape[:-1], weight.shape[0])
 
 
 class _Linear(torch.autograd.Function):
@@ -238,3 +249,81 @@ def plain_linear(linear: FastLinear) -> nn.Linear:
     if linear.bias is not None:
         plain.bias = linear.bias
     return plain
+
+
+class _Product(torch.autograd.Function):
+    """``inputs (N, I) @ weight (O, I).T + bias`` through oneDNN, gradients too (the matrix
+    products of :class:`FastConv1d` and :class:`FastConvTranspose1d`)."""
+
+    @staticmethod
+    def forward(ctx, inputs, weight, bias):
+        ctx.save_for_backward(inputs, weight)
+        ctx.has_bias = bias is not None
+        return _linear(inputs, weight, bias)
+
+    @staticmethod
+    def backward(ctx, grad):
+        inputs, weight = ctx.saved_tensors
+        grad = grad.contiguous()
+        grad_inputs = _matmul(grad, weight) if ctx.needs_input_grad[0] else None
+        grad_weight = _matmul(grad.t(), inputs) if ctx.needs_input_grad[1] else None
+        grad_bias = grad.sum(0) if ctx.has_bias and ctx.needs_input_grad[2] else None
+        return grad_inputs, grad_weight, grad_bias
+
+
+def _product(inputs: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None):
+    if torch.is_grad_enabled() and (inputs.requires_grad or weight.requires_grad):
+        return _Product.apply(inputs, weight, bias)
+    return _linear(inputs, weight, bias)
+
+
+def _halving(layer: nn.Module) -> bool:
+    """Whether a 1-d (transposed) convolution is the autoencoder's: kernel 4, stride 2,
+    padding 1, no dilation or groups."""
+    return (
+        layer.kernel_size == (4,)
+        and layer.stride == (2,)
+        and layer.padding == (1,)
+        and layer.dilation == (1,)
+        and layer.groups == 1
+        and layer.padding_mode == "zeros"
+    )
+
+
+class FastConv1d(nn.Conv1d):
+    """``nn.Conv1d`` (same parameters) that, for kernel 4, stride 2, padding 1 on float32 CPU
+    tensors of even length, runs as one oneDNN product over the frame windows: output frame i
+    reads padded frames 2i .. 2i + 3, that is the pairs i and i + 1 of the padded sequence
+    seen as (T / 2 + 1) pairs. Elsewhere ``nn.Conv1d``. :meth:`frames` takes and gives
+    frame-major tensors (B, T, C), saving the transposes."""
+
+    def forward(self, inputs: torch.Tensor) -> torch.Tensor:
+        if not (fused_path(inputs) and _halving(self) and inputs.shape[-1] % 2 == 0):
+            return super().forward(inputs)
+        return self.frames(inputs.transpose(1, 2)).transpose(1, 2)
+
+    def frames(self, inputs: torch.Tensor) -> torch.Tensor:
+        """(B, T, C), T even -> (B, T / 2, O) on the fused path."""
+        batch, frames, channels = inputs.shape
+        padded = F.pad(inputs, (0, 0, 1, 1))  # (B, T + 2, C)
+        pairs = padded.view(batch, frames // 2 + 1, 2 * channels)
+        windows = torch.cat([pairs[:, :-1], pairs[:, 1:]], dim=-1)  # (B, T/2, 4C)
+        # (O, C, 4) -> (O, 4, C) -> (O, 4C): the windows' order, tap by tap
+        weight = self.weight.permute(0, 2, 1).reshape(self.out_channels, -1)
+        out = _product(windows.view(-1, 4 * channels), weight, self.bias)
+        return out.view(batch, frames // 2, self.out_channels)
+
+
+def frame_major(net: nn.Sequential, inputs: torch.Tensor, factor: int) -> torch.Tensor | None:
+    """``net`` (:class:`FastConv1d` layers, dropout, activations) on frame-major ``inputs``
+    (B, T, C) through :meth:`FastConv1d.frames`, or None where the fused path does not apply
+    (T not a multiple of ``factor``, the time reduction)."""
+    if not fused_path(inputs) or inputs.shape[1] % factor:
+        return None
+    for layer in net:
+        if isinstance(layer, nn.Conv1d) and not (isinstance(layer, FastConv1d) and _halving(layer)):
+            return None
+    hidden = inputs
+    for layer in net:
+        hidden = layer.frames(hidden) if hasattr(layer, "frames") else layer(hidden)
+    return hidden

@@ -1,4 +1,4 @@
-"""The fused oneDNN GRU and Linear (t2m/models/fused_gru.py) against torch's own layers."""
+"""The fused oneDNN GRU and Linear (t2m/models/onednn.py) against torch's own layers."""
 
 import pytest
 import torch
@@ -6,7 +6,14 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
-from t2m.models.fused_gru import FastLinear, bidirectional_gru, fused_path, plain_linear
+from t2m.models.onednn import (
+    FastConv1d,
+    FastLinear,
+    bidirectional_gru,
+    frame_major,
+    fused_path,
+    plain_linear,
+)
 
 pytestmark = pytest.mark.skipif(
     not torch.backends.mkldnn.is_available(), reason="the fused path needs oneDNN"
@@ -30,14 +37,17 @@ def values_and_gradients(function, gru, inputs, h0, weights):
     return [outputs.detach(), last.detach(), *(g.clone() for g in grads)]
 
 
-@pytest.mark.parametrize("lengths", [[3, 9, 1, 5, 9, 2, 4], [9] * 7, [1, 1, 2, 1, 1, 1, 1]])
+@pytest.mark.parametrize(
+    "lengths", [[3, 9, 1, 5, 9, 2, 4], [9] * 7, [1, 1, 2, 1, 1, 1, 1], [2, 5], [4]]
+)
 def test_fused_gru_equals_packed_nn_gru(lengths):
     torch.manual_seed(0)
     gru = nn.GRU(5, 6, batch_first=True, bidirectional=True)
-    inputs = torch.randn(7, max(lengths) + 1, 5, requires_grad=True)  # one padded step at least
-    h0 = torch.randn(2, 7, 6, requires_grad=True)
+    batch = len(lengths)  # under 4: the hidden weights are not packed
+    inputs = torch.randn(batch, max(lengths) + 1, 5, requires_grad=True)  # a padded step at least
+    h0 = torch.randn(2, batch, 6, requires_grad=True)
     lengths = torch.tensor(lengths)
-    weights = torch.randn(7, inputs.shape[1], 12), torch.randn(2, 7, 6)
+    weights = torch.randn(batch, inputs.shape[1], 12), torch.randn(2, batch, 6)
     assert fused_path(inputs)
     expected = values_and_gradients(
         lambda: packed_reference(gru, inputs, lengths, h0), gru, inputs, h0, weights
@@ -107,3 +117,34 @@ def test_fast_linear_equals_linear_and_quantises():
     model = nn.Sequential(FastLinear(7, 5))
     quantized = quantize_int8(model)
     assert type(quantized[0]).__name__ == "Linear" and "dynamic" in type(quantized[0]).__module__
+
+
+def test_fast_conv_equals_conv1d_against_float64():
+    """Values and gradients within float32 rounding of a float64 reference, as torch's own."""
+    torch.manual_seed(3)
+    conv = nn.Conv1d(9, 6, 4, 2, 1)
+    fast = FastConv1d(9, 6, 4, 2, 1)
+    fast.load_state_dict(conv.state_dict())
+    inputs = torch.randn(5, 9, 12)
+    grad = torch.randn(5, 6, 6)
+    results = {}
+    for name, layer, dtype in (("torch", conv, torch.float32), ("fast", fast, torch.float32)):
+        x = inputs.to(dtype).clone().requires_grad_()
+        (layer(x) * grad).sum().backward()
+        results[name] = [layer(x).detach(), x.grad, layer.weight.grad, layer.bias.grad]
+    reference = nn.Conv1d(9, 6, 4, 2, 1).double()
+    reference.load_state_dict(conv.state_dict())
+    x = inputs.double().requires_grad_()
+    (reference(x) * grad.double()).sum().backward()
+    expected = [reference(x).detach(), x.grad, reference.weight.grad, reference.bias.grad]
+    for got, want in zip(results["fast"], expected, strict=True):
+        torch.testing.assert_close(got.double(), want, atol=1e-5, rtol=1e-5)
+    # frame-major through a Sequential, odd lengths and other kernels fall back
+    net = nn.Sequential(fast, nn.LeakyReLU(0.2))
+    torch.testing.assert_close(
+        frame_major(net, inputs.transpose(1, 2), 2), net(inputs).transpose(1, 2)
+    )
+    assert frame_major(net, inputs[..., :11].transpose(1, 2), 2) is None
+    torch.testing.assert_close(fast(inputs[..., :11]), conv(inputs[..., :11]))
+    other = FastConv1d(9, 6, 3, 1, 1)
+    assert frame_major(nn.Sequential(other), inputs.transpose(1, 2), 1) is None
