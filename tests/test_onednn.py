@@ -6,11 +6,13 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
+from t2m.models import onednn
 from t2m.models.onednn import (
     FastConv1d,
     FastLinear,
     bidirectional_gru,
     frame_major,
+    fused_gru,
     fused_path,
     plain_linear,
 )
@@ -18,6 +20,13 @@ from t2m.models.onednn import (
 pytestmark = pytest.mark.skipif(
     not torch.backends.mkldnn.is_available(), reason="the fused path needs oneDNN"
 )
+
+
+@pytest.fixture(autouse=True)
+def fused_at_any_size(monkeypatch):
+    """These small layers take the fused path (by default only layers of 32,768 weights and
+    more do, ``test_small_layers_stay_with_torch``)."""
+    monkeypatch.setattr(onednn, "MIN_WEIGHT", 0)
 
 
 def packed_reference(gru, inputs, lengths, h0):
@@ -48,7 +57,7 @@ def test_fused_gru_equals_packed_nn_gru(lengths):
     h0 = torch.randn(2, batch, 6, requires_grad=True)
     lengths = torch.tensor(lengths)
     weights = torch.randn(batch, inputs.shape[1], 12), torch.randn(2, batch, 6)
-    assert fused_path(inputs)
+    assert fused_gru(gru, inputs)
     expected = values_and_gradients(
         lambda: packed_reference(gru, inputs, lengths, h0), gru, inputs, h0, weights
     )
@@ -148,3 +157,14 @@ def test_fast_conv_equals_conv1d_against_float64():
     torch.testing.assert_close(fast(inputs[..., :11]), conv(inputs[..., :11]))
     other = FastConv1d(9, 6, 3, 1, 1)
     assert frame_major(nn.Sequential(other), inputs.transpose(1, 2), 1) is None
+
+
+def test_small_layers_stay_with_torch(monkeypatch):
+    monkeypatch.setattr(onednn, "MIN_WEIGHT", 32_768)
+    inputs = torch.randn(2, 5, 64)
+    assert not fused_gru(nn.GRU(64, 64, batch_first=True, bidirectional=True), inputs)
+    assert fused_gru(nn.GRU(64, 256, batch_first=True, bidirectional=True), inputs)
+    assert not fused_gru(nn.GRU(64, 256, batch_first=True, bidirectional=True), inputs.double())
+    small, conv = FastConv1d(64, 64, 4, 2, 1), FastConv1d(259, 512, 4, 2, 1)
+    assert frame_major(nn.Sequential(small), inputs, 2) is None
+    assert frame_major(nn.Sequential(conv), torch.randn(2, 6, 259), 2) is not None
