@@ -14,6 +14,7 @@ from t2m.models.onednn import (
     frame_major,
     fused_gru,
     fused_path,
+    matmul,
     plain_linear,
 )
 
@@ -168,3 +169,13 @@ def test_small_layers_stay_with_torch(monkeypatch):
     small, conv = FastConv1d(64, 64, 4, 2, 1), FastConv1d(259, 512, 4, 2, 1)
     assert frame_major(nn.Sequential(small), inputs, 2) is None
     assert frame_major(nn.Sequential(conv), torch.randn(2, 6, 259), 2) is not None
+
+
+def test_matmul_through_onednn_equals_torch():
+    torch.manual_seed(4)
+    a, b = torch.randn(40, 300), torch.randn(300, 70)
+    torch.testing.assert_close(matmul(a, b), a @ b, atol=1e-4, rtol=1e-5)
+    torch.testing.assert_close(
+        matmul(a.t().t(), b.t().contiguous().t()), a @ b, atol=1e-4, rtol=1e-5
+    )
+    assert matmul(a.double(), b.double()).dtype == torch.float64  # torch's own

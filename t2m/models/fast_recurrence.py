@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from t2m.models.onednn import FastLinear
+from t2m.models.onednn import FastLinear, matmul
 
 if TYPE_CHECKING:
     from t2m.models.temporal_vae import RecurrentState, TemporalVAE, WordContext
@@ -81,7 +81,7 @@ class _OneDNNLinear(torch.autograd.Function):
         grad = grad.contiguous()
         flat = grad.reshape(-1, grad.shape[-1])
         grad_inputs = _packed_product(grad, weight.t().contiguous(), None)
-        grad_weight = flat.t() @ inputs.reshape(-1, inputs.shape[-1])
+        grad_weight = matmul(flat.t(), inputs.reshape(-1, inputs.shape[-1]))
         return grad_inputs, grad_weight, flat.sum(0) if ctx.has_bias else None
 
 
@@ -153,7 +153,7 @@ def _weight_gradient(
     inputs of all its calls ((B, O) and (B, I) each, in call order): one (O, N*B) x (N*B, I)
     product instead of N thin ones."""
     grad = torch.cat(grads)
-    return grad.t() @ torch.cat(inputs).to(grad.dtype), grad.sum(0)
+    return matmul(grad.t(), torch.cat(inputs).to(grad.dtype)), grad.sum(0)
 
 
 def gru_update(
@@ -437,7 +437,7 @@ class _Recurrence(torch.autograd.Function):
         else:  # no gradient through the fed-back codes: the output head at once for all steps
             grad_codes = given(grad_second, products["last"].weight.shape[0])  # (B, S, C)
             head_inputs = torch.stack(kept["head_inputs"], dim=1)  # (B, S, H)
-            result["last"] = grad_codes.flatten(0, 1).t() @ head_inputs.flatten(0, 1)
+            result["last"] = matmul(grad_codes.flatten(0, 1).t(), head_inputs.flatten(0, 1))
             result["last_bias"] = grad_codes.sum((0, 1))
             saved = [torch.stack(parts, dim=1) for parts in list(zip(*kept["head"]))[:4]]
             saved += norms["output"]

@@ -49,6 +49,19 @@ def _matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return _linear(a.contiguous(), b.t().contiguous())
 
 
+def matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``a @ b`` for 2-d tensors, through oneDNN for float32 CPU tensors (the weight gradients of
+    the temporal VAE's training loop: one (O, N) x (N, I) product per weight), else torch's."""
+    if (
+        _ONEDNN
+        and a.dtype == b.dtype == torch.float32
+        and a.device.type == b.device.type == "cpu"
+        and a.dim() == b.dim() == 2
+    ):
+        return _matmul(a, b)
+    return a @ b
+
+
 def fused_path(inputs: torch.Tensor) -> bool:
     """Whether :func:`bidirectional_gru` runs the fused oneDNN recurrence for ``inputs``."""
     return (
