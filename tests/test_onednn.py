@@ -28,6 +28,7 @@ def fused_at_any_size(monkeypatch):
     """These small layers take the fused path (by default only layers of 32,768 weights and
     more do, ``test_small_layers_stay_with_torch``)."""
     monkeypatch.setattr(onednn, "MIN_WEIGHT", 0)
+    monkeypatch.setattr(onednn, "MIN_GRADIENT", 0)
 
 
 def packed_reference(gru, inputs, lengths, h0):

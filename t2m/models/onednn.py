@@ -49,14 +49,23 @@ def _matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return _linear(a.contiguous(), b.t().contiguous())
 
 
+MIN_GRADIENT = 1 << 20
+"""Results (O x I) of fewer elements stay with torch's product in :func:`matmul`: the paper
+preset's recurrent weights (3,072 x 1,024) go to oneDNN, the demo preset's (768 x 256 and
+smaller) do not. With the demo's too, ``make demo``'s generator stage took 525 s against 515 s
+without (one run each, two threads): no gain there, and another rounding of its sums."""
+
+
 def matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """``a @ b`` for 2-d tensors, through oneDNN for float32 CPU tensors (the weight gradients of
-    the temporal VAE's training loop: one (O, N) x (N, I) product per weight), else torch's."""
+    """``a @ b`` for 2-d tensors, through oneDNN for float32 CPU tensors with a result of
+    :data:`MIN_GRADIENT` elements or more (the weight gradients of the temporal VAE's training
+    loop: one (O, N) x (N, I) product per weight), else torch's."""
     if (
         _ONEDNN
         and a.dtype == b.dtype == torch.float32
         and a.device.type == b.device.type == "cpu"
         and a.dim() == b.dim() == 2
+        and a.shape[0] * b.shape[1] >= MIN_GRADIENT
     ):
         return _matmul(a, b)
     return a @ b
