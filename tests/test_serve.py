@@ -327,12 +327,25 @@ def test_loopback_check():
     assert not any(map(is_loopback, ["0.0.0.0", "192.168.1.4", "example.com", ""]))
 
 
-def test_command_serves_until_interrupted(tiny_run, tmp_path):
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a shell's background command starts
+
+
+@pytest.mark.parametrize(
+    ("stop", "sigint_ignored"),
+    [(signal.SIGINT, False), (signal.SIGINT, True), (signal.SIGTERM, False)],
+    ids=["sigint", "sigint-started-ignored", "sigterm"],
+)
+def test_command_serves_until_interrupted(tiny_run, tmp_path, stop, sigint_ignored):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     work = tmp_path / "work"
     command = [sys.executable, "-m", "t2m.serve", "--checkpoints", str(tiny_run), "--port", "0"]
     process = subprocess.Popen(
-        command + ["--work-dir", str(work)], stderr=subprocess.PIPE, text=True, env=env
+        command + ["--work-dir", str(work)],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=_ignore_sigint if sigint_ignored else None,
     )
     try:
         url = None
@@ -350,7 +363,7 @@ def test_command_serves_until_interrupted(tiny_run, tmp_path):
         assert connection.getresponse().status == 200
         assert len(list(work.iterdir())) == 1
     finally:
-        process.send_signal(signal.SIGINT)
+        process.send_signal(stop)
         assert process.wait(timeout=30) == 0
         process.stderr.close()
     assert list(work.iterdir()) == []  # the generated files went with the server

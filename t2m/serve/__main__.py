@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import math
+import signal
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -55,6 +56,19 @@ class ServeConfig:
         if self.batch_motions < 1 or self.queue < 1:
             raise UsageError("--batch-motions and --queue must be at least 1")
         check_threads(self.threads)
+
+
+def _stop_on_signals() -> None:
+    """SIGINT and SIGTERM stop the server the same way (its generated files removed). Python
+    leaves SIGINT ignored when it starts with it ignored, as a shell does for a command it
+    starts in the background (``&``): ``kill -INT`` then did nothing and the server never
+    stopped."""
+
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, stop)
 
 
 @command
@@ -114,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             f"cannot listen on {config.host}:{config.port}: {error.strerror}"
         ) from None
     logger.info("serving %s on %s (Ctrl-C to stop)", config.checkpoints, server.url)
+    _stop_on_signals()
     try:
         server.serve_forever()
     except KeyboardInterrupt:
