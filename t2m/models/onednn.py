@@ -72,7 +72,8 @@ def matmul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def fused_path(inputs: torch.Tensor) -> bool:
-    """Whether :func:`bidirectional_gru` runs the fused oneDNN recurrence for ``inputs``."""
+    """Whether the layers here may take their oneDNN path for ``inputs``: float32 on a CPU,
+    outside autocast, oneDNN available (each layer adds its own size gate)."""
     return (
         inputs.device.type == "cpu"
         and inputs.dtype == torch.float32
