@@ -240,7 +240,7 @@ def bidirectional_gru(
 
 class FastLinear(nn.Linear):
     """``nn.Linear`` (same parameters and state dict) whose float32 CPU product runs through
-    oneDNN, its gradients too (:class:`_Linear`); elsewhere ``F.linear``. A weight that is a
+    oneDNN, its gradients too (:func:`_product`); elsewhere ``F.linear``. A weight that is a
     strided view (a column block of a stacked matrix) goes to ``F.linear`` too: oneDNN
     rearranges such a weight on every call (10-100x slower)."""
 
@@ -253,33 +253,8 @@ class FastLinear(nn.Linear):
             and weight.numel() >= MIN_WEIGHT
         ):
             return F.linear(inputs, weight, self.bias)
-        if torch.is_grad_enabled() and (inputs.requires_grad or weight.requires_grad):
-            return _Linear.apply(inputs, weight, self.bias)
-        flat = inputs.reshape(-1, inputs.shape[-1]).contiguous()  # no graph: no node either
-        return _linear(flat, weight, self.bias).view(*inputs.shape[:-1], weight.shape[0])
-
-
-class _Linear(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, inputs, weight, bias):
-        shape = inputs.shape
-        flat = inputs.reshape(-1, shape[-1]).contiguous()
-        ctx.save_for_backward(flat, weight)
-        ctx.has_bias, ctx.shape = bias is not None, shape
-        return _linear(flat, weight, bias).view(*shape[:-1], weight.shape[0])
-
-    @staticmethod
-    def backward(ctx, grad):
-        flat, weight = ctx.saved_tensors
-        grad = grad.reshape(-1, weight.shape[0]).contiguous()
-        grad_inputs = grad_weight = grad_bias = None
-        if ctx.needs_input_grad[0]:
-            grad_inputs = _matmul(grad, weight).view(ctx.shape)
-        if ctx.needs_input_grad[1]:
-            grad_weight = _matmul(grad.t(), flat)
-        if ctx.has_bias and ctx.needs_input_grad[2]:
-            grad_bias = grad.sum(0)
-        return grad_inputs, grad_weight, grad_bias
+        flat = inputs.reshape(-1, inputs.shape[-1]).contiguous()
+        return _product(flat, weight, self.bias).view(*inputs.shape[:-1], weight.shape[0])
 
 
 def plain_linear(linear: FastLinear) -> nn.Linear:
@@ -295,8 +270,8 @@ def plain_linear(linear: FastLinear) -> nn.Linear:
 
 
 class _Product(torch.autograd.Function):
-    """``inputs (N, I) @ weight (O, I).T + bias`` through oneDNN, gradients too (the matrix
-    products of :class:`FastConv1d` and :class:`FastConvTranspose1d`)."""
+    """``inputs (N, I) @ weight (O, I).T + bias`` through oneDNN, gradients too (the products
+    of :class:`FastLinear` and :class:`FastConv1d`)."""
 
     @staticmethod
     def forward(ctx, inputs, weight, bias):
@@ -315,6 +290,7 @@ class _Product(torch.autograd.Function):
 
 
 def _product(inputs: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None):
+    """:class:`_Product` where a graph is recorded, the bare oneDNN product where none is."""
     if torch.is_grad_enabled() and (inputs.requires_grad or weight.requires_grad):
         return _Product.apply(inputs, weight, bias)
     return _linear(inputs, weight, bias)
