@@ -28,6 +28,7 @@ Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Ne
 from __future__ import annotations
 
 import importlib.util
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -94,12 +95,91 @@ def require() -> None:
         )
 
 
-class _Graph:
-    """Collects the nodes and initialisers of one graph; each method adds nodes and returns
-    the name of its output."""
+LINEARS = (
+    "previous",
+    "prior_gates",
+    "prior_state",
+    "latent",
+    "generator_gates",
+    "generator_state",
+    "output_last",
+)
+"""The plan's Linears that the step graph runs (the tables' two stay in torch)."""
+NORMS = ("prior_norm", "generator_norm", "output_norm")
 
-    def __init__(self, weights: str) -> None:
-        self.weights = weights
+_QUANTISE_ROWS = 256
+"""Output rows quantised at a time (no temporaries as large as a weight: freed, they stay in
+the process's heap)."""
+
+
+@dataclass(frozen=True)
+class StepWeights:
+    """What :func:`step_model` builds a step graph from, numpy only (no ``onnx`` needed to make
+    it): the plan's sizes, its LayerNorms' epsilons, each Linear's input size and every
+    initialiser by name: ``<linear>.weight`` in the format ``weights`` (:data:`WEIGHT_FORMATS`;
+    ``blockwise`` adds ``.scales``, ``dynamic`` ``.scale`` and ``.zero``), ``<linear>.bias``
+    where there is one, ``<norm>.weight`` and ``<norm>.bias``."""
+
+    weights: str
+    hidden_size: int
+    latent_size: int
+    code_size: int
+    input_sizes: dict[str, int]
+    epsilons: dict[str, float]
+    arrays: dict[str, np.ndarray]
+
+
+def step_weights(plan: GenerationPlan, weights: str = "fp32") -> StepWeights:
+    """The initialisers of ``plan``'s step graph with the products' weights in the format
+    ``weights``: ``fp32``'s are the plan's own float32 arrays (no copy where they are
+    contiguous); the int8 formats are quantised a few rows at a time, from float32 Linears or,
+    for ``dynamic``, also from torch's dynamically quantised ones (their int8 values and scale
+    as they are: :func:`t2m.quantize.quantize_int8`'s plan). A float32 pipeline's
+    :class:`OnnxGenerationPlan` stands for its torch plan."""
+    if weights not in WEIGHT_FORMATS:
+        raise ValueError(f"unknown weight format {weights!r}; use one of {WEIGHT_FORMATS}")
+    if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
+        plan = plan.base
+    arrays: dict[str, np.ndarray] = {}
+    input_sizes = {}
+    for stem in LINEARS:
+        linear = getattr(plan, stem)
+        weight, bias = _weight_and_bias(linear)
+        input_sizes[stem] = weight.shape[1]
+        if bias is not None:
+            arrays[f"{stem}.bias"] = _array(bias)
+        if weights != "dynamic" and weight.is_quantized:
+            raise ValueError(f"{weights} weights are made from a float32 plan")
+        if weights == "fp32":
+            arrays[f"{stem}.weight"] = _array(weight)
+        elif weights == "blockwise":
+            packed, scales = blockwise_int8(_array(weight).T)
+            arrays[f"{stem}.weight"], arrays[f"{stem}.scales"] = packed, scales
+        else:
+            arrays[f"{stem}.weight"], scale = per_tensor_int8(weight)
+            arrays[f"{stem}.scale"] = np.array(scale, np.float32)
+            arrays[f"{stem}.zero"] = np.array(0, np.int8)
+    for stem in NORMS:
+        norm = getattr(plan, stem)
+        arrays[f"{stem}.weight"] = _array(norm.weight)
+        arrays[f"{stem}.bias"] = _array(norm.bias)
+    return StepWeights(
+        weights=weights,
+        hidden_size=plan.hidden_size,
+        latent_size=plan.latent_size,
+        code_size=input_sizes["previous"],
+        input_sizes=input_sizes,
+        epsilons={stem: getattr(plan, stem).eps for stem in NORMS},
+        arrays=arrays,
+    )
+
+
+class _Graph:
+    """Collects the nodes and initialisers of one step graph over ``step``'s arrays; each
+    method adds nodes and returns the name of its output."""
+
+    def __init__(self, step: StepWeights) -> None:
+        self.step = step
         self.external: dict[str, np.ndarray] = {}
         self.nodes: list = []
         self.initializers: list = []
@@ -110,20 +190,23 @@ class _Graph:
         return f"{stem}_{self._count}"
 
     def constant(self, stem: str, value: np.ndarray) -> str:
+        """A small constant, stored in the model."""
         from onnx import numpy_helper
 
         name = self.name(stem)
         self.initializers.append(numpy_helper.from_array(np.ascontiguousarray(value), name))
         return name
 
-    def shared(self, stem: str, value: np.ndarray) -> str:
-        """A float32 initialiser whose data stays in ``value``'s memory (an external
-        initialiser: :func:`session` hands ONNX Runtime the array itself, no copy in the
-        model)."""
-        from onnx import TensorProto
+    def array(self, key: str) -> str:
+        """``step.arrays[key]`` as an external initialiser: :func:`session` hands ONNX Runtime
+        the array itself, the model holds no copy."""
+        from onnx import TensorProto, helper
 
-        name = self.name(stem)
-        tensor = TensorProto(name=name, data_type=TensorProto.FLOAT, dims=value.shape)
+        value = self.step.arrays[key]
+        name = self.name(key)
+        tensor = TensorProto(
+            name=name, data_type=helper.np_dtype_to_tensor_dtype(value.dtype), dims=value.shape
+        )
         tensor.data_location = TensorProto.EXTERNAL
         tensor.external_data.add(key="location", value=name)
         self.initializers.append(tensor)
@@ -140,57 +223,32 @@ class _Graph:
         self.nodes.append(helper.make_node(op_type, inputs, names, **attrs))
         return names[0] if len(names) == 1 else names
 
-    def linear(self, stem: str, inputs: str, linear: torch.nn.Linear) -> str:
-        """``linear`` (weight (O, I), bias (O,) or none) on ``inputs`` (B, I), its weight in
-        this graph's format (:data:`WEIGHT_FORMATS`)."""
-        bias = None
-        if linear.bias is not None:
-            bias = self.constant(f"{stem}.bias", linear.bias.detach().float().numpy())
-        if self.weights == "fp32":  # Gemm on the weight (O, I) itself, in the model's memory
-            weight = self.shared(
-                f"{stem}.weight", linear.weight.detach().float().contiguous().numpy()
-            )
-            return self.op("Gemm", [inputs, weight] + ([bias] if bias else []), transB=1)
-        weight = linear.weight.detach().float().t().contiguous().numpy()  # (I, O)
-        if self.weights == "dynamic":  # int8 per tensor, activations quantised per call
-            scale = max(float(np.abs(weight).max()), 1e-12) / 127.0
-            quantized = np.clip(np.round(weight / scale), -127, 127).astype(np.int8)
-            operands = [
-                inputs,
-                self.constant(f"{stem}.weight", quantized),
-                self.constant(f"{stem}.scale", np.array(scale, np.float32)),
-                self.constant(f"{stem}.zero", np.array(0, np.int8)),
-            ]
-            return self.op(
-                "DynamicQuantizeMatMul", operands + ([bias] if bias else []), domain=MICROSOFT
-            )
-        output = self._blockwise(stem, inputs, weight)
-        return output if bias is None else self.op("Add", [output, bias])
-
-    def _blockwise(self, stem: str, inputs: str, weight: np.ndarray) -> str:
-        """``inputs @ weight`` (I, O) as ONNX Runtime's ``MatMulNBits`` (8 bits, symmetric,
-        int8 arithmetic: ``accuracy_level`` 4) on :func:`blockwise_int8` of the weight."""
-        packed, scales = blockwise_int8(weight)
-        return self.op(
+    def linear(self, stem: str, inputs: str) -> str:
+        """The plan's Linear ``stem`` on ``inputs`` (B, I), in the step's weight format."""
+        step = self.step
+        bias = [self.array(f"{stem}.bias")] if f"{stem}.bias" in step.arrays else []
+        if step.weights == "fp32":  # Gemm on the weight (O, I)
+            return self.op("Gemm", [inputs, self.array(f"{stem}.weight"), *bias], transB=1)
+        if step.weights == "dynamic":  # int8 per tensor, activations quantised per call
+            operands = [self.array(f"{stem}.{key}") for key in ("weight", "scale", "zero")]
+            return self.op("DynamicQuantizeMatMul", [inputs, *operands, *bias], domain=MICROSOFT)
+        output = self.op(  # 8 bits, symmetric, int8 arithmetic (accuracy_level 4)
             "MatMulNBits",
-            [
-                inputs,
-                self.constant(f"{stem}.weight", packed),
-                self.constant(f"{stem}.scales", scales),
-            ],
+            [inputs, self.array(f"{stem}.weight"), self.array(f"{stem}.scales")],
             domain=MICROSOFT,
-            K=weight.shape[0],
-            N=weight.shape[1],
+            K=step.input_sizes[stem],
+            N=step.arrays[f"{stem}.weight"].shape[0],
             bits=8,
             block_size=INT8_BLOCK,
             accuracy_level=4,
         )
+        return self.op("Add", [output, *bias]) if bias else output
 
-    def layer_norm_leaky(self, stem: str, inputs: str, norm: torch.nn.LayerNorm) -> str:
-        """LeakyReLU(0.2) of LayerNorm (last axis)."""
-        scale = self.constant(f"{stem}.weight", norm.weight.detach().float().numpy())
-        shift = self.constant(f"{stem}.bias", norm.bias.detach().float().numpy())
-        normed = self.op("LayerNormalization", [inputs, scale, shift], axis=-1, epsilon=norm.eps)
+    def layer_norm_leaky(self, stem: str, inputs: str) -> str:
+        """LeakyReLU(0.2) of the plan's LayerNorm ``stem`` (last axis)."""
+        scale, shift = self.array(f"{stem}.weight"), self.array(f"{stem}.bias")
+        epsilon = self.step.epsilons[stem]
+        normed = self.op("LayerNormalization", [inputs, scale, shift], axis=-1, epsilon=epsilon)
         return self.op("LeakyRelu", [normed], alpha=0.2)
 
     def split(self, inputs: str, sizes: list[int]) -> list[str]:
@@ -211,39 +269,73 @@ class _Graph:
         return self.op("Add", [candidate, change])
 
 
+def _weight_and_bias(linear: torch.nn.Module) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """A float32 Linear's or a dynamically quantised Linear's weight (O, I) and bias (or None)."""
+    from torch.ao.nn.quantized.dynamic import Linear as DynamicLinear
+
+    if isinstance(linear, DynamicLinear):
+        return linear.weight(), linear.bias()
+    if isinstance(linear, torch.nn.Linear) and linear.weight.dtype == torch.float32:
+        return linear.weight.detach(), None if linear.bias is None else linear.bias.detach()
+    raise ValueError("the onnx backend reads float32 or torch's int8 generation plans")
+
+
+def per_tensor_int8(weight: torch.Tensor) -> tuple[np.ndarray, float]:
+    """``weight`` (O, I) as ``DynamicQuantizeMatMul``'s int8 (I, O) and its one scale
+    (symmetric, zero point 0): a float weight quantised (scale: the largest magnitude / 127),
+    a per-tensor qint8 one with zero point 0 as it is."""
+    outputs, inputs = weight.shape
+    quantized = np.empty((inputs, outputs), np.int8)
+    if weight.is_quantized:
+        if weight.qscheme() != torch.per_tensor_affine or weight.q_zero_point() != 0:
+            raise ValueError("expected a per-tensor int8 weight with zero point 0")
+        for start in range(0, outputs, _QUANTISE_ROWS):
+            rows = weight[start : start + _QUANTISE_ROWS].int_repr().numpy()
+            quantized[:, start : start + len(rows)] = rows.T
+        return quantized, float(weight.q_scale())
+    scale = max(float(weight.abs().max()), 1e-12) / 127.0
+    for start in range(0, outputs, _QUANTISE_ROWS):
+        rows = _array(weight[start : start + _QUANTISE_ROWS])
+        quantized[:, start : start + len(rows)] = np.clip(np.round(rows / scale), -127, 127).T
+    return quantized, scale
+
+
 def blockwise_int8(weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``MatMulNBits``' 8-bit symmetric layout of ``weight`` (I, O) float32: each output's
     inputs in blocks of :data:`INT8_BLOCK` (the last zero-padded); a block's scale maps its
     entry of largest magnitude to -128, and the stored bytes are round(w / scale) + 128 (0 in
     the padding).
     Returns packed (O, blocks, INT8_BLOCK) uint8 and scales (O, blocks) float32; the same bytes
-    as ONNX Runtime's ``MatMulNBitsQuantizer`` (tested)."""
+    as ONNX Runtime's ``MatMulNBitsQuantizer`` (tested). Quantised a few outputs at a time
+    (``weight.T`` of a torch weight (O, I) is read without a copy)."""
     inputs, outputs = weight.shape
     blocks = -(-inputs // INT8_BLOCK)
-    padded = np.zeros((outputs, blocks * INT8_BLOCK), np.float32)
-    padded[:, :inputs] = weight.T
-    padded = padded.reshape(outputs, blocks, INT8_BLOCK)
-    largest = np.take_along_axis(padded, np.abs(padded).argmax(-1)[..., None], -1)[..., 0]
-    scales = (largest / -128.0).astype(np.float32)  # (O, blocks)
-    divisor = np.where(scales == 0, 1.0, scales)[..., None]
-    packed = (np.clip(np.round(padded / divisor), -128, 127) + 128).astype(np.uint8)
+    packed = np.empty((outputs, blocks, INT8_BLOCK), np.uint8)
+    scales = np.empty((outputs, blocks), np.float32)
+    padded = np.zeros((min(outputs, _QUANTISE_ROWS), blocks * INT8_BLOCK), np.float32)
+    for start in range(0, outputs, _QUANTISE_ROWS):
+        rows = weight[:, start : start + _QUANTISE_ROWS].T  # (r, I)
+        chunk = padded[: len(rows)]
+        chunk[:, :inputs] = rows
+        chunk = chunk.reshape(len(rows), blocks, INT8_BLOCK)
+        largest = np.take_along_axis(chunk, np.abs(chunk).argmax(-1)[..., None], -1)[..., 0]
+        scale = (largest / -128.0).astype(np.float32)  # (r, blocks)
+        divisor = np.where(scale == 0, 1.0, scale)[..., None]
+        quantized = np.clip(np.round(chunk / divisor), -128, 127) + 128
+        packed[start : start + len(rows)] = quantized
+        scales[start : start + len(rows)] = scale
     packed.reshape(outputs, -1)[:, inputs:] = 0  # the padding, as the quantiser leaves it
     return packed, scales
 
 
-def step_model(plan: GenerationPlan, weights: str = "fp32"):
-    """The ONNX model (``onnx.ModelProto``) of one step of ``plan`` (float32 weights), inputs
-    :data:`STEP_INPUTS`, outputs :data:`STEP_OUTPUTS`, batch and word counts dynamic, the
-    products' weights in the format ``weights`` (:data:`WEIGHT_FORMATS`), and its external
-    initialisers {name: array}: ``fp32``'s product weights are the plan's own arrays (no copy);
-    the int8 formats are made weight by weight (no float32 copy of all the weights)."""
+def step_model(step: StepWeights):
+    """The ONNX model (``onnx.ModelProto``) of one step, inputs :data:`STEP_INPUTS`, outputs
+    :data:`STEP_OUTPUTS`, batch and word counts dynamic, and its initialisers {name: array}:
+    all of ``step``'s arrays, external (the model holds no copy of them)."""
     from onnx import TensorProto, helper
 
-    if weights not in WEIGHT_FORMATS:
-        raise ValueError(f"unknown weight format {weights!r}; use one of {WEIGHT_FORMATS}")
-    h, z = plan.hidden_size, plan.latent_size
-    code_size = plan.output_last.weight.shape[0]
-    g = _Graph(weights)
+    h, z, code_size = step.hidden_size, step.latent_size, step.code_size
+    g = _Graph(step)
     (h_prior, h_gen, previous, prior_hidden, gen_hidden, time_code, noise) = STEP_INPUTS[:7]
     score_table, score_bias, value_table = STEP_INPUTS[7:]
     # attention over the words: softmax(h_gen (keys W_q) + bias) (values W_att^T)
@@ -253,30 +345,20 @@ def step_model(plan: GenerationPlan, weights: str = "fp32"):
     attention = g.op(
         "Squeeze", [g.op("MatMul", [word_weights, value_table]), g.constant("axis", np.array([1]))]
     )  # (B, 2H)
-    pre_prior, pre_gen = g.split(
-        g.op("Add", [g.linear("previous", previous, plan.previous), attention]), [h, h]
-    )
+    pre_prior, pre_gen = g.split(g.op("Add", [g.linear("previous", previous), attention]), [h, h])
     # prior
-    inputs = g.op("Add", [g.layer_norm_leaky("prior_norm", pre_prior, plan.prior_norm), time_code])
-    new_prior = g.gru(g.linear("prior_gates", inputs, plan.prior_gates), prior_hidden, h_prior, h)
-    next_prior_hidden, mean, logvar = g.split(
-        g.linear("prior_state", new_prior, plan.prior_state), [3 * h, z, z]
-    )
+    inputs = g.op("Add", [g.layer_norm_leaky("prior_norm", pre_prior), time_code])
+    new_prior = g.gru(g.linear("prior_gates", inputs), prior_hidden, h_prior, h)
+    next_prior_hidden, mean, logvar = g.split(g.linear("prior_state", new_prior), [3 * h, z, z])
     half = g.constant("half", np.array(0.5, np.float32))
     std = g.op("Exp", [g.op("Mul", [logvar, half])])
     latent = g.op("Add", [mean, g.op("Mul", [std, noise])])
     # generator
-    pre_gen = g.op("Add", [pre_gen, g.linear("latent", latent, plan.latent)])
-    inputs = g.op(
-        "Add", [g.layer_norm_leaky("generator_norm", pre_gen, plan.generator_norm), time_code]
-    )
-    new_gen = g.gru(g.linear("generator_gates", inputs, plan.generator_gates), gen_hidden, h_gen, h)
-    next_gen_hidden, first = g.split(
-        g.linear("generator_state", new_gen, plan.generator_state), [3 * h, h]
-    )
-    code = g.linear(
-        "output_last", g.layer_norm_leaky("output_norm", first, plan.output_norm), plan.output_last
-    )
+    pre_gen = g.op("Add", [pre_gen, g.linear("latent", latent)])
+    inputs = g.op("Add", [g.layer_norm_leaky("generator_norm", pre_gen), time_code])
+    new_gen = g.gru(g.linear("generator_gates", inputs), gen_hidden, h_gen, h)
+    next_gen_hidden, first = g.split(g.linear("generator_state", new_gen), [3 * h, h])
+    code = g.linear("output_last", g.layer_norm_leaky("output_norm", first))
     # name the outputs
     for name, value in zip(
         STEP_OUTPUTS, (new_prior, new_gen, code, next_prior_hidden, next_gen_hidden), strict=True
@@ -302,14 +384,16 @@ def step_model(plan: GenerationPlan, weights: str = "fp32"):
     return helper.make_model(graph, opset_imports=opsets), g.external
 
 
-def session(model, external: dict[str, object], threads: int):
+def session(model, external: dict[str, np.ndarray], threads: int):
     """An ONNX Runtime CPU session of ``model`` with ``threads`` threads (no spinning);
-    ``external``: its external initialisers' values (OrtValues, which must outlive it)."""
+    ``external``: its external initialisers' arrays (ONNX Runtime copies them: they need not
+    outlive the session, tested)."""
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     if external:
-        options.add_external_initializers(list(external), list(external.values()))
+        values = [ort.OrtValue.ortvalue_from_numpy(value) for value in external.values()]
+        options.add_external_initializers(list(external), values)
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
@@ -325,52 +409,63 @@ class OnnxGenerationPlan:
     (:func:`~t2m.models.fast_recurrence.set_generation_plan` makes ``TemporalVAE.generate``
     use it).
 
+    The sessions are made on first use, each for the batch sizes it runs (an int8 plan that
+    only ever sees one sequence never makes the batched one). ONNX Runtime copies the weights
+    it is given when it makes a session (tested), so the arrays they were made from are let go
+    then, and later changes to the model's weights are not seen.
+
     Args:
-        plan: a float32 plan (or a float32 :class:`OnnxGenerationPlan`: its ``base``). int8
-            sessions hold their own int8 weights; the fp32 session reads the plan's float32
-            arrays (kept alive here) and packs its own copy of them, so later changes to the
-            model's weights are not seen.
+        base: the torch plan that makes the per-sequence tables (:meth:`GenerationPlan.tables`)
+            and the first step's hidden-gate pre-activations, and whose products the sessions
+            run unless ``weights`` is given: fp32 needs a float32 plan; int8 quantises a
+            float32 plan's weights, or reads those of torch's int8 plan
+            (:func:`t2m.quantize.quantize_int8`) as they are for the batched session. A
+            float32 pipeline's :class:`OnnxGenerationPlan` stands for its ``base``.
         precision: ``"fp32"`` or ``"int8"``.
         threads: ONNX Runtime's intra-op threads (default: torch's thread count now).
-        base: the torch plan that makes the per-sequence tables (:meth:`GenerationPlan.tables`)
-            and the first step's hidden-gate pre-activations (default ``plan``); a public
-            attribute: an int8 pipeline sets it to its model's quantised plan once the model is
-            quantised, so that the float32 one is not kept.
+        weights: int8: the one-sequence session's weights, ``step_weights(float_plan,
+            "blockwise")``, for a ``base`` that is torch's int8 plan: a pipeline makes them
+            before it quantises its model in place, and never holds the float32 weights, the
+            int8 model and ONNX Runtime at once.
     """
 
     def __init__(
         self,
-        plan: GenerationPlan,
+        base: GenerationPlan,
         precision: str = "fp32",
         threads: int | None = None,
-        base: GenerationPlan | None = None,
+        weights: StepWeights | None = None,
     ) -> None:
         require()
-        import onnxruntime as ort
-
-        if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
-            plan = plan.base
+        if isinstance(base, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
+            base = base.base
         if precision not in ONNX_PRECISIONS:
             raise ValueError(
                 f"the onnx backend runs {' and '.join(ONNX_PRECISIONS)}, not {precision!r}"
             )
-        if plan.output_last.weight.dtype != torch.float32:
-            raise ValueError("OnnxGenerationPlan is built from a float32 GenerationPlan")
+        one_sequence = "fp32" if precision == "fp32" else "blockwise"
+        if weights is None:
+            weights = step_weights(base, one_sequence)
+        elif weights.weights != one_sequence:
+            raise ValueError(f"{precision} runs {one_sequence} weights, not {weights.weights}")
         self.precision = precision
-        self.hidden_size = plan.hidden_size
-        self.base = base or plan
-        threads = threads or torch.get_num_threads()
-        formats = {1: "fp32"} if precision == "fp32" else {1: "blockwise", BATCHED_FROM: "dynamic"}
-        self.sessions = {}  # batch size from which each session runs
-        self.shared_weights: dict[str, object] = {}  # OrtValues on the plan's own arrays
-        for batch, weights in formats.items():
-            model, external = step_model(plan, weights)
-            values = {k: ort.OrtValue.ortvalue_from_numpy(v) for k, v in external.items()}
-            self.shared_weights.update(values)
-            self.sessions[batch] = session(model, values, threads)
+        self.hidden_size = base.hidden_size
+        self.base = base
+        self.threads = threads or torch.get_num_threads()
+        # batch size from which a session runs -> its weights (None: base's), until it is made
+        self._weights: dict[int, StepWeights | None] = {1: weights}
+        if precision == "int8":
+            self._weights[BATCHED_FROM] = None
+        self.sessions = {}  # batch size from which each session runs -> the session
 
     def _session(self, batch: int):
-        return self.sessions[max(b for b in self.sessions if b <= batch)]
+        """The session for ``batch`` sequences, made on first use."""
+        start = max(b for b in self._weights if b <= batch)
+        if start not in self.sessions:
+            step = self._weights.pop(start) or step_weights(self.base, "dynamic")
+            self._weights[start] = None
+            self.sessions[start] = session(*step_model(step), self.threads)
+        return self.sessions[start]
 
     @torch.inference_mode()
     def __call__(

@@ -24,7 +24,7 @@ pytest.importorskip("onnxruntime", reason="the onnx backend's optional packages 
 from t2m.config import TemporalVAEConfig, TextEncoderConfig  # noqa: E402
 from t2m.models.fast_recurrence import generation_plan, set_generation_plan  # noqa: E402
 from t2m.models.temporal_vae import TemporalVAE  # noqa: E402
-from t2m.onnx_backend import BATCHED_FROM, OnnxGenerationPlan  # noqa: E402
+from t2m.onnx_backend import BATCHED_FROM, OnnxGenerationPlan, step_weights  # noqa: E402
 from t2m.pipeline import TextToMotion  # noqa: E402
 from t2m.quantize import quantize_int8  # noqa: E402
 
@@ -53,10 +53,11 @@ def case(seed: int, batch: int, steps: int):
 def onnx_copy(vae: TemporalVAE, precision: str) -> TemporalVAE:
     """A copy of ``vae`` whose generation runs in ONNX Runtime (as the pipeline sets it up)."""
     copied = copy.deepcopy(vae)
-    plan = OnnxGenerationPlan(generation_plan(copied), precision)
+    weights = None
     if precision == "int8":
+        weights = step_weights(generation_plan(copied), "blockwise")
         copied = quantize_int8(copied, inplace=True)
-    plan.base = generation_plan(copied)
+    plan = OnnxGenerationPlan(generation_plan(copied), precision, weights=weights)
     set_generation_plan(copied, plan)
     return copied
 
