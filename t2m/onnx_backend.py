@@ -3,22 +3,25 @@
 
 The graph is written here from the plan's weights (``onnx.helper``, no tracing): the same sums as
 :meth:`GenerationPlan.forward` (stacked products, attention through the per-sequence tables,
-the GRU gates written out). ONNX Runtime runs the step as about 55 kernels, with less overhead than
-torch's ~250 operator calls, and its matrix-vector kernels read the weights faster.
+the GRU gates written out), except that each GRU's hidden-gate product reads the state at the
+start of the step instead of being stacked with the previous step's readers of that state (the
+same products; the step needs no state but the plan's three, and no first step in torch).
+ONNX Runtime runs the step as about 60 kernels, with less overhead than torch's ~250 operator
+calls, and its matrix-vector kernels read the weights faster.
 
 Two precisions:
 
-* ``fp32``: ``Gemm`` on the plan's float32 weights, handed to ONNX Runtime without a copy
-  (it keeps its own packed copy of them);
-* ``int8``: symmetric int8 weights, activations quantised on the fly, in two sessions, each
-  with its own int8 copy of the weights (15.6 MB at paper size). One sequence runs
-  ``MatMulNBits`` (one scale per block of :data:`INT8_BLOCK` inputs of a row, made by ONNX
-  Runtime's own quantiser, int8 arithmetic); batches run ``DynamicQuantizeMatMul`` (one scale
-  per weight, as torch's dynamic quantisation), whose kernel is the faster one from two
-  sequences on (:data:`BATCHED_FROM`).
+* ``fp32``: ``Gemm`` on the plan's float32 weights;
+* ``int8``: symmetric int8 weights, activations quantised on the fly, in two sessions. One
+  sequence runs ``MatMulNBits`` (one scale per block of :data:`INT8_BLOCK` inputs of a row, made
+  by ONNX Runtime's own quantiser, int8 arithmetic); batches run ``DynamicQuantizeMatMul``
+  (one scale per output), whose kernel is the faster one from two sequences on
+  (:data:`BATCHED_FROM`); its weights are made from the blockwise ones, and only when a batch
+  first comes.
 
-The per-sequence tables and the first step's hidden-gate products stay in torch, in a torch
-plan (``base``): they run once per motion.
+int8 is made from the float32 model before it is quantised (:class:`OnnxGenerationPlan`
+holds no float32 weights): the products' weights, and the per-sequence tables' as torch int8
+Linears (the tables run once per motion, in torch).
 
 Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Needs the
 ``onnx`` and ``onnxruntime`` packages (the ``onnx`` extra of ``setup.cfg``);
@@ -28,15 +31,18 @@ Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Ne
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import torch
 
+from t2m.models.fast_recurrence import GenerationPlan, generation_plan
+
 if TYPE_CHECKING:
-    from t2m.models.fast_recurrence import GenerationPlan
-    from t2m.models.temporal_vae import RecurrentState, WordContext
+    from t2m.models.temporal_vae import RecurrentState, TemporalVAE, WordContext
 
 BACKENDS = ("torch", "onnx")
 """Generation backends of :class:`t2m.pipeline.TextToMotion`."""
@@ -47,14 +53,14 @@ ONNX_PRECISIONS = ("fp32", "int8")
 OPSET = 17  # LayerNormalization is in the default domain from opset 17
 
 BATCHED_FROM = 2
-"""int8: batches of this many sequences or more run the ``MatMulInteger`` session, smaller
-ones the ``MatMulNBits`` session. One step, 1 thread, paper size, ms ``MatMulNBits`` /
+"""int8: batches of this many sequences or more run the ``DynamicQuantizeMatMul`` session,
+smaller ones the ``MatMulNBits`` session. One step, 1 thread, paper size, ms ``MatMulNBits`` /
 ``MatMulInteger``: batch 1 0.93 / 1.25, 2 5.1 / 1.3, 4 5.9 / 1.6, 8 7.8 / 2.3, 32 8.7 / 5.2
 (``MatMulNBits`` has a matrix-vector kernel for a single row only)."""
 
 WEIGHT_FORMATS = ("fp32", "blockwise", "dynamic")
 """How :func:`step_model` stores the products' weights: float32 (``Gemm``), int8 with a scale
-per block of :data:`INT8_BLOCK` inputs (``MatMulNBits``), int8 with one scale per weight and
+per block of :data:`INT8_BLOCK` inputs (``MatMulNBits``), int8 with one scale per output and
 activations quantised per call (``DynamicQuantizeMatMul``)."""
 
 MICROSOFT = "com.microsoft"  # ONNX Runtime's own operators (MatMulNBits, DynamicQuantizeMatMul)
@@ -66,17 +72,15 @@ STEP_INPUTS = (
     "h_prior",  # (B, H)
     "h_gen",  # (B, H)
     "previous",  # (B, C)
-    "prior_hidden",  # (B, 3H): the prior GRU's hidden-gate pre-activations of h_prior
-    "gen_hidden",  # (B, 3H)
     "time_code",  # (B, H)
     "noise",  # (B, Z)
     "score_table",  # (B, H, L): the plan's score table, transposed
     "score_bias",  # (B, 1, L)
     "value_table",  # (B, L, 2H)
 )
-STATE_INPUTS = STEP_INPUTS[:5]
+STATE_INPUTS = STEP_INPUTS[:3]
 """The inputs that the next step reads from this step's outputs, in :data:`STEP_OUTPUTS`' order."""
-STEP_OUTPUTS = ("new_prior", "new_gen", "code", "next_prior_hidden", "next_gen_hidden")
+STEP_OUTPUTS = ("new_prior", "new_gen", "code")
 
 
 def available() -> bool:
@@ -95,16 +99,19 @@ def require() -> None:
         )
 
 
-LINEARS = (
-    "previous",
-    "prior_gates",
-    "prior_state",
-    "latent",
-    "generator_gates",
-    "generator_state",
-    "output_last",
-)
-"""The plan's Linears that the step graph runs (the tables' two stay in torch)."""
+STEP_LINEARS = {
+    "previous": ("previous", 0, 2),  # (2H, C): both blocks' inputs from the previous code
+    "prior_gates": ("prior_gates", 0, 3),  # (3H, H)
+    "prior_hidden": ("prior_state", 0, 3),  # (3H, H)
+    "prior_gaussian": ("prior_state", 3, None),  # (2Z, H): mean, log-variance
+    "latent": ("latent", 0, 1),  # (H, Z)
+    "generator_gates": ("generator_gates", 0, 3),
+    "generator_hidden": ("generator_state", 0, 3),
+    "output_first": ("generator_state", 3, 4),  # (H, H)
+    "output_last": ("output_last", 0, None),  # (C, H)
+}
+"""The step graph's products: name -> (the plan's Linear, its first row, its end row in units
+of the hidden size H; None: to the last row)."""
 NORMS = ("prior_norm", "generator_norm", "output_norm")
 
 _QUANTISE_ROWS = 256
@@ -112,13 +119,52 @@ _QUANTISE_ROWS = 256
 the process's heap)."""
 
 
+class RowBlocks(NamedTuple):
+    """A Linear as the row blocks of its weight (O_i, I) and bias (O_i,) (or None), as
+    :class:`GenerationPlan` hands them to its Linear factory: views of the model's weights,
+    stacked by nobody."""
+
+    weights: list[torch.Tensor]
+    biases: list[torch.Tensor] | None
+
+    @staticmethod
+    def of(weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor] | None) -> RowBlocks:
+        """A :data:`~t2m.models.fast_recurrence.LinearFactory` that keeps the blocks as they
+        are (``GenerationPlan(vae, RowBlocks.of)`` copies no weight)."""
+        detached = [w.detach() for w in weights]
+        return RowBlocks(detached, None if biases is None else [b.detach() for b in biases])
+
+    def rows(self, start: int, stop: int | None) -> RowBlocks:
+        """Rows ``start`` to ``stop`` (None: the end) of the stacked blocks, as views."""
+        weights, biases = [], []
+        offset = 0
+        for index, weight in enumerate(self.weights):
+            low = max(start - offset, 0)
+            high = weight.shape[0] if stop is None else min(weight.shape[0], stop - offset)
+            if low < high:
+                weights.append(weight[low:high])
+                if self.biases is not None:
+                    biases.append(self.biases[index][low:high])
+            offset += weight.shape[0]
+        return RowBlocks(weights, None if self.biases is None else biases)
+
+
+def _blocks(linear: torch.nn.Module | RowBlocks) -> RowBlocks:
+    """A float32 plan's Linear (or :class:`RowBlocks`) as row blocks."""
+    if isinstance(linear, RowBlocks):
+        return linear
+    if isinstance(linear, torch.nn.Linear) and linear.weight.dtype == torch.float32:
+        return RowBlocks.of([linear.weight], None if linear.bias is None else [linear.bias])
+    raise ValueError("the onnx backend is made from a float32 model or generation plan")
+
+
 @dataclass(frozen=True)
 class StepWeights:
     """What :func:`step_model` builds a step graph from, numpy only (no ``onnx`` needed to make
-    it): the plan's sizes, its LayerNorms' epsilons, each Linear's input size and every
-    initialiser by name: ``<linear>.weight`` in the format ``weights`` (:data:`WEIGHT_FORMATS`;
-    ``blockwise`` adds ``.scales``, ``dynamic`` ``.scale`` and ``.zero``), ``<linear>.bias``
-    where there is one, ``<norm>.weight`` and ``<norm>.bias``."""
+    it): the plan's sizes, its LayerNorms' epsilons, each product's input size and every
+    initialiser by name: ``<product>.weight`` in the format ``weights`` (:data:`WEIGHT_FORMATS`;
+    ``blockwise`` adds ``.scales``, ``dynamic`` ``.scale``), ``<product>.bias`` where there is
+    one, ``<norm>.weight`` and ``<norm>.bias``."""
 
     weights: str
     hidden_size: int
@@ -128,48 +174,62 @@ class StepWeights:
     epsilons: dict[str, float]
     arrays: dict[str, np.ndarray]
 
+    def to_dynamic(self) -> StepWeights:
+        """Blockwise weights as ``dynamic`` ones: each output's int8 row rescaled to one scale
+        (:func:`per_output_int8` of the dequantised blocks; the rest shared)."""
+        if self.weights != "blockwise":
+            raise ValueError(f"to_dynamic converts blockwise weights, not {self.weights}")
+        arrays = dict(self.arrays)
+        for name, inputs in self.input_sizes.items():
+            packed, scales = arrays.pop(f"{name}.weight"), arrays.pop(f"{name}.scales")
+            arrays[f"{name}.weight"], arrays[f"{name}.scale"] = per_output_int8(
+                lambda start, stop, p=packed, s=scales, i=inputs: _dequantised(
+                    p, s, i, start, stop
+                ),
+                len(packed),
+            )
+        return replace(self, weights="dynamic", arrays=arrays)
+
 
 def step_weights(plan: GenerationPlan, weights: str = "fp32") -> StepWeights:
     """The initialisers of ``plan``'s step graph with the products' weights in the format
     ``weights``: ``fp32``'s are the plan's own float32 arrays (no copy where they are
-    contiguous); the int8 formats are quantised a few rows at a time, from float32 Linears or,
-    for ``dynamic``, also from torch's dynamically quantised ones (their int8 values and scale
-    as they are: :func:`t2m.quantize.quantize_int8`'s plan). A float32 pipeline's
-    :class:`OnnxGenerationPlan` stands for its torch plan."""
+    contiguous); the int8 formats are quantised a few rows at a time (no float32 copy of a
+    weight). ``plan``: a float32 plan, or one built with :meth:`RowBlocks.of`."""
     if weights not in WEIGHT_FORMATS:
         raise ValueError(f"unknown weight format {weights!r}; use one of {WEIGHT_FORMATS}")
-    if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
-        plan = plan.base
+    h = plan.hidden_size
     arrays: dict[str, np.ndarray] = {}
     input_sizes = {}
-    for stem in LINEARS:
-        linear = getattr(plan, stem)
-        weight, bias = _weight_and_bias(linear)
-        input_sizes[stem] = weight.shape[1]
-        if bias is not None:
-            arrays[f"{stem}.bias"] = _array(bias)
-        if weights != "dynamic" and weight.is_quantized:
-            raise ValueError(f"{weights} weights are made from a float32 plan")
+
+    def floats(tensor: torch.Tensor) -> np.ndarray:  # int8: copies, nothing of the model kept
+        return _array(tensor) if weights == "fp32" else _array(tensor).copy()
+
+    for name, (source, start, stop) in STEP_LINEARS.items():
+        blocks = _blocks(getattr(plan, source)).rows(start * h, None if stop is None else stop * h)
+        input_sizes[name] = blocks.weights[0].shape[1]
+        if blocks.biases is not None:
+            arrays[f"{name}.bias"] = floats(_stacked(blocks.biases))
         if weights == "fp32":
-            arrays[f"{stem}.weight"] = _array(weight)
+            arrays[f"{name}.weight"] = _array(_stacked(blocks.weights))
         elif weights == "blockwise":
-            packed, scales = blockwise_int8(_array(weight).T)
-            arrays[f"{stem}.weight"], arrays[f"{stem}.scales"] = packed, scales
+            arrays[f"{name}.weight"], arrays[f"{name}.scales"] = blockwise_int8_rows(blocks.weights)
         else:
-            arrays[f"{stem}.weight"], scale = per_tensor_int8(weight)
-            arrays[f"{stem}.scale"] = np.array(scale, np.float32)
-            arrays[f"{stem}.zero"] = np.array(0, np.int8)
-    for stem in NORMS:
-        norm = getattr(plan, stem)
-        arrays[f"{stem}.weight"] = _array(norm.weight)
-        arrays[f"{stem}.bias"] = _array(norm.bias)
+            rows = _stacked(blocks.weights)
+            arrays[f"{name}.weight"], arrays[f"{name}.scale"] = per_output_int8(
+                lambda start, stop, rows=rows: _array(rows[start:stop]), len(rows)
+            )
+    for name in NORMS:
+        norm = getattr(plan, name)
+        arrays[f"{name}.weight"] = floats(norm.weight)
+        arrays[f"{name}.bias"] = floats(norm.bias)
     return StepWeights(
         weights=weights,
-        hidden_size=plan.hidden_size,
+        hidden_size=h,
         latent_size=plan.latent_size,
         code_size=input_sizes["previous"],
         input_sizes=input_sizes,
-        epsilons={stem: getattr(plan, stem).eps for stem in NORMS},
+        epsilons={name: getattr(plan, name).eps for name in NORMS},
         arrays=arrays,
     )
 
@@ -229,9 +289,10 @@ class _Graph:
         bias = [self.array(f"{stem}.bias")] if f"{stem}.bias" in step.arrays else []
         if step.weights == "fp32":  # Gemm on the weight (O, I)
             return self.op("Gemm", [inputs, self.array(f"{stem}.weight"), *bias], transB=1)
-        if step.weights == "dynamic":  # int8 per tensor, activations quantised per call
-            operands = [self.array(f"{stem}.{key}") for key in ("weight", "scale", "zero")]
-            return self.op("DynamicQuantizeMatMul", [inputs, *operands, *bias], domain=MICROSOFT)
+        if step.weights == "dynamic":  # int8, a scale per output, activations quantised per call
+            operands = [self.array(f"{stem}.weight"), self.array(f"{stem}.scale")]
+            operands += ["", *bias] if bias else []  # no zero point: symmetric
+            return self.op("DynamicQuantizeMatMul", [inputs, *operands], domain=MICROSOFT)
         output = self.op(  # 8 bits, symmetric, int8 arithmetic (accuracy_level 4)
             "MatMulNBits",
             [inputs, self.array(f"{stem}.weight"), self.array(f"{stem}.scales")],
@@ -269,63 +330,62 @@ class _Graph:
         return self.op("Add", [candidate, change])
 
 
-def _weight_and_bias(linear: torch.nn.Module) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """A float32 Linear's or a dynamically quantised Linear's weight (O, I) and bias (or None)."""
-    from torch.ao.nn.quantized.dynamic import Linear as DynamicLinear
-
-    if isinstance(linear, DynamicLinear):
-        return linear.weight(), linear.bias()
-    if isinstance(linear, torch.nn.Linear) and linear.weight.dtype == torch.float32:
-        return linear.weight.detach(), None if linear.bias is None else linear.bias.detach()
-    raise ValueError("the onnx backend reads float32 or torch's int8 generation plans")
-
-
-def per_tensor_int8(weight: torch.Tensor) -> tuple[np.ndarray, float]:
-    """``weight`` (O, I) as ``DynamicQuantizeMatMul``'s int8 (I, O) and its one scale
-    (symmetric, zero point 0): a float weight quantised (scale: the largest magnitude / 127),
-    a per-tensor qint8 one with zero point 0 as it is."""
-    outputs, inputs = weight.shape
-    quantized = np.empty((inputs, outputs), np.int8)
-    if weight.is_quantized:
-        if weight.qscheme() != torch.per_tensor_affine or weight.q_zero_point() != 0:
-            raise ValueError("expected a per-tensor int8 weight with zero point 0")
-        for start in range(0, outputs, _QUANTISE_ROWS):
-            rows = weight[start : start + _QUANTISE_ROWS].int_repr().numpy()
-            quantized[:, start : start + len(rows)] = rows.T
-        return quantized, float(weight.q_scale())
-    scale = max(float(weight.abs().max()), 1e-12) / 127.0
-    for start in range(0, outputs, _QUANTISE_ROWS):
-        rows = _array(weight[start : start + _QUANTISE_ROWS])
-        quantized[:, start : start + len(rows)] = np.clip(np.round(rows / scale), -127, 127).T
-    return quantized, scale
-
-
 def blockwise_int8(weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``MatMulNBits``' 8-bit symmetric layout of ``weight`` (I, O) float32: each output's
     inputs in blocks of :data:`INT8_BLOCK` (the last zero-padded); a block's scale maps its
     entry of largest magnitude to -128, and the stored bytes are round(w / scale) + 128 (0 in
     the padding).
     Returns packed (O, blocks, INT8_BLOCK) uint8 and scales (O, blocks) float32; the same bytes
-    as ONNX Runtime's ``MatMulNBitsQuantizer`` (tested). Quantised a few outputs at a time
-    (``weight.T`` of a torch weight (O, I) is read without a copy)."""
-    inputs, outputs = weight.shape
-    blocks = -(-inputs // INT8_BLOCK)
-    packed = np.empty((outputs, blocks, INT8_BLOCK), np.uint8)
-    scales = np.empty((outputs, blocks), np.float32)
-    padded = np.zeros((min(outputs, _QUANTISE_ROWS), blocks * INT8_BLOCK), np.float32)
-    for start in range(0, outputs, _QUANTISE_ROWS):
-        rows = weight[:, start : start + _QUANTISE_ROWS].T  # (r, I)
-        chunk = padded[: len(rows)]
-        chunk[:, :inputs] = rows
-        chunk = chunk.reshape(len(rows), blocks, INT8_BLOCK)
-        largest = np.take_along_axis(chunk, np.abs(chunk).argmax(-1)[..., None], -1)[..., 0]
-        scale = (largest / -128.0).astype(np.float32)  # (r, blocks)
-        divisor = np.where(scale == 0, 1.0, scale)[..., None]
-        quantized = np.clip(np.round(chunk / divisor), -128, 127) + 128
-        packed[start : start + len(rows)] = quantized
-        scales[start : start + len(rows)] = scale
+    as ONNX Runtime's ``MatMulNBitsQuantizer`` (tested)."""
+    return blockwise_int8_rows([torch.from_numpy(weight.T)])
+
+
+def blockwise_int8_rows(blocks: Sequence[torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`blockwise_int8` of the weight whose rows (outputs) are ``blocks`` (O_i, I)
+    float32 stacked, a few rows at a time (no float32 copy of the stack)."""
+    inputs = blocks[0].shape[1]
+    outputs = sum(block.shape[0] for block in blocks)
+    width = -(-inputs // INT8_BLOCK)
+    packed = np.empty((outputs, width, INT8_BLOCK), np.uint8)
+    scales = np.empty((outputs, width), np.float32)
+    padded = np.zeros((_QUANTISE_ROWS, width * INT8_BLOCK), np.float32)
+    start = 0
+    for block in blocks:
+        for rows in block.split(_QUANTISE_ROWS):
+            chunk = padded[: len(rows)]
+            chunk[:, :inputs] = rows.numpy()
+            chunk = chunk.reshape(len(rows), width, INT8_BLOCK)
+            largest = np.take_along_axis(chunk, np.abs(chunk).argmax(-1)[..., None], -1)[..., 0]
+            scale = (largest / -128.0).astype(np.float32)  # (r, width)
+            divisor = np.where(scale == 0, 1.0, scale)[..., None]
+            packed[start : start + len(rows)] = np.clip(np.round(chunk / divisor), -128, 127) + 128
+            scales[start : start + len(rows)] = scale
+            start += len(rows)
     packed.reshape(outputs, -1)[:, inputs:] = 0  # the padding, as the quantiser leaves it
     return packed, scales
+
+
+def _dequantised(
+    packed: np.ndarray, scales: np.ndarray, inputs: int, start: int, stop: int
+) -> np.ndarray:
+    """Rows ``start:stop`` (r, inputs) float32 of blockwise int8 weights."""
+    values = (packed[start:stop].astype(np.float32) - 128.0) * scales[start:stop, :, None]
+    return values.reshape(len(values), -1)[:, :inputs]
+
+
+def per_output_int8(rows, outputs: int) -> tuple[np.ndarray, np.ndarray]:
+    """``DynamicQuantizeMatMul``'s int8 (I, O) of the weight (O, I) that ``rows(start, stop)``
+    gives a few float32 rows at a time, and its scales (O,): symmetric, each output's largest
+    magnitude mapped to 127, zero point 0."""
+    first = rows(0, _QUANTISE_ROWS)
+    quantized = np.empty((first.shape[1], outputs), np.int8)
+    scales = np.empty(outputs, np.float32)
+    for start in range(0, outputs, _QUANTISE_ROWS):
+        chunk = first if start == 0 else rows(start, start + _QUANTISE_ROWS)
+        scale = np.maximum(np.abs(chunk).max(1), 1e-12) / 127.0
+        quantized[:, start : start + len(chunk)] = np.round(chunk / scale[:, None]).T
+        scales[start : start + len(chunk)] = scale
+    return quantized, scales
 
 
 def step_model(step: StepWeights):
@@ -336,8 +396,8 @@ def step_model(step: StepWeights):
 
     h, z, code_size = step.hidden_size, step.latent_size, step.code_size
     g = _Graph(step)
-    (h_prior, h_gen, previous, prior_hidden, gen_hidden, time_code, noise) = STEP_INPUTS[:7]
-    score_table, score_bias, value_table = STEP_INPUTS[7:]
+    h_prior, h_gen, previous, time_code, noise = STEP_INPUTS[:5]
+    score_table, score_bias, value_table = STEP_INPUTS[5:]
     # attention over the words: softmax(h_gen (keys W_q) + bias) (values W_att^T)
     query = g.op("Unsqueeze", [h_gen, g.constant("axis", np.array([1]))])  # (B, 1, H)
     scores = g.op("Add", [g.op("MatMul", [query, score_table]), score_bias])  # (B, 1, L)
@@ -348,31 +408,30 @@ def step_model(step: StepWeights):
     pre_prior, pre_gen = g.split(g.op("Add", [g.linear("previous", previous), attention]), [h, h])
     # prior
     inputs = g.op("Add", [g.layer_norm_leaky("prior_norm", pre_prior), time_code])
-    new_prior = g.gru(g.linear("prior_gates", inputs), prior_hidden, h_prior, h)
-    next_prior_hidden, mean, logvar = g.split(g.linear("prior_state", new_prior), [3 * h, z, z])
+    hidden = g.linear("prior_hidden", h_prior)
+    new_prior = g.gru(g.linear("prior_gates", inputs), hidden, h_prior, h)
+    mean, logvar = g.split(g.linear("prior_gaussian", new_prior), [z, z])
     half = g.constant("half", np.array(0.5, np.float32))
     std = g.op("Exp", [g.op("Mul", [logvar, half])])
     latent = g.op("Add", [mean, g.op("Mul", [std, noise])])
     # generator
     pre_gen = g.op("Add", [pre_gen, g.linear("latent", latent)])
     inputs = g.op("Add", [g.layer_norm_leaky("generator_norm", pre_gen), time_code])
-    new_gen = g.gru(g.linear("generator_gates", inputs), gen_hidden, h_gen, h)
-    next_gen_hidden, first = g.split(g.linear("generator_state", new_gen), [3 * h, h])
+    hidden = g.linear("generator_hidden", h_gen)
+    new_gen = g.gru(g.linear("generator_gates", inputs), hidden, h_gen, h)
+    first = g.linear("output_first", new_gen)
     code = g.linear("output_last", g.layer_norm_leaky("output_norm", first))
     # name the outputs
-    for name, value in zip(
-        STEP_OUTPUTS, (new_prior, new_gen, code, next_prior_hidden, next_gen_hidden), strict=True
-    ):
+    for name, value in zip(STEP_OUTPUTS, (new_prior, new_gen, code), strict=True):
         g.op("Identity", [value], [name])
 
     def tensor(name: str, *shape) -> object:
         return helper.make_tensor_value_info(name, TensorProto.FLOAT, ["batch", *shape])
 
-    sizes = {"h_prior": [h], "h_gen": [h], "previous": [code_size], "prior_hidden": [3 * h]}
-    sizes.update(gen_hidden=[3 * h], time_code=[h], noise=[z], score_table=[h, "words"])
-    sizes.update(score_bias=[1, "words"], value_table=["words", 2 * h])
+    sizes = {"h_prior": [h], "h_gen": [h], "previous": [code_size], "time_code": [h]}
+    sizes.update(noise=[z], score_table=[h, "words"], score_bias=[1, "words"])
+    sizes.update(value_table=["words", 2 * h])
     out_sizes = dict(new_prior=[h], new_gen=[h], code=[code_size])
-    out_sizes.update(next_prior_hidden=[3 * h], next_gen_hidden=[3 * h])
     graph = helper.make_graph(
         g.nodes,
         "t2m_generation_step",
@@ -404,67 +463,83 @@ def session(model, external: dict[str, np.ndarray], threads: int):
     )
 
 
+class WordTables(torch.nn.Module):
+    """The per-sequence tables of a :class:`GenerationPlan` (:meth:`GenerationPlan.tables`,
+    the same function) from its score and value tables and query bias alone."""
+
+    tables = GenerationPlan.tables
+
+    def __init__(self, score_table, value_table, query_bias: torch.Tensor) -> None:
+        super().__init__()
+        self.score_table, self.value_table = score_table, value_table
+        self.register_buffer("query_bias", query_bias)
+
+
 class OnnxGenerationPlan:
     """A :class:`GenerationPlan`'s rollout with the step in ONNX Runtime; call it as the plan
     (:func:`~t2m.models.fast_recurrence.set_generation_plan` makes ``TemporalVAE.generate``
     use it).
 
+    Made from a float32 model: fp32 holds its generation plan (the tables in torch, the
+    session's weights); int8 holds the blockwise int8 weights and the tables as torch int8
+    Linears, no float32 weights, so the model may be quantised in place afterwards
+    (:func:`t2m.quantize.quantize_int8` with ``plan=False``: nothing else reads torch's int8
+    plan).
+
     The sessions are made on first use, each for the batch sizes it runs (an int8 plan that
     only ever sees one sequence never makes the batched one). ONNX Runtime copies the weights
-    it is given when it makes a session (tested), so the arrays they were made from are let go
-    then, and later changes to the model's weights are not seen.
+    when it makes a session (tested), so the fp32 session sees the model's weights as they
+    were at the first generation, and the arrays of a session's weights are let go then
+    (int8 keeps the blockwise ones for the batched session).
 
     Args:
-        base: the torch plan that makes the per-sequence tables (:meth:`GenerationPlan.tables`)
-            and the first step's hidden-gate pre-activations, and whose products the sessions
-            run unless ``weights`` is given: fp32 needs a float32 plan; int8 quantises a
-            float32 plan's weights, or reads those of torch's int8 plan
-            (:func:`t2m.quantize.quantize_int8`) as they are for the batched session. A
-            float32 pipeline's :class:`OnnxGenerationPlan` stands for its ``base``.
+        vae: a float32 :class:`~t2m.models.temporal_vae.TemporalVAE` (a float32 pipeline's,
+            whose plan is already an :class:`OnnxGenerationPlan`, too).
         precision: ``"fp32"`` or ``"int8"``.
         threads: ONNX Runtime's intra-op threads (default: torch's thread count now).
-        weights: int8: the one-sequence session's weights, ``step_weights(float_plan,
-            "blockwise")``, for a ``base`` that is torch's int8 plan: a pipeline makes them
-            before it quantises its model in place, and never holds the float32 weights, the
-            int8 model and ONNX Runtime at once.
     """
 
-    def __init__(
-        self,
-        base: GenerationPlan,
-        precision: str = "fp32",
-        threads: int | None = None,
-        weights: StepWeights | None = None,
-    ) -> None:
+    def __init__(self, vae: TemporalVAE, precision: str = "fp32", threads: int | None = None):
         require()
-        if isinstance(base, OnnxGenerationPlan):  # a float32 pipeline's: its torch plan
-            base = base.base
+        from t2m.quantize import int8_linear
+
         if precision not in ONNX_PRECISIONS:
             raise ValueError(
                 f"the onnx backend runs {' and '.join(ONNX_PRECISIONS)}, not {precision!r}"
             )
-        one_sequence = "fp32" if precision == "fp32" else "blockwise"
-        if weights is None:
-            weights = step_weights(base, one_sequence)
-        elif weights.weights != one_sequence:
-            raise ValueError(f"{precision} runs {one_sequence} weights, not {weights.weights}")
         self.precision = precision
-        self.hidden_size = base.hidden_size
-        self.base = base
         self.threads = threads or torch.get_num_threads()
-        # batch size from which a session runs -> its weights (None: base's), until it is made
+        if precision == "fp32":
+            plan = generation_plan(vae)
+            if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's model
+                plan = plan.tables
+            if plan is None or not isinstance(plan.output_last, torch.nn.Linear):
+                raise ValueError("the onnx backend is made from a float32 model")
+            weights = step_weights(plan, "fp32")
+            self.tables: GenerationPlan | WordTables = plan
+        else:
+            plan = GenerationPlan(vae, RowBlocks.of)  # views of the model's weights
+            weights = step_weights(plan, "blockwise")
+            with warnings.catch_warnings():  # torch's deprecation of its eager int8 API
+                warnings.simplefilter("ignore", UserWarning)
+                self.tables = WordTables(
+                    int8_linear(*plan.score_table), int8_linear(*plan.value_table), plan.query_bias
+                )
+        self.hidden_size = weights.hidden_size
+        # batch size from which a session runs -> its weights, until the session is made
         self._weights: dict[int, StepWeights | None] = {1: weights}
         if precision == "int8":
-            self._weights[BATCHED_FROM] = None
+            self._weights[BATCHED_FROM] = None  # from the blockwise ones
         self.sessions = {}  # batch size from which each session runs -> the session
 
     def _session(self, batch: int):
         """The session for ``batch`` sequences, made on first use."""
         start = max(b for b in self._weights if b <= batch)
         if start not in self.sessions:
-            step = self._weights.pop(start) or step_weights(self.base, "dynamic")
-            self._weights[start] = None
+            step = self._weights[start] or self._weights[1].to_dynamic()
             self.sessions[start] = session(*step_model(step), self.threads)
+            if len(self.sessions) == len(self._weights):  # ONNX Runtime holds copies of all
+                self._weights = dict.fromkeys(self._weights)
         return self.sessions[start]
 
     @torch.inference_mode()
@@ -479,21 +554,14 @@ class OnnxGenerationPlan:
         """:meth:`GenerationPlan.forward` (arguments and results as there, float32, CPU)."""
         import onnxruntime as ort
 
-        h = self.hidden_size
-        score_table, score_bias, value_table = self.base.tables(context)
+        score_table, score_bias, value_table = self.tables.tables(context)
         fixed = {  # per sequence: contiguous float32 arrays, read by every step
             "score_table": _array(score_table.transpose(1, 2)),
             "score_bias": _array(score_bias.transpose(1, 2)),
             "value_table": _array(value_table),
         }
-        # the first step's hidden-gate pre-activations (later steps get them from the previous)
-        start = [
-            *state[:3],
-            self.base.prior_state(state.prior)[:, : 3 * h],
-            self.base.generator_state(state.generator)[:, : 3 * h],
-        ]
         # two sets of state arrays: step i reads set i % 2 and writes the other (no allocations)
-        states = [[_array(t).copy() for t in start], [_array(t).copy() for t in start]]
+        states = [[_array(t).copy() for t in state[:3]] for _ in range(2)]
         time_codes = _array(time_codes.transpose(0, 1))  # (S, B, H)
         noise = _array(noise.transpose(0, 1))  # (S, B, Z)
         step = {"time_code": time_codes[0].copy(), "noise": noise[0].copy()}
@@ -521,11 +589,16 @@ class OnnxGenerationPlan:
             if stopped is not None:  # an item's state stops after its last step
                 for array, before in zip(new, old, strict=True):
                     np.copyto(array, before, where=stopped[i, :, None])
-        h_prior, h_gen, previous = (torch.from_numpy(a) for a in states[steps % 2][:3])
+        h_prior, h_gen, previous = (torch.from_numpy(a) for a in states[steps % 2])
         final = state._replace(
             prior=h_prior, generator=h_gen, previous_code=previous, posterior=None
         )
         return final, torch.from_numpy(codes).transpose(0, 1)
+
+
+def _stacked(blocks: Sequence[torch.Tensor]) -> torch.Tensor:
+    """The blocks concatenated on the first axis (one block: itself, no copy)."""
+    return blocks[0] if len(blocks) == 1 else torch.cat(blocks)
 
 
 def _array(tensor: torch.Tensor) -> np.ndarray:

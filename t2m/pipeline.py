@@ -57,10 +57,10 @@ from t2m.models.autoencoder import (
     MovementEncoder,
     check_snippet_length,
 )
-from t2m.models.fast_recurrence import generation_plan, set_generation_plan
+from t2m.models.fast_recurrence import set_generation_plan
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
-from t2m.onnx_backend import BACKENDS, ONNX_PRECISIONS, OnnxGenerationPlan, step_weights
+from t2m.onnx_backend import BACKENDS, ONNX_PRECISIONS, OnnxGenerationPlan
 from t2m.onnx_backend import require as require_onnx
 from t2m.quantize import quantize_int8
 
@@ -231,15 +231,13 @@ class TextToMotion:
         if not copy_models and encoder is None:
             # nothing here reads the posterior without an encoder (it reads an edit's kept start)
             vae.release_posterior()
-        one_sequence = None  # the onnx backend's int8 weights, from the float ones
-        if backend == "onnx" and precision == "int8":
-            one_sequence = step_weights(generation_plan(vae), "blockwise")
-        if precision == "int8":
-            vae = quantize_int8(vae, inplace=not copy_models)
+        if backend == "onnx":  # from the float weights, before they are converted
+            onnx_plan = OnnxGenerationPlan(vae, precision)
+        if precision == "int8":  # with the onnx backend, no torch plan: nothing would read it
+            vae = quantize_int8(vae, inplace=not copy_models, plan=backend == "torch")
         elif precision == "bf16":
             vae = (copy.deepcopy(vae) if copy_models else vae).to(torch.bfloat16)
-        if backend == "onnx":  # the tables and first gates stay in the torch plan
-            onnx_plan = OnnxGenerationPlan(generation_plan(vae), precision, weights=one_sequence)
+        if backend == "onnx":
             if vae is original_vae and copy_models:  # the caller's module keeps its own plan
                 vae = copy.copy(vae)  # shares the weights
             set_generation_plan(vae, onnx_plan)

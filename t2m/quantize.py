@@ -121,14 +121,16 @@ def _convert(module: nn.Module, types: dict[type, type]) -> nn.Module:
     return module
 
 
-def quantize_int8(module: nn.Module, inplace: bool = False) -> nn.Module:
+def quantize_int8(module: nn.Module, inplace: bool = False, plan: bool = True) -> nn.Module:
     """``module`` with every ``nn.Linear``, ``nn.GRUCell`` and ``nn.GRU`` dynamically quantised
     to int8 (as torch's ``quantize_dynamic`` does), a :class:`TemporalVAE`'s generator input
     split first (see the module docstring).
 
     By default a copy (the original is left as is, and the process holds both for a while:
     +41% peak memory of a paper-size generation process); ``inplace``: the module's own layers
-    are replaced one by one, each float weight freed as its int8 copy is made.
+    are replaced one by one, each float weight freed as its int8 copy is made. ``plan``: give
+    a :class:`TemporalVAE` its int8 generation plan; False for a caller that sets its own (the
+    onnx backend: 15.6 MB less at paper size, 20 MB less at the peak while quantising).
     """
     if not inplace:
         module = copy.deepcopy(module)
@@ -140,7 +142,8 @@ def quantize_int8(module: nn.Module, inplace: bool = False) -> nn.Module:
 
         for vae in module.modules():
             if isinstance(vae, TemporalVAE):
-                set_generation_plan(vae, GenerationPlan(vae, int8_linear))
+                if plan:
+                    set_generation_plan(vae, GenerationPlan(vae, int8_linear))
                 latent = vae.config.latent_size
                 block = vae.generator
                 block.input = PartwiseLinear(
