@@ -580,13 +580,14 @@ class OnnxGenerationPlan:
         steps = len(time_codes)
         codes = np.empty((steps, *states[0][2].shape), np.float32)  # (S, B, C)
         stopped = None if lengths is None else (np.arange(steps)[:, None] >= lengths.cpu().numpy())
+        stopping = [False] * steps if stopped is None else stopped.any(1).tolist()
         for i in range(steps):
             np.copyto(step["time_code"], time_codes[i])
             np.copyto(step["noise"], noise[i])
             session.run_with_iobinding(bindings[i % 2])
             old, new = states[i % 2], states[1 - i % 2]
             codes[i] = new[2]
-            if stopped is not None:  # an item's state stops after its last step
+            if stopping[i]:  # an item's state stops after its last step
                 for array, before in zip(new, old, strict=True):
                     np.copyto(array, before, where=stopped[i, :, None])
         h_prior, h_gen, previous = (torch.from_numpy(a) for a in states[steps % 2])
