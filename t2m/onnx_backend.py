@@ -32,8 +32,9 @@ from __future__ import annotations
 
 import importlib.util
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -183,10 +184,7 @@ class StepWeights:
         for name, inputs in self.input_sizes.items():
             packed, scales = arrays.pop(f"{name}.weight"), arrays.pop(f"{name}.scales")
             arrays[f"{name}.weight"], arrays[f"{name}.scale"] = per_output_int8(
-                lambda start, stop, p=packed, s=scales, i=inputs: _dequantised(
-                    p, s, i, start, stop
-                ),
-                len(packed),
+                partial(_dequantised, packed, scales, inputs), len(packed)
             )
         return replace(self, weights="dynamic", arrays=arrays)
 
@@ -373,7 +371,9 @@ def _dequantised(
     return values.reshape(len(values), -1)[:, :inputs]
 
 
-def per_output_int8(rows, outputs: int) -> tuple[np.ndarray, np.ndarray]:
+def per_output_int8(
+    rows: Callable[[int, int], np.ndarray], outputs: int
+) -> tuple[np.ndarray, np.ndarray]:
     """``DynamicQuantizeMatMul``'s int8 (I, O) of the weight (O, I) that ``rows(start, stop)``
     gives a few float32 rows at a time, and its scales (O,): symmetric, each output's largest
     magnitude mapped to 127, zero point 0."""

@@ -235,3 +235,20 @@ def test_sessions_copy_their_weights(weights):
     for ours, theirs in zip(run.run(None, feeds), before, strict=True):
         np.testing.assert_array_equal(ours, theirs)
     assert np.isfinite(before[2]).all() and np.abs(before[2]).max() > 0
+
+
+@pytest.mark.parametrize("mode", ["continue", "inbetween"])
+def test_int8_pipeline_edits_without_a_torch_plan(tiny_run, mode):
+    # its int8 model has no torch generation plan: edits run the model's own int8 layers
+    from conftest import synth_joints
+
+    from t2m.edit import SearchSettings, edit, prepare_source
+
+    pipe = TextToMotion.from_checkpoints(
+        tiny_run, precision="int8", need_length_model=False, backend="onnx"
+    )
+    walk = synth_joints("walk_forward", 101, np.random.default_rng(3))
+    settings = SearchSettings(candidates=3, steps=3)
+    motion = edit(pipe, "a person walks forward", mode, walk, seed=0, settings=settings)[0]
+    assert np.isfinite(motion.joints).all()
+    np.testing.assert_allclose(motion.joints[:20], prepare_source(walk).joints[:20], atol=1e-4)
