@@ -56,8 +56,9 @@ OPSET = 17  # LayerNormalization is in the default domain from opset 17
 BATCHED_FROM = 2
 """int8: batches of this many sequences or more run the ``DynamicQuantizeMatMul`` session,
 smaller ones the ``MatMulNBits`` session. One step, 1 thread, paper size, ms ``MatMulNBits`` /
-``MatMulInteger``: batch 1 0.93 / 1.25, 2 5.1 / 1.3, 4 5.9 / 1.6, 8 7.8 / 2.3, 32 8.7 / 5.2
-(``MatMulNBits`` has a matrix-vector kernel for a single row only)."""
+the batched session (measured on 2026-12-01, when it ran ``MatMulInteger``): batch 1 0.93 /
+1.25, 2 5.1 / 1.3, 4 5.9 / 1.6, 8 7.8 / 2.3, 32 8.7 / 5.2 (``MatMulNBits`` has a matrix-vector
+kernel for a single row only)."""
 
 WEIGHT_FORMATS = ("fp32", "blockwise", "dynamic")
 """How :func:`step_model` stores the products' weights: float32 (``Gemm``), int8 with a scale
