@@ -116,6 +116,11 @@ class TemporalVAEConfig:
     attention_size: int = 512
     max_snippets: int = 64
     """Rows of the time-to-arrival sinusoidal table (>= longest motion in snippets + 1)."""
+    progress_frequencies: int = 0
+    """K > 0: each step also reads how much of its motion (or clause) is done, f in [0, 1): the
+    last 2K dimensions of its time code hold sin and cos of 2 pi k f for k = 1..K instead of the
+    time-to-arrival table's slowest frequencies (near constant over a motion). 0: the paper's
+    time codes (the original release's models)."""
 
 
 @dataclass
@@ -314,6 +319,10 @@ def demo() -> Config:
             hidden_size=256,
             latent_size=32,
             attention_size=128,
+            # Progress read beside the time to arrival (fourth session, whole test split, clause
+            # plan, ground-truth length): 0.853 against 0.838-0.846 for three seeds without,
+            # claps 0.53 against 0.38-0.44; real-mocap check 0.78 against 0.70.
+            progress_frequencies=8,
         ),
         batch_size=32,
         lr=1e-3,
@@ -606,8 +615,13 @@ def check_threads(threads: int, option: str = "--threads") -> None:
         raise UsageError(f"{option} must be from 0 to {cpus} (this machine's CPUs), got {threads}")
 
 
+OFF_AT_ZERO = frozenset({"progress_frequencies"})
+"""Model settings where 0 switches a part off (checked by :func:`validate` itself)."""
+
+
 def _check_numbers(node: Any, where: str) -> None:
-    """Every float of a config section finite; every int of a model section at least 1."""
+    """Every float of a config section finite; every int of a model section at least 1 (0 too
+    for :data:`OFF_AT_ZERO`)."""
     model = "model" in where.split(".")
     for item in dataclasses.fields(node):
         value, key = getattr(node, item.name), f"{where}.{item.name}".lstrip(".")
@@ -615,8 +629,10 @@ def _check_numbers(node: Any, where: str) -> None:
             _check_numbers(value, key)
         elif isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"{key} must be a finite number, got {value}")
-        elif model and isinstance(value, int) and not isinstance(value, bool) and value < 1:
-            raise ValueError(f"{key} must be at least 1, got {value}")
+        elif model and isinstance(value, int) and not isinstance(value, bool):
+            least = 0 if item.name in OFF_AT_ZERO else 1
+            if value < least:
+                raise ValueError(f"{key} must be at least {least}, got {value}")
         elif model and isinstance(value, tuple) and any(size < 1 for size in value):
             raise ValueError(f"{key} must hold sizes of at least 1, got {value}")
 
@@ -645,6 +661,12 @@ def validate(cfg: Config) -> None:
             f"autoencoder.model.dropout must be in [0, 1), got {autoencoder.model.dropout}"
         )
     generator = cfg.generator
+    progress = generator.model.progress_frequencies
+    if not 0 <= 2 * progress < generator.model.hidden_size:
+        raise ValueError(
+            "generator.model.progress_frequencies must be from 0 to less than half of "
+            f"generator.model.hidden_size, got {progress}"
+        )
     if not 1 <= generator.start_snippets <= generator.end_snippets:
         raise ValueError("need 1 <= generator.start_snippets <= generator.end_snippets")
     if generator.curriculum_step < 1:

@@ -99,6 +99,8 @@ def test_overrides_are_validated():
         ("t2m.model", "1", "is a section"),
         ("t2m.start_snippets", "60", "start_snippets <= generator.end_snippets"),
         ("ae.reconstruction_loss", "l2", "reconstruction_loss must be one of l1, smooth_l1"),
+        ("t2m.model.progress_frequencies", "-1", "progress_frequencies must be at least 0"),
+        ("t2m.model.progress_frequencies", "100", "less than half of generator.model.hidden"),
         ("data.max_frames", "100", "unknown config key"),  # the dataset's spec decides
     ]:
         with pytest.raises(ValueError, match=message):

@@ -13,6 +13,8 @@ the largest error relative to the largest value: bf16 autocast 3% (observed 0.8%
 from __future__ import annotations
 
 import copy
+import dataclasses
+import math
 
 import pytest
 import torch
@@ -20,18 +22,20 @@ import torch.nn.functional as F
 
 from t2m.config import TemporalVAEConfig, TextEncoderConfig
 from t2m.models.fast_recurrence import PackedLinear, generation_plan
-from t2m.models.temporal_vae import TemporalVAE, gaussian_kl, temporal_vae_loss
+from t2m.models.temporal_vae import TemporalVAE, gaussian_kl, sinusoidal_table, temporal_vae_loss
 from t2m.quantize import PartwiseLinear, quantize_int8
 
 WORD_DIM, L, CODE, LATENT = 12, 9, 16, 6
 CONFIG = TemporalVAEConfig(
     text=TextEncoderConfig(hidden_size=10), hidden_size=20, latent_size=LATENT, attention_size=8
 )
+PROGRESS = dataclasses.replace(CONFIG, progress_frequencies=3)
+"""The same model reading its progress too (the last 6 of the 20 time-code dimensions)."""
 
 
-def make_vae(seed: int = 0) -> TemporalVAE:
+def make_vae(seed: int = 0, config: TemporalVAEConfig = CONFIG) -> TemporalVAE:
     torch.manual_seed(seed)
-    return TemporalVAE(WORD_DIM, CODE, CONFIG)
+    return TemporalVAE(WORD_DIM, CODE, config)
 
 
 def text(vae: TemporalVAE, batch: int = 3, seed: int = 0):
@@ -52,9 +56,10 @@ def loss_of(outputs: dict[str, torch.Tensor], codes: torch.Tensor) -> torch.Tens
     return temporal_vae_loss(outputs, codes, outputs["codes"], codes)["loss"]
 
 
+@pytest.mark.parametrize("config", [CONFIG, PROGRESS], ids=["paper", "progress"])
 @pytest.mark.parametrize("teacher_forcing", [True, False])
-def test_fast_forward_equals_the_plain_step(teacher_forcing):
-    vae = make_vae()
+def test_fast_forward_equals_the_plain_step(teacher_forcing, config):
+    vae = make_vae(config=config)
     codes, initial, noise = (
         randn(3, 7, CODE, seed=1),
         randn(CODE, seed=2),
@@ -111,8 +116,9 @@ def manual_rollout(vae, features, sentence, mask, num_snippets, initial, noise):
     return torch.stack(codes, 1)
 
 
-def test_generate_is_the_step_by_step_rollout_with_explicit_or_drawn_noise():
-    vae = make_vae().eval()
+@pytest.mark.parametrize("config", [CONFIG, PROGRESS], ids=["paper", "progress"])
+def test_generate_is_the_step_by_step_rollout_with_explicit_or_drawn_noise(config):
+    vae = make_vae(config=config).eval()
     features, sentence, mask = text(vae)
     num_snippets, initial = torch.tensor([10, 4, 7]), randn(CODE, seed=2)
     noise = torch.randn(3, 10, LATENT, generator=torch.Generator().manual_seed(5))
@@ -135,8 +141,9 @@ def test_generate_is_the_step_by_step_rollout_with_explicit_or_drawn_noise():
     assert not torch.allclose(codes, other)
 
 
-def test_generation_split_in_two_continues_exactly():
-    vae = make_vae().eval()
+@pytest.mark.parametrize("config", [CONFIG, PROGRESS], ids=["paper", "progress"])
+def test_generation_split_in_two_continues_exactly(config):
+    vae = make_vae(config=config).eval()
     features, sentence, mask = text(vae)
     args = (features, sentence, mask)
     total, initial = torch.tensor([10, 6, 8]), randn(CODE, seed=2)
@@ -150,7 +157,9 @@ def test_generation_split_in_two_continues_exactly():
         snippets_left=total,
         return_state=True,
     )
-    rest, end2 = vae.generate(*args, total - 4, state=middle, noise=noise[:, 4:], return_state=True)
+    rest, end2 = vae.generate(
+        *args, total - 4, state=middle, noise=noise[:, 4:], motion_snippets=total, return_state=True
+    )
     assert torch.equal(first, whole[:, :4]) and torch.equal(rest, whole[:, 4:])
     assert middle.posterior is None and torch.equal(middle.previous_code, first[:, -1])
     for a, b in zip(end, end2, strict=True):
@@ -176,8 +185,30 @@ def test_generation_split_in_two_continues_exactly():
         assert (a is None and b is None) or torch.allclose(a, b, rtol=0, atol=1e-5)
     read = vae.prefix_state(*args, first, initial, total)
     assert read.posterior is not None and torch.equal(read.previous_code, first[:, -1])
-    continued = vae.generate(*args, total - 4, state=read, noise=noise[:, 4:])
+    continued = vae.generate(
+        *args, total - 4, state=read, noise=noise[:, 4:], motion_snippets=total
+    )
     assert torch.isfinite(continued).all() and not torch.allclose(continued, rest)
+
+
+def test_progress_codes_are_the_share_done():
+    vae = make_vae(config=PROGRESS)
+    plain = make_vae().time_codes(torch.tensor([5, 8]), 5)
+    codes = vae.time_codes(torch.tensor([5, 8]), 5)
+    assert codes.shape == plain.shape == (2, 5, 20)
+    assert torch.equal(codes[..., :14], plain[..., :14])  # the time to arrival, as before
+    for item, total in enumerate((5, 8)):
+        for step in range(5):
+            angle = [2 * math.pi * k * step / total for k in (1, 2, 3)]
+            expected = torch.tensor([math.sin(a) for a in angle] + [math.cos(a) for a in angle])
+            torch.testing.assert_close(codes[item, step, 14:], expected, rtol=0, atol=1e-6)
+    # a call that continues a motion: its steps are the whole motion's steps 5..7
+    later = vae.time_codes(torch.tensor([3]), 3, total=torch.tensor([8]))
+    torch.testing.assert_close(later[0], vae.time_codes(torch.tensor([8]), 8)[0, 5:])
+    # at the demo preset's size (hidden 256, K = 8) the time-to-arrival dimensions it replaces,
+    # the table's slowest, move by less than 0.01 over the longest motion (49 snippets)
+    table = sinusoidal_table(64, 256)[:50, -16:]
+    assert (table.max(0).values - table.min(0).values).max() < 0.01
 
 
 def test_generate_refuses_bad_requests():

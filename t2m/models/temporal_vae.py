@@ -178,10 +178,25 @@ class TemporalVAE(nn.Module):
             posterior=self.posterior.initial(sentence) if posterior else None,
         )
 
-    def time_codes(self, snippets_left: torch.Tensor, steps: int) -> torch.Tensor:
-        """(B, steps, H) encodings of the time to arrival, ``snippets_left - i`` at step i."""
+    def time_codes(
+        self, snippets_left: torch.Tensor, steps: int, total: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """(B, steps, H) encodings of the time to arrival, ``snippets_left - i`` at step i; with
+        ``config.progress_frequencies`` K > 0 the last 2K dimensions hold the progress instead:
+        sin and cos of 2 pi k f (k = 1..K), f = (total - left) / total the share of the motion
+        done before the step. ``total`` (B,): the motion's snippets (default ``snippets_left``:
+        the call starts the motion)."""
         left = snippets_left[:, None] - torch.arange(steps, device=snippets_left.device)[None, :]
-        return self.time_table[left.clamp(0, self.config.max_snippets - 1)]
+        codes = self.time_table[left.clamp(0, self.config.max_snippets - 1)]
+        k = self.config.progress_frequencies
+        if not k:
+            return codes
+        total = snippets_left if total is None else total.to(snippets_left.device)
+        whole = total[:, None].to(codes.dtype).clamp(min=1)
+        done = (whole - left.to(codes.dtype)) / whole  # (B, S)
+        frequencies = torch.arange(1, k + 1, device=codes.device, dtype=codes.dtype)
+        angle = (2 * math.pi) * done[..., None] * frequencies  # (B, S, K)
+        return torch.cat([codes[..., : -2 * k], angle.sin(), angle.cos()], dim=-1)
 
     def release_posterior(self) -> None:
         """Free the posterior (its block and Gaussian) of a model that will only sample: the
@@ -371,6 +386,7 @@ class TemporalVAE(nn.Module):
         noise: torch.Tensor | None = None,
         state: RecurrentState | None = None,
         snippets_left: torch.Tensor | None = None,
+        motion_snippets: torch.Tensor | None = None,
         return_state: bool = False,
         fast: bool = True,
     ) -> torch.Tensor | tuple[torch.Tensor, RecurrentState]:
@@ -388,6 +404,9 @@ class TemporalVAE(nn.Module):
             snippets_left: (B,) snippets from this call's first step to the motion's end, which
                 sets the time-to-arrival encoding (default ``num_snippets``: this call ends the
                 motion); larger to generate the start of a longer motion.
+            motion_snippets: (B,) the whole motion's snippets, which sets the progress encoding
+                of a model with ``config.progress_frequencies`` (default ``snippets_left``: this
+                call starts the motion); give it when continuing from a ``state``.
             return_state: also return each item's state after its last step.
             fast: run the model's :class:`~t2m.models.fast_recurrence.GenerationPlan` (the same
                 sums rearranged, tested equal); False: :meth:`rollout`.
@@ -404,8 +423,14 @@ class TemporalVAE(nn.Module):
         else:
             snippets_left = snippets_left.to(device).long()
             bad = bool((snippets_left < num_snippets).any()) or int(snippets_left.max()) > limit
+        if motion_snippets is not None:
+            motion_snippets = motion_snippets.to(device).long()
+            bad = bad or bool((motion_snippets < snippets_left).any())
         if bad or int(num_snippets.min()) < 1:
-            raise ValueError(f"num_snippets must be in 1..{limit}, and <= snippets_left <= {limit}")
+            raise ValueError(
+                f"num_snippets must be in 1..{limit}, and <= snippets_left <= {limit} "
+                "(<= motion_snippets)"
+            )
         if noise is None:
             noise = torch.randn(
                 batch,
@@ -429,7 +454,7 @@ class TemporalVAE(nn.Module):
         final, codes = rollout(
             state,
             self.word_context(word_features, word_mask),
-            self.time_codes(snippets_left, steps),
+            self.time_codes(snippets_left, steps, motion_snippets),
             noise,
             lengths=num_snippets if return_state else None,
         )
