@@ -658,10 +658,10 @@ def validate(cfg: Config) -> None:
             f"autoencoder.model.dropout must be in [0, 1), got {autoencoder.model.dropout}"
         )
     generator = cfg.generator
-    progress = generator.model.progress_frequencies
-    if not 0 <= 2 * progress < generator.model.hidden_size:
+    progress = generator.model.progress_frequencies  # at least 0: _check_numbers
+    if 2 * progress >= generator.model.hidden_size:
         raise ValueError(
-            "generator.model.progress_frequencies must be from 0 to less than half of "
+            "generator.model.progress_frequencies must be less than half of "
             f"generator.model.hidden_size, got {progress}"
         )
     if not 1 <= generator.start_snippets <= generator.end_snippets:

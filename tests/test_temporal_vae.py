@@ -203,7 +203,7 @@ def test_progress_codes_are_the_share_done():
             expected = torch.tensor([math.sin(a) for a in angle] + [math.cos(a) for a in angle])
             torch.testing.assert_close(codes[item, step, 14:], expected, rtol=0, atol=1e-6)
     # a call that continues a motion: its steps are the whole motion's steps 5..7
-    later = vae.time_codes(torch.tensor([3]), 3, total=torch.tensor([8]))
+    later = vae.time_codes(torch.tensor([3]), 3, motion_snippets=torch.tensor([8]))
     torch.testing.assert_close(later[0], vae.time_codes(torch.tensor([8]), 8)[0, 5:])
     # at the demo preset's size (hidden 256, K = 8) the time-to-arrival dimensions it replaces,
     # the table's slowest, move by less than 0.01 over the longest motion (49 snippets)

@@ -200,7 +200,7 @@ def _search(
             )
         else:
             state = vae.initial_state(sentence, pipe.initial_code)
-        time_codes = vae.time_codes(left - known, total - known, total=left)
+        time_codes = vae.time_codes(left - known, total - known, motion_snippets=left)
     noise = torch.randn(
         batch, total - known, vae.config.latent_size, generator=generator, device=device
     )

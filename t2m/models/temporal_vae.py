@@ -179,20 +179,20 @@ class TemporalVAE(nn.Module):
         )
 
     def time_codes(
-        self, snippets_left: torch.Tensor, steps: int, total: torch.Tensor | None = None
+        self, snippets_left: torch.Tensor, steps: int, motion_snippets: torch.Tensor | None = None
     ) -> torch.Tensor:
         """(B, steps, H) encodings of the time to arrival, ``snippets_left - i`` at step i; with
         ``config.progress_frequencies`` K > 0 the last 2K dimensions hold the progress instead:
-        sin and cos of 2 pi k f (k = 1..K), f = (total - left) / total the share of the motion
-        done before the step. ``total`` (B,): the motion's snippets (default ``snippets_left``:
-        the call starts the motion)."""
+        sin and cos of 2 pi k f (k = 1..K), f the share of the motion done before the step.
+        ``motion_snippets`` (B,): the whole motion's snippets (default ``snippets_left``: the
+        call starts the motion)."""
         left = snippets_left[:, None] - torch.arange(steps, device=snippets_left.device)[None, :]
         codes = self.time_table[left.clamp(0, self.config.max_snippets - 1)]
         k = self.config.progress_frequencies
         if not k:
             return codes
-        total = snippets_left if total is None else total.to(snippets_left.device)
-        whole = total[:, None].to(codes.dtype).clamp(min=1)
+        total = snippets_left if motion_snippets is None else motion_snippets
+        whole = total.to(codes.device, codes.dtype)[:, None].clamp(min=1)
         done = (whole - left.to(codes.dtype)) / whole  # (B, S)
         frequencies = torch.arange(1, k + 1, device=codes.device, dtype=codes.dtype)
         angle = (2 * math.pi) * done[..., None] * frequencies  # (B, S, K)
