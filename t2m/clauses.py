@@ -24,7 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from t2m.data.words import MOTION_WORDS
+from t2m.data.words import COUNT_WORDS, MOTION_WORDS
 
 CONNECTIVES = frozenset(
     {"then", "afterwards", "afterward", "subsequently", "finally", "later", "next"}
@@ -216,3 +216,32 @@ def share_snippets(
     while counts.sum() < total:  # give to the clause furthest below its share
         counts[int(np.argmax(share - counts))] += 1
     return [int(c) for c in counts]
+
+
+PLAIN_COUNTS = frozenset({"once", "twice", "thrice"})
+"""Words that are a count of repetitions on their own ("jumps twice")."""
+
+
+def repetition_count(tokens: Sequence[str]) -> int:
+    """How many times a clause's ``word/POS`` tokens say its action happens, 0 when they do not
+    say: "once" / "twice" / "thrice", a number followed by "time(s)" ("claps five times", "hops
+    3 times"), or a number word of two or more followed by a noun ("does three squats", "takes four
+    steps"; "on one foot", "turns 90 degrees" are no counts). The first such count in the clause."""
+    pairs = [_word_pos(t) for t in tokens]
+    for i, (word, _) in enumerate(pairs):
+        if word in PLAIN_COUNTS:
+            return int(COUNT_WORDS[word])
+        digits = word.isdigit() and len(word) <= 2
+        number = int(word) if digits else int(COUNT_WORDS.get(word, 0))
+        if not number or i + 1 >= len(pairs):
+            continue
+        after, tag = pairs[i + 1]
+        if after in ("time", "times") or (not digits and number >= 2 and tag == "NOUN"):
+            return number
+    return 0
+
+
+def caption_count(tokens: Sequence[str]) -> int:
+    """The repetition count of a caption of one clause (:func:`repetition_count`); 0 for a
+    caption of several clauses, whose counts belong to its clauses (:func:`clause_captions`)."""
+    return repetition_count(tokens) if len(split_clauses(tokens)) == 1 else 0

@@ -543,6 +543,7 @@ class TextToMotion:
                 self.initial_code,
                 generator,
                 noise=noise,
+                counts=torch.tensor([e.count for e in encoded], device=self.device),
             )
         # Decode each length on its own: the transposed convolutions would carry the padding
         # past a shorter item's end into its last frames (a batch must give what batch 1 gives).
@@ -611,6 +612,7 @@ class TextToMotion:
                 count,
                 noise=draws,
                 state=vae.initial_state(sentence, previous[rows]),
+                counts=torch.tensor([lists[b][k].count for b in members], device=device),
             )
             inside = torch.arange(width, device=device)[None, :] < count[:, None]
             row_index = rows[:, None].expand(-1, width)[inside]

@@ -2,7 +2,14 @@
 
 import pytest
 
-from t2m.clauses import clause_captions, share_snippets, split_clauses, standalone
+from t2m.clauses import (
+    caption_count,
+    clause_captions,
+    repetition_count,
+    share_snippets,
+    split_clauses,
+    standalone,
+)
 
 
 def tokens(tagged: str) -> list[str]:
@@ -126,3 +133,31 @@ def test_clause_captions():
 )
 def test_parts_without_a_verb_are_no_clauses(tagged, expected):
     assert words_of(tagged) == expected
+
+
+@pytest.mark.parametrize(
+    ("tagged", "count"),
+    [
+        ("a/DET person/NOUN clap/VERB six/NUM time/NOUN", 6),
+        ("someone/PRON jump/VERB up/ADP and/CCONJ down/ADP twice/ADV", 2),
+        ("a/DET man/NOUN squat/VERB once/ADV", 1),
+        ("a/DET woman/NOUN do/VERB three/NUM squat/NOUN", 3),
+        ("a/DET person/NOUN hop/VERB 3/NUM time/NOUN", 3),
+        ("a/DET person/NOUN take/VERB four/NUM step/NOUN forward/ADV", 4),
+        # no count: one of something, an angle, a number that counts nothing
+        ("someone/PRON bounce/VERB on/ADP one/NUM left/ADJ foot/NOUN", 0),
+        ("a/DET person/NOUN turn/VERB 90/NUM degree/NOUN", 0),
+        ("a/DET person/NOUN wave/VERB with/ADP one/NUM hand/NOUN", 0),
+        ("a/DET person/NOUN walk/VERB forward/ADV", 0),
+        ("", 0),
+    ],
+)
+def test_repetition_count(tagged, count):
+    assert repetition_count(tokens(tagged)) == count
+
+
+def test_caption_count_belongs_to_captions_of_one_clause():
+    both = tokens("a/DET person/NOUN clap/VERB five/NUM time/NOUN then/ADV hop/VERB twice/ADV")
+    assert caption_count(both) == 0  # each clause has its own: 5, then 2
+    assert [caption_count(c) for c in clause_captions(both)] == [5, 2]
+    assert caption_count(tokens("a/DET person/NOUN clap/VERB five/NUM time/NOUN")) == 5

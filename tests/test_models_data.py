@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dataset_tools.humanml3d import Caption
 from dataset_tools.skeleton import HUMANML3D, KIT_ML
 from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
@@ -248,8 +249,18 @@ def test_batches_are_deterministic_and_disjoint_across_processes(tiny_dataset):
     assert all((batch[k] == again[k]).all() for k in batch)
     lengths = data.length_batch(first[0], rng())["length_class"]
     assert lengths.tolist() == (np.minimum(data.lengths[first[0]], 196) // 4).tolist()
-    crop = data.fixed_crop_batch(data.indices_at_least(48)[:3], rng(), 48)
+    items = data.indices_at_least(48)[:3]
+    crop = data.fixed_crop_batch(items, rng(), 48)
     assert crop["motion"].shape == (3, 48, 263)
+    # a window: where each of its snippets starts, as a share of its clip
+    window = data.window_batch(items, rng(), 48)
+    assert window["done"].shape == (3, 12) and crop["counts"].shape == crop["done"].shape
+    for row, index in enumerate(items):
+        start = round(float(window["done"][row, 0]) * data.lengths[index])
+        motion = window["motion"][row].numpy()
+        np.testing.assert_array_equal(motion, data.motions[index][start : start + 48])
+        expected = (start + 4 * np.arange(12)) / data.lengths[index]
+        np.testing.assert_allclose(window["done"][row].numpy(), expected, rtol=1e-6)
 
 
 def test_free_text_is_tagged_like_the_dataset():
@@ -264,3 +275,36 @@ def test_free_text_is_tagged_like_the_dataset():
     assert any((row == vectors.vectors[hand]).all() for row in encoded.words)
     with pytest.raises(ValueError, match="empty"):
         vectors.encode_text("   ")
+
+
+def test_count_clocks_follow_the_clauses_and_the_labelled_segments():
+    from t2m.data.dataset import count_clocks
+
+    one = "a/DET person/NOUN clap/VERB five/NUM time/NOUN".split()
+    starts, ends, counts = count_clocks(one, [(0.0, 0.4), (0.4, 1.0)])
+    assert starts.tolist() == [0.0] and ends.tolist() == [1.0] and counts.tolist() == [5]
+    two = "someone/PRON hop/VERB twice/ADV then/ADV wave/VERB".split()
+    starts, ends, counts = count_clocks(two, [(0.02, 0.4), (0.4, 0.97)])
+    assert starts.tolist() == [0.0, 0.4] and ends.tolist() == [0.4, 1.0]
+    assert counts.tolist() == [2, 0]
+    # clauses and segments that do not pair up, or no labels: no clock
+    for segments in (None, [(0.0, 1.0)], [(0.0, 0.3), (0.3, 0.6), (0.6, 1.0)]):
+        assert count_clocks(two, segments)[2].tolist() == [0]
+
+
+def test_crops_read_their_clause_clock(tmp_path):
+    from t2m.data.dataset import Clip
+
+    vectors = load_vectorizer(BUILTIN_GLOVE)
+    tokens = "someone/PRON hop/VERB twice/ADV then/ADV clap/VERB four/NUM time/NOUN".split()
+    caption = Caption("someone hops twice, then claps four times.", tokens)
+    motion = np.random.default_rng(0).standard_normal((100, 263)).astype(np.float32)
+    clip = Clip("synth_000001", motion, [caption], [(0.0, 0.4), (0.4, 1.0)])
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    data = MotionTextData([clip], normalizer, vectors)
+    crop = data.fixed_crop_batch(np.array([0]), np.random.default_rng(1), 100)
+    # snippets 0-9 are the hops' (40 of 100 frames), 10-24 the claps'
+    assert crop["counts"][0].tolist() == [2] * 10 + [4] * 15
+    np.testing.assert_allclose(crop["done"][0, :10].numpy(), np.arange(10) / 10, atol=1e-6)
+    np.testing.assert_allclose(crop["done"][0, 10:].numpy(), np.arange(15) / 15, atol=1e-6)
+    np.testing.assert_allclose(crop["clause_snippets"][0].numpy(), [10] * 10 + [15] * 15)

@@ -31,6 +31,8 @@ CONFIG = TemporalVAEConfig(
 )
 PROGRESS = dataclasses.replace(CONFIG, progress_frequencies=3)
 """The same model reading its progress too (the last 6 of the 20 time-code dimensions)."""
+CLOCK = dataclasses.replace(PROGRESS, count_clock=True)
+"""... and a count clock (the 2 time-code dimensions before the progress ones)."""
 
 
 def make_vae(seed: int = 0, config: TemporalVAEConfig = CONFIG) -> TemporalVAE:
@@ -104,11 +106,11 @@ def test_prior_learns_from_the_kl_only(fast):
     assert all(g is not None and g.any() for g in torch.autograd.grad(kl, prior))
 
 
-def manual_rollout(vae, features, sentence, mask, num_snippets, initial, noise):
+def manual_rollout(vae, features, sentence, mask, num_snippets, initial, noise, counts=None):
     """generate written out: the model's step, one snippet at a time."""
     state = vae.initial_state(sentence, initial)
     context = vae.word_context(features, mask)
-    time_codes = vae.time_codes(num_snippets, noise.shape[1])
+    time_codes = vae.time_codes(num_snippets, noise.shape[1], counts=counts)
     codes = []
     for i in range(noise.shape[1]):
         state, output = vae.step(state, context, time_codes[:, i], noise[:, i])
@@ -209,6 +211,90 @@ def test_progress_codes_are_the_share_done():
     # the table's slowest, move by less than 0.01 over the longest motion (49 snippets)
     table = sinusoidal_table(64, 256)[:50, -16:]
     assert (table.max(0).values - table.min(0).values).max() < 0.01
+
+
+def test_count_clock_turns_once_per_repetition():
+    vae = make_vae(config=CLOCK)
+    progress = make_vae(config=PROGRESS).time_codes(torch.tensor([5, 8]), 5)
+    counts = torch.tensor([3, 0])
+    codes = vae.time_codes(torch.tensor([5, 8]), 5, counts=counts)
+    assert codes.shape == progress.shape == (2, 5, 20)
+    # the time to arrival and the progress as without the clock
+    assert torch.equal(codes[..., :12], progress[..., :12])
+    assert torch.equal(codes[..., 14:], progress[..., 14:])
+    for step in range(5):  # 3 turns over the 5 snippets; none for a caption without a count
+        angle = 2 * math.pi * 3 * step / 5
+        expected = torch.tensor([math.sin(angle), math.cos(angle)])
+        torch.testing.assert_close(codes[0, step, 12:14], expected, rtol=0, atol=1e-6)
+    assert not codes[1, :, 12:14].any()
+    assert not vae.time_codes(torch.tensor([5, 8]), 5)[..., 12:14].any()  # no counts given
+    # a training crop: the share done is given, and the clock reads it
+    done = torch.tensor([[0.5, 0.6, 0.7, 0.8, 0.9], [0.0, 0.1, 0.2, 0.3, 0.4]])
+    crop = vae.time_codes(torch.tensor([5, 5]), 5, counts=counts, done=done)
+    torch.testing.assert_close(crop[0, :, 12], torch.sin(2 * math.pi * 3 * done[0]))
+    torch.testing.assert_close(
+        crop[0, :, 14:17], torch.sin(2 * math.pi * done[0, :, None] * torch.arange(1.0, 4.0))
+    )
+
+
+def test_count_clock_margin_holds_it_still_at_both_ends():
+    vae = make_vae(config=dataclasses.replace(CLOCK, count_clock_margin=3))
+    codes = vae.time_codes(torch.tensor([20, 6]), 20, counts=torch.tensor([2, 1]))
+    turns = torch.atan2(codes[..., 12], codes[..., 13]) / (2 * math.pi) % 1  # (2, 20)
+    # 2 turns between snippets 3 and 17 of 20: still for 3 snippets at each end
+    expected = ((torch.arange(20.0) - 3) / 14).clamp(0, 1) * 2 % 1
+    torch.testing.assert_close(turns[0], expected, rtol=0, atol=1e-5)
+    # a motion of 2M + 1 snippets or fewer: the clock turns over all of it
+    torch.testing.assert_close(turns[1, :6], torch.arange(6.0) / 6, rtol=0, atol=1e-5)
+    # a training crop gives its clause's length: the same codes for the same steps
+    done = torch.arange(20.0)[None] / 20
+    crop = vae.time_codes(
+        torch.tensor([20]),
+        20,
+        counts=torch.tensor([[2] * 20]),
+        done=done,
+        clause_snippets=torch.full((1, 20), 20.0),
+    )
+    torch.testing.assert_close(crop[0, :, 12:14], codes[0, :, 12:14])
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_training_reads_the_counts_and_the_crop(fast):
+    vae = make_vae(config=CLOCK)
+    codes, initial, noise = (
+        randn(3, 7, CODE, seed=1),
+        randn(CODE, seed=2),
+        randn(3, 7, LATENT, seed=3),
+    )
+    counts, done = (
+        torch.tensor([4, 0, 2]),
+        torch.rand(3, 7, generator=torch.Generator().manual_seed(4)),
+    )
+    given = vae(*text(vae), codes, initial, True, noise, fast=fast, counts=counts, done=done)
+    plain = vae(*text(vae), codes, initial, True, noise, fast=fast)
+    # the same pass, teacher-forced step by step with those time codes
+    features, sentence, mask = text(vae)
+    time_codes = vae.time_codes(torch.full((3,), 7), 7, counts=counts, done=done)
+    state = vae.initial_state(sentence, initial, posterior=True)
+    context = vae.word_context(features, mask)
+    expected = []
+    with torch.no_grad():
+        for i in range(7):
+            state, output = vae.step(state, context, time_codes[:, i], noise[:, i], codes[:, i])
+            state = state._replace(previous_code=codes[:, i])
+            expected.append(output.code)
+    torch.testing.assert_close(given["codes"], torch.stack(expected, 1), rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(given["codes"], plain["codes"])
+    # generation reads the counts too: a clause's clock turns over the clause
+    made = vae.generate(
+        features, sentence, mask, torch.tensor([7, 5, 3]), initial, noise=noise, counts=counts
+    )
+    with torch.no_grad():
+        manual = manual_rollout(
+            vae, features, sentence, mask, torch.tensor([7, 5, 3]), initial, noise, counts
+        )
+    valid = torch.arange(7)[None, :, None] < torch.tensor([7, 5, 3])[:, None, None]
+    torch.testing.assert_close(made, manual * valid, rtol=0, atol=1e-5 * manual.abs().max().item())
 
 
 def test_generate_refuses_bad_requests():

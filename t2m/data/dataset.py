@@ -14,6 +14,7 @@ is what makes resuming a killed run exact.
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,11 +45,34 @@ __all__ = [
 
 @dataclass
 class Clip:
-    """A motion (T, D) float32 (raw features) with the captions that describe all of it."""
+    """A motion (T, D) float32 (raw features) with the captions that describe all of it, and
+    where its labelled segments start and end, as shares of the clip (a procedural corpus'
+    ``labels.json``; None where not known)."""
 
     name: str
     motion: np.ndarray
     captions: list[Caption]
+    segments: list[tuple[float, float]] | None = None
+
+
+def labelled_segments(dataset_dir: Path) -> dict[str, list[tuple[float, float]]]:
+    """Clip name -> its segments' (start, end) as shares of the clip, from the folder's
+    ``labels.json`` (:mod:`dataset_tools.humanml3d`; written for the demo corpus), for mirrored
+    clips (``M`` + name) too; {} without one."""
+    path = Path(dataset_dir) / humanml3d.LABELS_FILE
+    if not path.is_file():
+        return {}
+    try:
+        clips = json.loads(path.read_text(encoding="utf-8"))["clips"]
+        found = {
+            name: [
+                (s["start"] / clip["frames"], s["end"] / clip["frames"]) for s in clip["segments"]
+            ]
+            for name, clip in clips.items()
+        }
+    except (OSError, KeyError, TypeError, ZeroDivisionError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: unreadable segment labels ({error})") from None
+    return {**found, **{f"M{name}": parts for name, parts in found.items()}}
 
 
 def load_split(
@@ -71,6 +95,7 @@ def load_split(
     if limit is not None:
         names = names[:limit]
     clips: list[Clip] = []
+    segments = labelled_segments(dataset_dir)
     missing = 0
     for name in tqdm(names, desc=f"loading {split}", unit="clip", leave=False, mininterval=2.0):
         motion_path = humanml3d.features_path(dataset_dir, name)
@@ -94,7 +119,7 @@ def load_split(
             if shortest <= len(part) < limit_frames:
                 clips.append(Clip(f"{name}#{start:.1f}#{end:.1f}", part, [caption]))
         if whole and shortest <= len(motion) < limit_frames:
-            clips.append(Clip(name, motion, whole))
+            clips.append(Clip(name, motion, whole, segments.get(name)))
     if missing:
         logger.warning(
             "%s: %d clips of %s.txt have no features or texts", dataset_dir, missing, split
@@ -155,6 +180,10 @@ class MotionTextData:
         self.motions = [normalizer.normalize(clip.motion) for clip in clips]
         self.lengths = np.array([len(m) for m in self.motions], dtype=np.int64)
         self.captions = [[c.text for c in clip.captions] for clip in clips]
+        # Per clip and caption, its count clocks: (starts, ends, counts) of its clauses
+        self.clocks = [
+            [count_clocks(c.tokens, clip.segments) for c in clip.captions] for clip in clips
+        ]
         # Per clip, the encoded captions: rows (C, L), POS indices (C, L), lengths (C,).
         self.tokens: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for clip in clips:
@@ -183,31 +212,47 @@ class MotionTextData:
     def text_batch(self, indices: np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         """One random caption per item: ``words`` (B, L, Dw) or (B, L) ids, ``pos`` (B, L, 15),
         ``text_lengths`` (B,)."""
-        rows, cats, lengths = [], [], []
+        return self._text_rows(indices, rng)[0]
+
+    def _text_rows(
+        self, indices: np.ndarray, rng: np.random.Generator
+    ) -> tuple[dict[str, torch.Tensor], list[int]]:
+        """:meth:`text_batch` and the caption chosen for each item."""
+        rows, cats, lengths, choices = [], [], [], []
         for index in indices:
             clip_rows, clip_cats, clip_lengths = self.tokens[index]
-            choice = rng.integers(len(clip_lengths))
+            choice = int(rng.integers(len(clip_lengths)))
             rows.append(clip_rows[choice])
             cats.append(clip_cats[choice])
             lengths.append(clip_lengths[choice])
-        return {
+            choices.append(choice)
+        batch = {
             "words": torch.from_numpy(self.vectorizer.lookup(np.stack(rows))),
             "pos": torch.from_numpy(pos_onehot(np.stack(cats))),
             "text_lengths": torch.tensor(lengths, dtype=torch.long),
         }
+        return batch, choices
 
     # -- motion -------------------------------------------------------------------------------
 
     def window_batch(
         self, indices: np.ndarray, rng: np.random.Generator, frames: int
     ) -> dict[str, torch.Tensor]:
-        """A random ``frames``-long window of each item: ``motion`` (B, frames, D)."""
-        windows = []
+        """A random ``frames``-long window of each item: ``motion`` (B, frames, D), and where
+        each snippet of it starts as a share of its clip (``done`` (B, frames // snippet
+        length): (window start + snippet start) / clip frames)."""
+        windows, done = [], []
+        unit = self.spec.snippet_length
+        offsets = np.arange(frames // unit) * unit
         for index in indices:
             motion = self.motions[index]
             start = rng.integers(0, len(motion) - frames + 1)
             windows.append(motion[start : start + frames])
-        return {"motion": torch.from_numpy(np.stack(windows))}
+            done.append((start + offsets) / len(motion))
+        return {
+            "motion": torch.from_numpy(np.stack(windows)),
+            "done": torch.from_numpy(np.stack(done).astype(np.float32)),
+        }
 
     def unit_crop_batch(
         self, indices: np.ndarray, rng: np.random.Generator
@@ -248,8 +293,49 @@ class MotionTextData:
     def fixed_crop_batch(
         self, indices: np.ndarray, rng: np.random.Generator, frames: int
     ) -> dict[str, torch.Tensor]:
-        """Caption + a random ``frames``-long crop of each item (all items must be long enough)."""
-        batch = self.text_batch(indices, rng)
+        """Caption + a random ``frames``-long crop of each item (all items must be long enough),
+        with each snippet's count clock: ``counts`` (B, S) the repetitions its clause names
+        (:func:`count_clocks`, 0: none), ``done`` (B, S) the share of that clause done and
+        ``clause_snippets`` (B, S) the clause's length in snippets."""
+        batch, choices = self._text_rows(indices, rng)
         batch.update(self.window_batch(indices, rng, frames))
         batch["motion_lengths"] = torch.full((len(indices),), frames, dtype=torch.long)
+        where = batch["done"].numpy()  # (B, S) shares of the clips
+        counts = np.zeros(where.shape, dtype=np.int64)
+        done = np.zeros(where.shape, dtype=np.float32)
+        clause = np.zeros(where.shape, dtype=np.float32)
+        for row, (index, choice) in enumerate(zip(indices, choices)):
+            starts, ends, named = self.clocks[index][choice]
+            part = np.clip(np.searchsorted(ends, where[row], side="right"), 0, len(ends) - 1)
+            counts[row] = named[part]
+            done[row] = (where[row] - starts[part]) / (ends[part] - starts[part])
+            clause[row] = (
+                (ends[part] - starts[part]) * self.lengths[index] / self.spec.snippet_length
+            )
+        batch["counts"], batch["done"] = torch.from_numpy(counts), torch.from_numpy(done)
+        batch["clause_snippets"] = torch.from_numpy(clause)
         return batch
+
+
+def count_clocks(
+    tokens: list[str], segments: list[tuple[float, float]] | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The count clocks of a caption: its clauses' (starts, ends) as shares of the clip and the
+    repetitions each names (:func:`t2m.clauses.repetition_count`; 0: none), as generation gives
+    them clause by clause (:meth:`t2m.pipeline.TextToMotion.generate_features`). A caption of one
+    clause spans the clip; one of several spans the clip's labelled segments in order when it
+    has as many clauses as the clip has segments, else it gets no clock (one span, count 0)."""
+    from t2m.clauses import repetition_count, split_clauses  # t2m.clauses reads t2m.data.words
+
+    clauses = split_clauses(tokens)
+    if len(clauses) == 1:
+        spans = [(0.0, 1.0, repetition_count(tokens))]
+    elif segments is not None and len(segments) == len(clauses) and all(e > s for s, e in segments):
+        counts = [repetition_count([tokens[i] for i in clause]) for clause in clauses]
+        spans = [(s, e, n) for (s, e), n in zip(segments, counts)]
+        spans[0] = (0.0, spans[0][1], spans[0][2])  # the clauses cover the whole clip
+        spans[-1] = (spans[-1][0], 1.0, spans[-1][2])
+    else:
+        spans = [(0.0, 1.0, 0)]
+    starts, ends, counts = (np.array(values) for values in zip(*spans))
+    return starts.astype(np.float64), ends.astype(np.float64), counts.astype(np.int64)

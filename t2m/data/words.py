@@ -210,11 +210,15 @@ class EncodedText:
         words: (L, Dw) float32 word vectors, or (L,) int64 ids for a trainable vocabulary.
         pos_onehot: (L, 15) float32.
         length: number of real tokens (sos + words + eos), 3 .. L.
+        count: the repetitions the caption names when it is one clause ("claps five times":
+            5; :func:`t2m.clauses.caption_count`), else 0: what a temporal VAE with a count
+            clock (``TemporalVAEConfig.count_clock``) reads.
     """
 
     words: np.ndarray
     pos_onehot: np.ndarray
     length: int
+    count: int = 0
 
 
 class WordVectors:
@@ -367,8 +371,10 @@ class WordVectors:
 
     def encode_tokens(self, tokens: Sequence[str]) -> EncodedText:
         """``word/POS`` tokens (no sos/eos) -> :class:`EncodedText` of ``max_tokens + 2`` rows."""
+        from t2m.clauses import caption_count  # t2m.clauses reads this module's word lists
+
         rows, categories, length = self.token_ids(tokens)
-        return EncodedText(self.lookup(rows), pos_onehot(categories), length)
+        return EncodedText(self.lookup(rows), pos_onehot(categories), length, caption_count(tokens))
 
     def encode_text(self, texts: str | Sequence[str], spacy_pos: bool = False) -> list[EncodedText]:
         """Free text -> encoded captions, tagged as prompts are

@@ -189,6 +189,7 @@ def _search(
         word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
         context = vae.word_context(word_features, mask)
         left = torch.full((batch,), total, dtype=torch.long, device=device)
+        counts = torch.tensor([e.count for e in encoded], device=device)
         known_codes = None
         if known:
             source = np.stack([p.source_features[: known * unit] for p in plans])  # (P, K*4, D)
@@ -196,11 +197,11 @@ def _search(
             known_codes = pipe.encoder(normalised[..., : pipe.encoder_input_size].float())
             known_codes = known_codes.to(dtype).repeat_interleave(draws, dim=0)  # (B, K, C)
             state = vae.prefix_state(
-                word_features, sentence, mask, known_codes, pipe.initial_code, left
+                word_features, sentence, mask, known_codes, pipe.initial_code, left, counts=counts
             )
         else:
             state = vae.initial_state(sentence, pipe.initial_code)
-        time_codes = vae.time_codes(left - known, total - known, motion_snippets=left)
+        time_codes = vae.time_codes(left - known, total - known, left, counts)
     noise = torch.randn(
         batch, total - known, vae.config.latent_size, generator=generator, device=device
     )

@@ -628,8 +628,10 @@ def fast_forward(
     initial_code: torch.Tensor,
     teacher_forcing: bool,
     noise: torch.Tensor,
+    time_codes: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
-    """:meth:`TemporalVAE.forward` (same arguments and results, ``noise`` required), faster:
+    """:meth:`TemporalVAE.forward` (same arguments and results, ``noise`` required; ``time_codes``
+    (B, S, H) default to those of codes that end their motion, without counts), faster:
     the loop is one :class:`_Recurrence` node; the parts known before it (the current codes,
     under teacher forcing the previous ones) are projected for all steps at once, and the heads
     the loop does not feed back (the prior's Gaussian; the output head under teacher forcing)
@@ -638,8 +640,9 @@ def fast_forward(
     weights = split_input_weights(vae)
     context = vae.word_context(word_features, word_mask)
     state = vae.initial_state(sentence, initial_code, posterior=True)
-    snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
-    time_codes = vae.time_codes(snippets_left, steps)  # (B, S, H)
+    if time_codes is None:
+        snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
+        time_codes = vae.time_codes(snippets_left, steps)  # (B, S, H)
     current = F.linear(codes, weights["current"])  # (B, S, H)
     free = not teacher_forcing
     tensors = dict.fromkeys(WEIGHTS)

@@ -179,24 +179,67 @@ class TemporalVAE(nn.Module):
         )
 
     def time_codes(
-        self, snippets_left: torch.Tensor, steps: int, motion_snippets: torch.Tensor | None = None
+        self,
+        snippets_left: torch.Tensor,
+        steps: int,
+        motion_snippets: torch.Tensor | None = None,
+        counts: torch.Tensor | None = None,
+        done: torch.Tensor | None = None,
+        clause_snippets: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """(B, steps, H) encodings of the time to arrival, ``snippets_left - i`` at step i; with
         ``config.progress_frequencies`` K > 0 the last 2K dimensions hold the progress instead:
-        sin and cos of 2 pi k f (k = 1..K), f the share of the motion done before the step.
+        sin and cos of 2 pi k f (k = 1..K), f the share of the motion done before the step; with
+        ``config.count_clock`` the two before them hold sin and cos of 2 pi N f, N = ``counts``
+        (B,) the repetitions each caption names, or (B, steps) each step's clause names (0, or
+        ``counts`` None: both zero).
         ``motion_snippets`` (B,): the whole motion's snippets (default ``snippets_left``: the
-        call starts the motion)."""
+        call starts the motion); ``done`` (B, steps): f itself, where the steps are not the end
+        of their motion (a training crop), else from ``motion_snippets``; with it,
+        ``clause_snippets`` (B, steps): the length of each step's motion (or clause), for the
+        clock's margins (``config.count_clock_margin``)."""
         left = snippets_left[:, None] - torch.arange(steps, device=snippets_left.device)[None, :]
         codes = self.time_table[left.clamp(0, self.config.max_snippets - 1)]
-        k = self.config.progress_frequencies
-        if not k:
+        k, clock = self.config.progress_frequencies, int(self.config.count_clock)
+        if not k and not clock:
             return codes
-        total = snippets_left if motion_snippets is None else motion_snippets
-        whole = total.to(codes.device, codes.dtype)[:, None].clamp(min=1)
-        done = (whole - left.to(codes.dtype)) / whole  # (B, S)
-        frequencies = torch.arange(1, k + 1, device=codes.device, dtype=codes.dtype)
-        angle = (2 * math.pi) * done[..., None] * frequencies  # (B, S, K)
-        return torch.cat([codes[..., : -2 * k], angle.sin(), angle.cos()], dim=-1)
+        if done is None:
+            total = snippets_left if motion_snippets is None else motion_snippets
+            whole = total.to(codes.device, codes.dtype)[:, None].clamp(min=1)
+            done = (whole - left.to(codes.dtype)) / whole  # (B, S)
+        else:
+            whole = (
+                None if clause_snippets is None else clause_snippets.to(codes.device, codes.dtype)
+            )
+        done = done.to(codes.device, codes.dtype)
+        parts = [codes[..., : codes.shape[-1] - 2 * (k + clock)]]
+        if clock:
+            if counts is None:
+                parts.append(codes.new_zeros(*done.shape, 2))
+            else:
+                turns = counts.to(codes.device, codes.dtype)
+                turns = turns[:, None] if turns.dim() == 1 else turns  # (B, 1) or (B, S)
+                angle = (2 * math.pi) * turns * self._clock_share(done, whole)
+                on = (turns > 0).to(codes.dtype)
+                parts.append(torch.stack([angle.sin() * on, angle.cos() * on], dim=-1))
+        if k:
+            frequencies = torch.arange(1, k + 1, device=codes.device, dtype=codes.dtype)
+            angle = (2 * math.pi) * done[..., None] * frequencies  # (B, S, K)
+            parts += [angle.sin(), angle.cos()]
+        return torch.cat(parts, dim=-1)
+
+    def _clock_share(self, done: torch.Tensor, whole: torch.Tensor | None) -> torch.Tensor:
+        """The share of its turns the count clock has made at each step: ``done``, or with
+        ``config.count_clock_margin`` M, (position - M) / (length - 2M) clamped to [0, 1], so
+        that it turns between a wind-up and a wind-down of M snippets (a clause of 2M + 1
+        snippets or fewer, or ``whole`` None: ``done``)."""
+        margin = self.config.count_clock_margin
+        if not margin or whole is None:
+            return done
+        position = done * whole
+        inner = (whole - 2 * margin).clamp(min=1)
+        share = ((position - margin) / inner).clamp(0, 1)
+        return torch.where(whole > 2 * margin + 1, share, done)
 
     def release_posterior(self) -> None:
         """Free the posterior (its block and Gaussian) of a model that will only sample: the
@@ -321,6 +364,9 @@ class TemporalVAE(nn.Module):
         teacher_forcing: bool,
         noise: torch.Tensor | None = None,
         fast: bool = True,
+        counts: torch.Tensor | None = None,
+        done: torch.Tensor | None = None,
+        clause_snippets: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Teacher-forced or free-running pass over target codes (z from the posterior).
 
@@ -332,6 +378,9 @@ class TemporalVAE(nn.Module):
             noise: (B, S, Z) standard normal draws; drawn from the global generator if None.
             fast: run :func:`t2m.models.fast_recurrence.fast_forward` (same arithmetic, faster);
                 False: :meth:`rollout`.
+            counts, done, clause_snippets: the repetitions named (B,) or (B, S), the share of
+                each step's motion (or clause) done (B, S) and its length (B, S), for
+                :meth:`time_codes`; None: no counts, the codes end their motion.
 
         Returns: ``codes`` (B, S, C) predicted; ``posterior_mean``, ``posterior_logvar``,
         ``prior_mean``, ``prior_logvar`` (B, S, Z).
@@ -342,6 +391,10 @@ class TemporalVAE(nn.Module):
             noise = torch.randn(
                 batch, steps, self.config.latent_size, device=codes.device, dtype=codes.dtype
             )
+        snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
+        time_codes = self.time_codes(
+            snippets_left, steps, counts=counts, done=done, clause_snippets=clause_snippets
+        )
         if fast:
             return fast_forward(
                 self,
@@ -352,12 +405,12 @@ class TemporalVAE(nn.Module):
                 initial_code,
                 teacher_forcing,
                 noise,
+                time_codes,
             )
-        snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
         _, outputs = self.rollout(
             self.initial_state(sentence, initial_code, posterior=True),
             self.word_context(word_features, word_mask),
-            self.time_codes(snippets_left, steps),
+            time_codes,
             noise,
             targets=codes,
             feed=codes if teacher_forcing else None,
@@ -387,6 +440,7 @@ class TemporalVAE(nn.Module):
         state: RecurrentState | None = None,
         snippets_left: torch.Tensor | None = None,
         motion_snippets: torch.Tensor | None = None,
+        counts: torch.Tensor | None = None,
         return_state: bool = False,
         fast: bool = True,
     ) -> torch.Tensor | tuple[torch.Tensor, RecurrentState]:
@@ -407,6 +461,8 @@ class TemporalVAE(nn.Module):
             motion_snippets: (B,) the whole motion's snippets, which sets the progress encoding
                 of a model with ``config.progress_frequencies`` (default ``snippets_left``: this
                 call starts the motion); give it when continuing from a ``state``.
+            counts: (B,) the repetitions each caption names, for a model with
+                ``config.count_clock`` (:attr:`t2m.data.words.EncodedText.count`); None: none.
             return_state: also return each item's state after its last step.
             fast: run the model's :class:`~t2m.models.fast_recurrence.GenerationPlan` (the same
                 sums rearranged, tested equal); False: :meth:`rollout`.
@@ -454,7 +510,7 @@ class TemporalVAE(nn.Module):
         final, codes = rollout(
             state,
             self.word_context(word_features, word_mask),
-            self.time_codes(snippets_left, steps, motion_snippets),
+            self.time_codes(snippets_left, steps, motion_snippets, counts),
             noise,
             lengths=num_snippets if return_state else None,
         )
@@ -484,6 +540,7 @@ class TemporalVAE(nn.Module):
         snippets_left: torch.Tensor,
         posterior: bool = True,
         noise: torch.Tensor | None = None,
+        counts: torch.Tensor | None = None,
     ) -> RecurrentState:
         """The state after the known codes ``codes`` (B, K, C), for :meth:`generate` to continue.
 
@@ -493,7 +550,8 @@ class TemporalVAE(nn.Module):
         training), or from the prior. ``noise`` (B, K, Z) defaults to zeros: z is the mean, so
         the state is deterministic. ``snippets_left`` (B,): snippets from the first known code
         to the end of the whole motion; continue with ``generate(num_snippets=snippets_left -
-        K, state=...)``.
+        K, state=...)``. ``counts`` (B,): the repetitions each caption names (a model with
+        ``config.count_clock``; continue with the same ``counts``).
         """
         if posterior:
             self._check_posterior()
@@ -503,7 +561,7 @@ class TemporalVAE(nn.Module):
         state, _ = self.rollout(
             self.initial_state(sentence, initial_code, posterior=posterior),
             self.word_context(word_features, word_mask),
-            self.time_codes(snippets_left.to(codes.device).long(), steps),
+            self.time_codes(snippets_left.to(codes.device).long(), steps, counts=counts),
             noise,
             targets=codes if posterior else None,
             feed=codes,

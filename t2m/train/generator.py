@@ -97,6 +97,9 @@ class GeneratorObjective(nn.Module):
             self.initial_code,
             teacher_forcing,
             noise,
+            counts=batch.get("counts"),
+            done=batch.get("done"),
+            clause_snippets=batch.get("clause_snippets"),
         )
         decoded = decode(self.decoder, outputs["codes"])
         losses = temporal_vae_loss(outputs, target_codes, decoded, motion, **self.weights)
