@@ -225,8 +225,8 @@ PLAIN_COUNTS = frozenset({"once", "twice", "thrice"})
 def repetition_count(tokens: Sequence[str]) -> int:
     """How many times a clause's ``word/POS`` tokens say its action happens, 0 when they do not
     say: "once" / "twice" / "thrice", a number followed by "time(s)" ("claps five times", "hops
-    3 times"), or a number word of two or more followed by a noun ("does three squats", "takes four
-    steps"; "on one foot", "turns 90 degrees" are no counts). The first such count in the clause."""
+    3 times"), or a number word of two or more before a noun, adjectives between ("does three squats", "throws
+    two right punches"; "on one foot", "turns 90 degrees" are no counts). The first such count in the clause."""
     pairs = [_word_pos(t) for t in tokens]
     for i, (word, _) in enumerate(pairs):
         if word in PLAIN_COUNTS:
@@ -235,8 +235,13 @@ def repetition_count(tokens: Sequence[str]) -> int:
         number = int(word) if digits else int(COUNT_WORDS.get(word, 0))
         if not number or i + 1 >= len(pairs):
             continue
-        after, tag = pairs[i + 1]
-        if after in ("time", "times") or (not digits and number >= 2 and tag == "NOUN"):
+        after = pairs[i + 1][0]
+        if after in ("time", "times"):
+            return number
+        noun = i + 1  # "three squats", "two right punches": a noun after any adjectives
+        while noun < len(pairs) and pairs[noun][1] == "ADJ":
+            noun += 1
+        if not digits and number >= 2 and noun < len(pairs) and pairs[noun][1] == "NOUN":
             return number
     return 0
 
