@@ -140,6 +140,7 @@ class TemporalVAEConfig:
     M) / (clause snippets - 2M), clamped to [0, 1]; a clause of 2M + 1 snippets or fewer turns
     over all of it). 0: over the whole clause."""
 
+
 @dataclass
 class EvaluatorConfig:
     """Contrastive text / motion embedders used by the metrics."""

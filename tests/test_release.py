@@ -213,12 +213,35 @@ def test_sample_command_from_the_release_folder(tmp_path):
 
 
 @pytest.fixture(scope="module")
-def exported(tiny_run, tmp_path_factory):
+def paper_codes_run(tiny_run, tiny_dataset, tiny_config, tmp_path_factory):
+    """``tiny_run`` with its generator trained again on the paper's time codes (the ``tiny``
+    preset has the demo's count clock, which the release format does not hold)."""
+    from t2m.config import apply_overrides
+    from t2m.train import train_stage
+
+    run = tmp_path_factory.mktemp("paper_codes_run")
+    for stage in ("autoencoder", "length", "evaluator"):
+        shutil.copytree(tiny_run / stage, run / stage)
+    config = apply_overrides(tiny_config, {"generator.model.count_clock": "false"})
+    train_stage("generator", config, tiny_dataset, run)
+    return run
+
+
+@pytest.fixture(scope="module")
+def exported(paper_codes_run, tmp_path_factory):
     from t2m.release.export import main
 
     out = tmp_path_factory.mktemp("exported")
-    assert main(["--checkpoints", str(tiny_run), "--out", str(out)]) == 0
+    assert main(["--checkpoints", str(paper_codes_run), "--out", str(out)]) == 0
     return out
+
+
+def test_export_refuses_a_generator_with_a_count_clock(tiny_run, tmp_path, capsys):
+    from t2m.release.export import main
+
+    assert main(["--checkpoints", str(tiny_run), "--out", str(tmp_path / "out")]) == 2
+    assert "count clock" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_export_writes_the_release_layout_with_its_keys(exported):
@@ -245,11 +268,12 @@ def test_export_writes_the_release_layout_with_its_keys(exported):
 
 
 @torch.no_grad()
-def test_export_round_trip_gives_identical_outputs(tiny_run, exported):
+def test_export_round_trip_gives_identical_outputs(paper_codes_run, exported):
     from t2m.train.stages import load_stage
 
-    generator, length = load_stage(tiny_run, "generator"), load_stage(tiny_run, "length")
-    evaluator = load_stage(tiny_run, "evaluator").models["evaluator"]
+    run = paper_codes_run
+    generator, length = load_stage(run, "generator"), load_stage(run, "length")
+    evaluator = load_stage(run, "evaluator").models["evaluator"]
     back = load_release(exported)
     back_evaluator = load_release_evaluator(exported).evaluator
     assert torch.equal(back.initial_code, generator.initial_code)
@@ -284,10 +308,10 @@ def test_export_round_trip_gives_identical_outputs(tiny_run, exported):
     )
 
 
-def test_export_refuses_to_overwrite(tiny_run, exported):
+def test_export_refuses_to_overwrite(paper_codes_run, exported):
     from t2m.release.export import main
 
-    assert main(["--checkpoints", str(tiny_run), "--out", str(exported)]) == 2
+    assert main(["--checkpoints", str(paper_codes_run), "--out", str(exported)]) == 2
 
 
 def test_the_release_glove_folder_as_word_vectors_for_our_training():

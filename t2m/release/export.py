@@ -286,6 +286,14 @@ def export_release(
     name = name or default_name
     if name in (LENGTH_FOLDER, EVALUATOR_FOLDER) or not name or "/" in name:
         raise UsageError(f"--name {name!r} is not a generator folder name")
+    if "generator" in stages:
+        codes = stages["generator"].config.generator.model
+        if codes.count_clock or codes.progress_frequencies:
+            raise UsageError(
+                "the release's temporal VAE reads the time to arrival only; this generator also "
+                "reads a count clock or its progress (retrain it with "
+                "--generator.model.count_clock=false --generator.model.progress_frequencies=0)"
+            )
     for warning in _size_warnings(stages):
         logger.warning("the original code cannot load this export: %s", warning)
     # 2. the checkpoints, each beside its opt.txt
