@@ -3,7 +3,9 @@
 
 Three recurrent blocks share one shape: input Linear -> LayerNorm -> LeakyReLU, plus a sinusoidal
 encoding of the time to arrival (snippets left before the end), into a GRU cell whose initial
-state is a Linear of the sentence feature.
+state is a Linear of the sentence feature. Options beyond the paper put two more signals in that
+time code (:meth:`TemporalVAE.time_codes`): the progress (``config.progress_frequencies``) and a
+count clock that turns once per repetition a clause names (``config.count_clock``).
 
 * prior      input [previous code, attention]               -> mean, log-variance of z
 * posterior  input [previous code, current code, attention] -> mean, log-variance of z
@@ -190,9 +192,10 @@ class TemporalVAE(nn.Module):
         """(B, steps, H) encodings of the time to arrival, ``snippets_left - i`` at step i; with
         ``config.progress_frequencies`` K > 0 the last 2K dimensions hold the progress instead:
         sin and cos of 2 pi k f (k = 1..K), f the share of the motion done before the step; with
-        ``config.count_clock`` the two before them hold sin and cos of 2 pi N f, N = ``counts``
+        ``config.count_clock`` the two before them hold sin and cos of 2 pi N g, N = ``counts``
         (B,) the repetitions each caption names, or (B, steps) each step's clause names (0, or
-        ``counts`` None: both zero).
+        ``counts`` None: both zero), g the share of its turns the clock has made
+        (:meth:`_clock_share`: f, or f with a wind-up and wind-down).
         ``motion_snippets`` (B,): the whole motion's snippets (default ``snippets_left``: the
         call starts the motion); ``done`` (B, steps): f itself, where the steps are not the end
         of their motion (a training crop), else from ``motion_snippets``; with it,
