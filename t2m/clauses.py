@@ -225,8 +225,9 @@ PLAIN_COUNTS = frozenset({"once", "twice", "thrice"})
 def repetition_count(tokens: Sequence[str]) -> int:
     """How many times a clause's ``word/POS`` tokens say its action happens, 0 when they do not
     say: "once" / "twice" / "thrice", a number followed by "time(s)" ("claps five times", "hops
-    3 times"), or a number word of two or more before a noun, adjectives between ("does three squats", "throws
-    two right punches"; "on one foot", "turns 90 degrees" are no counts). The first such count in the clause."""
+    3 times"), or a number word of two or more before a noun, adjectives between ("does three
+    squats", "throws two right punches"; "on one foot", "turns 90 degrees" are no counts). The
+    first such count in the clause."""
     pairs = [_word_pos(t) for t in tokens]
     for i, (word, _) in enumerate(pairs):
         if word in PLAIN_COUNTS:
