@@ -103,6 +103,12 @@ class LengthModelConfig:
     num_classes: int = 50
     """Classes of one snippet each (``DatasetSpec.snippet_length`` frames): class = frames //
     snippet_length; must cover the dataset's ``length_limit``."""
+    count_input: bool = False
+    """Also read the repetitions a caption of one clause names (``EncodedText.count``: "claps
+    seven times" 7, 0 for none or several clauses) as two inputs beside the sentence feature:
+    the text encoder alone gave "claps three times" and "claps seven times" the same expected
+    length (3.4 s; the corpus' 2.6 and 4.4), so the clause plan shared a motion's snippets as if
+    the count did not matter. Off: the paper's model (the release format has no such input)."""
 
 
 @dataclass
@@ -192,6 +198,12 @@ class LengthStageConfig(StageConfig):
     epochs: int = 30
     grad_clip: float = 0.5
     """As the original's length trainer (clip_grad_norm_ 0.5 on the estimator)."""
+    clause_examples: float = 0.0
+    """Share of the training captions replaced by one of their clauses as a caption of its own
+    (:func:`t2m.clauses.clause_captions`) with the length of its labelled segment, where the
+    clip's labelled segments (``labels.json``, the demo corpus) pair up with the caption's
+    clauses: what the clause plan asks the model (:meth:`t2m.pipeline.TextToMotion.
+    clause_snippets`). 0: whole captions only (the paper's); datasets without labels always."""
 
 
 @dataclass
@@ -326,7 +338,10 @@ def demo() -> Config:
         checkpoint_every=500,
     )
     cfg.length = LengthStageConfig(
-        model=LengthModelConfig(text=TextEncoderConfig(hidden_size=64), mlp_sizes=(128, 64)),
+        model=LengthModelConfig(
+            text=TextEncoderConfig(hidden_size=64), mlp_sizes=(128, 64), count_input=True
+        ),
+        clause_examples=0.5,
         batch_size=64,
         lr=1e-3,
         epochs=25,
@@ -430,7 +445,10 @@ def tiny() -> Config:
         log_every=2,
     )
     cfg.length = LengthStageConfig(
-        model=LengthModelConfig(text=TextEncoderConfig(hidden_size=16), mlp_sizes=(32, 16)),
+        model=LengthModelConfig(
+            text=TextEncoderConfig(hidden_size=16), mlp_sizes=(32, 16), count_input=True
+        ),
+        clause_examples=0.5,
         batch_size=16,
         lr=1e-3,
         epochs=2,

@@ -455,7 +455,8 @@ class TextToMotion:
         if self.length_model is not None and flat:
             with torch.inference_mode():
                 words, pos, lengths = self._text_batch(flat, self.length_vectorizer, torch.float32)
-                probs = torch.softmax(self.length_model(words, pos, lengths).float(), -1)
+                counts = torch.tensor([c.count for c in flat], device=self.device)
+                probs = torch.softmax(self.length_model(words, pos, lengths, counts).float(), -1)
                 units = torch.arange(probs.shape[-1], dtype=probs.dtype, device=probs.device)
                 expected = (probs * units).sum(-1).cpu().numpy()
         out, start = [], 0
@@ -503,7 +504,8 @@ class TextToMotion:
             for start in range(0, len(encoded), batch_size):
                 chunk = encoded[start : start + batch_size]
                 words, pos, lengths = self._text_batch(chunk, self.length_vectorizer, torch.float32)
-                logits.append(self.length_model(words, pos, lengths).float())
+                counts = torch.tensor([c.count for c in chunk], device=self.device)
+                logits.append(self.length_model(words, pos, lengths, counts).float())
             per_draw = torch.cat(logits).repeat_interleave(repeats, dim=0)  # (N * repeats, K)
             units = sample_lengths(per_draw, generator, min_units=self.spec.min_frames // unit)
         max_units = self.spec.max_snippets

@@ -50,6 +50,24 @@ def test_clause_snippets_follow_the_length_model(pipe):
     assert pipe.clause_snippets([two.clauses], [4])[0] == [1]
 
 
+def test_the_length_model_reads_each_clause_count(pipe, monkeypatch):
+    """The clause plan and the length draws give the length model each caption's count (the
+    ``tiny`` preset's length model reads it: ``LengthModelConfig.count_input``)."""
+    assert pipe.length_model.config.count_input
+    seen = []
+    model = pipe.length_model
+
+    def recording(words, pos, lengths, counts=None):
+        seen.append(counts.tolist())
+        return model(words, pos, lengths, counts)
+
+    monkeypatch.setattr(pipe, "length_model", recording)
+    (two,) = pipe.prepare(["someone hops twice, then claps five times"])
+    assert pipe.clause_snippets([two.clauses], [160])[0] and seen == [[2, 5]]
+    pipe.sample_lengths(pipe.prepare(["a person claps five times", TWO]), torch.Generator())
+    assert seen[1] == [5, 0]
+
+
 def test_one_clause_prompts_are_what_the_whole_plan_gives(pipe):
     texts = [ONE, TWO, "someone jumps up and down"]
     kwargs = dict(num_samples=2, lengths=[48, 96, 60], seed=3, batch_size=8)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from dataset_tools.humanml3d import Caption
 from dataset_tools.skeleton import HUMANML3D, KIT_ML
@@ -308,3 +309,44 @@ def test_crops_read_their_clause_clock(tmp_path):
     np.testing.assert_allclose(crop["done"][0, :10].numpy(), np.arange(10) / 10, atol=1e-6)
     np.testing.assert_allclose(crop["done"][0, 10:].numpy(), np.arange(15) / 15, atol=1e-6)
     np.testing.assert_allclose(crop["clause_snippets"][0].numpy(), [10] * 10 + [15] * 15)
+
+
+def test_length_examples_read_counts_and_labelled_clauses():
+    """The length stage's batches carry each caption's count, and with ``clause_examples`` a
+    caption whose clauses pair with labelled segments is replaced by one of its clauses as a
+    caption of its own, with its segment's length; at 0 the batches draw what they drew before."""
+    from t2m.clauses import clause_captions
+    from t2m.data.dataset import Clip
+
+    vectors = load_vectorizer(BUILTIN_GLOVE)
+    two = "someone/PRON hop/VERB twice/ADV then/ADV clap/VERB four/NUM time/NOUN".split()
+    one = "a/DET person/NOUN clap/VERB five/NUM time/NOUN".split()
+    motion = np.zeros((100, 263), np.float32)
+    clips = [
+        Clip("synth_000001", motion, [Caption("two", two)], [(0.0, 0.4), (0.4, 1.0)]),
+        Clip("synth_000002", motion[:60], [Caption("one", one)], [(0.0, 1.0)]),
+    ]
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    data = MotionTextData(clips, normalizer, vectors)
+    items = np.array([0, 1])
+    whole = data.length_batch(items, np.random.default_rng(3))
+    assert whole["counts"].tolist() == [0, 5]  # several clauses: their counts are the clauses'
+    assert whole["length_class"].tolist() == [25, 15]
+    # at 0 no extra draws: the same batch as the plain call, from the same generator state
+    again = data.length_batch(items, np.random.default_rng(3), 0.0)
+    assert all(torch.equal(whole[k], again[k]) for k in whole)
+    # always replaced: the first clip reads one of its clauses, the second stays whole
+    hops, claps = (vectors.encode_tokens(c) for c in clause_captions(two))
+    seen = set()
+    for seed in range(8):
+        batch = data.length_batch(items, np.random.default_rng(seed), 1.0)
+        length = int(batch["text_lengths"][0])
+        clause, count, snippets = (
+            (hops, 2, 10) if length == hops.length and batch["counts"][0] == 2 else (claps, 4, 15)
+        )
+        assert (int(batch["counts"][0]), int(batch["length_class"][0])) == (count, snippets)
+        np.testing.assert_array_equal(batch["words"][0].numpy(), clause.words)
+        assert length == clause.length
+        assert (int(batch["counts"][1]), int(batch["length_class"][1])) == (5, 15)
+        seen.add(count)
+    assert seen == {2, 4}

@@ -214,16 +214,21 @@ def test_sample_command_from_the_release_folder(tmp_path):
 
 @pytest.fixture(scope="module")
 def paper_codes_run(tiny_run, tiny_dataset, tiny_config, tmp_path_factory):
-    """``tiny_run`` with its generator trained again on the paper's time codes (the ``tiny``
-    preset has the demo's count clock, which the release format does not hold)."""
+    """``tiny_run`` with its generator and length model trained again as the paper's (the
+    ``tiny`` preset has the demo's count clock and count-reading length model, which the
+    release format does not hold)."""
     from t2m.config import apply_overrides
     from t2m.train import train_stage
 
     run = tmp_path_factory.mktemp("paper_codes_run")
-    for stage in ("autoencoder", "length", "evaluator"):
+    for stage in ("autoencoder", "evaluator"):
         shutil.copytree(tiny_run / stage, run / stage)
-    config = apply_overrides(tiny_config, {"generator.model.count_clock": "false"})
+    config = apply_overrides(
+        tiny_config,
+        {"generator.model.count_clock": "false", "length.model.count_input": "false"},
+    )
     train_stage("generator", config, tiny_dataset, run)
+    train_stage("length", config, tiny_dataset, run)
     return run
 
 
@@ -241,6 +246,19 @@ def test_export_refuses_a_generator_with_a_count_clock(tiny_run, tmp_path, capsy
 
     assert main(["--checkpoints", str(tiny_run), "--out", str(tmp_path / "out")]) == 2
     assert "count clock" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_export_refuses_a_length_model_that_reads_counts(
+    tiny_run, paper_codes_run, tmp_path, capsys
+):
+    from t2m.release.export import main
+
+    run = tmp_path / "run"
+    shutil.copytree(paper_codes_run / "generator", run / "generator")
+    shutil.copytree(tiny_run / "length", run / "length")
+    assert main(["--checkpoints", str(run), "--out", str(tmp_path / "out")]) == 2
+    assert "count" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 

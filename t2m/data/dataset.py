@@ -184,6 +184,15 @@ class MotionTextData:
         self.clocks = [
             [count_clocks(c.tokens, clip.segments) for c in clip.captions] for clip in clips
         ]
+        # Per clip and caption, the repetitions it names as one clause (0: none, or several)
+        from t2m.clauses import caption_count  # t2m.clauses reads t2m.data.words
+
+        self.caption_counts = [[caption_count(c.tokens) for c in clip.captions] for clip in clips]
+        # Per clip and caption, its clauses paired with labelled segments, as length examples
+        self.clause_examples = [
+            [clause_examples(c.tokens, clip.segments, vectorizer) for c in clip.captions]
+            for clip in clips
+        ]
         # Per clip, the encoded captions: rows (C, L), POS indices (C, L), lengths (C,).
         self.tokens: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for clip in clips:
@@ -281,13 +290,39 @@ class MotionTextData:
         return batch
 
     def length_batch(
-        self, indices: np.ndarray, rng: np.random.Generator
+        self, indices: np.ndarray, rng: np.random.Generator, clause_examples: float = 0.0
     ) -> dict[str, torch.Tensor]:
         """Caption + length class (snippets: frames // snippet_length, frames capped at
-        ``max_frames``): ``length_class`` (B,)."""
-        batch = self.text_batch(indices, rng)
+        ``max_frames``): ``length_class`` (B,), and ``counts`` (B,) the repetitions each
+        caption names (:func:`t2m.clauses.caption_count`, as ``EncodedText.count``). With
+        ``clause_examples`` > 0, that share of the captions whose clauses pair with labelled
+        segments is replaced by one of those clauses (drawn at random) and its segment's length
+        (``LengthStageConfig.clause_examples``; no extra draws at 0)."""
+        batch, choices = self._text_rows(indices, rng)
         frames = np.minimum(self.lengths[indices], self.spec.max_frames)
+        counts = [self.caption_counts[i][c] for i, c in zip(indices, choices)]
+        if clause_examples > 0:
+            rows = [self.tokens[i][0][c] for i, c in zip(indices, choices)]
+            cats = [self.tokens[i][1][c] for i, c in zip(indices, choices)]
+            lengths = batch["text_lengths"].numpy().copy()
+            for row, (index, choice) in enumerate(zip(indices, choices)):
+                examples = self.clause_examples[index][choice]
+                if examples and rng.uniform() < clause_examples:
+                    clause_rows, clause_cats, length, count, share = examples[
+                        int(rng.integers(len(examples)))
+                    ]
+                    rows[row], cats[row], lengths[row], counts[row] = (
+                        clause_rows,
+                        clause_cats,
+                        length,
+                        count,
+                    )
+                    frames[row] = min(round(share * self.lengths[index]), self.spec.max_frames)
+            batch["words"] = torch.from_numpy(self.vectorizer.lookup(np.stack(rows)))
+            batch["pos"] = torch.from_numpy(pos_onehot(np.stack(cats)))
+            batch["text_lengths"] = torch.from_numpy(lengths)
         batch["length_class"] = torch.from_numpy(frames // self.spec.snippet_length)
+        batch["counts"] = torch.tensor(counts, dtype=torch.long)
         return batch
 
     def fixed_crop_batch(
@@ -315,6 +350,31 @@ class MotionTextData:
         batch["counts"], batch["done"] = torch.from_numpy(counts), torch.from_numpy(done)
         batch["clause_snippets"] = torch.from_numpy(clause)
         return batch
+
+
+ClauseExample = tuple[np.ndarray, np.ndarray, int, int, float]
+"""A clause as a caption of its own: token rows (L,), POS indices (L,), its length, the count it
+names (:func:`t2m.clauses.caption_count`) and its segment's share of the clip."""
+
+
+def clause_examples(
+    tokens: list[str], segments: list[tuple[float, float]] | None, vectorizer: WordVectors
+) -> list[ClauseExample]:
+    """A caption's clauses as standalone captions (:func:`t2m.clauses.clause_captions`, as the
+    clause plan encodes them) with their labelled segments' shares of the clip, when the caption
+    has two or more clauses and as many as the clip has segments; else none."""
+    from t2m.clauses import caption_count, clause_captions  # t2m.clauses reads t2m.data.words
+
+    clauses = clause_captions(tokens)
+    if len(clauses) < 2 or segments is None or len(segments) != len(clauses):
+        return []
+    out = []
+    for clause, (start, end) in zip(clauses, segments, strict=True):
+        if end <= start:
+            return []
+        rows, cats, length = vectorizer.token_ids(clause)
+        out.append((rows, cats, int(length), caption_count(clause), float(end - start)))
+    return out
 
 
 def count_clocks(

@@ -201,7 +201,9 @@ def build_generator(
     word_dim = vae_w["text_encoder.pos_embedding.weight"].shape[0]
     vae = TemporalVAE(word_dim, code_size, config)
     for entry, table in tables.items():
-        if not torch.allclose(table.float(), sinusoidal_table(*table.shape), atol=1e-5):
+        # float32 sin/cos of positions up to ~300 round differently on different CPUs' vector
+        # code (1.5e-5 apart at row 290 between an Intel Xeon and the release's numbers)
+        if not torch.allclose(table.float(), sinusoidal_table(*table.shape), atol=1e-4):
             raise UsageError(f"{path}: {entry}'s time encoding is not the sinusoidal table")
     feature_dim = decoder_w["out.weight"].shape[0]
     decoder = MovementDecoder(

@@ -30,7 +30,9 @@ class LengthObjective(nn.Module):
         self.estimator = estimator
 
     def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        logits = self.estimator(batch["words"], batch["pos"], batch["text_lengths"])
+        logits = self.estimator(
+            batch["words"], batch["pos"], batch["text_lengths"], batch.get("counts")
+        )
         return length_loss(logits, batch["length_class"])
 
 
@@ -52,16 +54,18 @@ def train_length(job: StageJob) -> Path:
     trainable.train()
 
     # 3. the loop: one random caption per clip and epoch; validation on fixed captions
-    def losses_on(split: MotionTextData) -> LossesOf:
+    def losses_on(split: MotionTextData, clause_examples: float = 0.0) -> LossesOf:
         def losses_of(items: np.ndarray, rng: np.random.Generator) -> dict[str, torch.Tensor]:
-            return trainable(to_device(split.length_batch(items, rng), runtime.device))
+            batch = split.length_batch(items, rng, clause_examples)
+            return trainable(to_device(batch, runtime.device))
 
         return losses_of
 
+    # validation on whole captions, comparable across settings
     val_chunks = validation_chunks(np.arange(len(data.val)), section.batch_size)
     run.train_epochs(
         len(data.train),
-        losses_on(data.train),
+        losses_on(data.train, section.clause_examples),
         list(estimator.parameters()),
         validate=lambda: run.validate(trainable, val_chunks, losses_on(data.val)),
     )
