@@ -56,6 +56,10 @@ PERSON_NOUNS = frozenset(
 EXTRA_VERBS = frozenset({"bow", "clap", "march", "wave", "hop", "squat", "punch", "kick"})
 """Motion verbs a tagger often calls nouns, besides the vocabulary's action words."""
 
+COUNTED_NOUNS = EXTRA_VERBS | {"jump", "step", "leap", "lunge", "spin", "stomp", "turn"}
+"""Nouns of a repeatable action: "one" before them is a count ("throws one left punch"), before
+any other noun it is not ("hops on one foot")."""
+
 MIN_CLAUSE_SNIPPETS = 5
 """A clause gets at least this many snippets (1 s at 20 fps) when the motion has room."""
 
@@ -226,8 +230,9 @@ def repetition_count(tokens: Sequence[str]) -> int:
     """How many times a clause's ``word/POS`` tokens say its action happens, 0 when they do not
     say: "once" / "twice" / "thrice", a number followed by "time(s)" ("claps five times", "hops
     3 times"), or a number word of two or more before a noun, adjectives between ("does three
-    squats", "throws two right punches"; "on one foot", "turns 90 degrees" are no counts). The
-    first such count in the clause."""
+    squats", "throws two right punches"; "on one foot", "turns 90 degrees" are no counts), or
+    "one" before a repeatable action's noun (:data:`COUNTED_NOUNS`: "throws one left punch").
+    The first such count in the clause."""
     pairs = [_word_pos(t) for t in tokens]
     for i, (word, _) in enumerate(pairs):
         if word in PLAIN_COUNTS:
@@ -242,8 +247,9 @@ def repetition_count(tokens: Sequence[str]) -> int:
         noun = i + 1  # "three squats", "two right punches": a noun after any adjectives
         while noun < len(pairs) and pairs[noun][1] == "ADJ":
             noun += 1
-        if not digits and number >= 2 and noun < len(pairs) and pairs[noun][1] == "NOUN":
-            return number
+        if not digits and noun < len(pairs) and pairs[noun][1] == "NOUN":
+            if number >= 2 or pairs[noun][0] in COUNTED_NOUNS:
+                return number
     return 0
 
 

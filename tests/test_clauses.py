@@ -145,6 +145,8 @@ def test_parts_without_a_verb_are_no_clauses(tagged, expected):
         ("a/DET person/NOUN hop/VERB 3/NUM time/NOUN", 3),
         ("a/DET person/NOUN take/VERB four/NUM step/NOUN forward/ADV", 4),
         ("someone/PRON throw/VERB two/NUM right/ADJ punch/NOUN", 2),
+        ("someone/PRON throw/VERB one/NUM left/ADJ punch/NOUN", 1),
+        ("a/DET person/NOUN take/VERB one/NUM step/NOUN back/ADV", 1),
         # no count: one of something, an angle, a number that counts nothing
         ("someone/PRON bounce/VERB on/ADP one/NUM left/ADJ foot/NOUN", 0),
         ("a/DET person/NOUN turn/VERB 90/NUM degree/NOUN", 0),
