@@ -201,6 +201,20 @@ def clause_captions(tokens: Sequence[str]) -> list[list[str]]:
     return [standalone([tokens[i] for i in r]) for r in ranges]
 
 
+def clause_targets(total: int, means: Sequence[float], variances: Sequence[float]) -> np.ndarray:
+    """Where a motion of ``total`` snippets puts its clauses' lengths, given the length each
+    clause would have alone (the text2length model's ``means`` and ``variances``, snippets):
+    each clause gets its mean plus a share of the difference ``total - sum(means)`` in
+    proportion to its variance, the most probable split were the lengths independent normals.
+    A clause whose length is well known ("claps five times") keeps it; one whose length is not
+    ("walks forward") takes up the difference. Targets below a snippet are raised to 0.1 (a
+    total far below the means; :func:`share_snippets` then rescales them)."""
+    means = np.asarray(means, dtype=np.float64)
+    spread = np.maximum(np.asarray(variances, dtype=np.float64), 1e-3)
+    targets = means + spread / spread.sum() * (total - means.sum())
+    return np.maximum(targets, 0.1)
+
+
 def share_snippets(
     total: int, weights: Sequence[float], minimum: int = MIN_CLAUSE_SNIPPETS
 ) -> list[int]:

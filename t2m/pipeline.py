@@ -47,7 +47,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
-from t2m.clauses import clause_captions, share_snippets
+from t2m.clauses import clause_captions, clause_targets, share_snippets
 from t2m.cleanup import clean_features
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
@@ -444,30 +444,41 @@ class TextToMotion:
     def clause_snippets(
         self, clauses: Sequence[Sequence[EncodedText]], frames: Sequence[int]
     ) -> list[list[int]]:
-        """Each item's snippets (``frames // snippet_length``) shared among its clauses in
-        proportion to the length the text2length model expects for each clause alone (its
-        mean; equal shares without a length model), at least 1 s each where there is room
-        (:func:`t2m.clauses.share_snippets`). An item with fewer snippets than clauses gets
-        one clause: ``[total]``."""
+        """Each item's snippets (``frames // snippet_length``) shared among its clauses: each
+        clause gets the length the text2length model expects for it alone (its mean) plus a
+        share of the difference to the item's length in proportion to that length's variance
+        (:func:`t2m.clauses.clause_targets`; equal shares without a length model), at least
+        1 s each where there is room (:func:`t2m.clauses.share_snippets`). An item with fewer
+        snippets than clauses gets one clause: ``[total]``."""
         unit = self.spec.snippet_length
         flat = [c for item in clauses if len(item) > 1 for c in item]  # one clause: no sharing
-        expected = np.ones(len(flat))
+        means, variances = np.ones(len(flat)), np.ones(len(flat))
         if self.length_model is not None and flat:
             with torch.inference_mode():
                 words, pos, lengths = self._text_batch(flat, self.length_vectorizer, torch.float32)
                 counts = torch.tensor([c.count for c in flat], device=self.device)
-                probs = torch.softmax(self.length_model(words, pos, lengths, counts).float(), -1)
-                units = torch.arange(probs.shape[-1], dtype=probs.dtype, device=probs.device)
-                expected = (probs * units).sum(-1).cpu().numpy()
+                logits = self.length_model(words, pos, lengths, counts)
+                probs = torch.softmax(logits.double(), -1).cpu().numpy()
+            units = np.arange(probs.shape[-1], dtype=np.float64)
+            means = probs @ units
+            variances = probs @ units**2 - means**2
         out, start = [], 0
         for item, total_frames in zip(clauses, frames, strict=True):
             total = total_frames // unit
             if len(item) < 2:
                 out.append([total])
                 continue
-            weights = expected[start : start + len(item)]
+            part = slice(start, start + len(item))
             start += len(item)
-            out.append(share_snippets(total, weights) if total >= len(item) else [total])
+            if total < len(item):
+                out.append([total])
+                continue
+            if self.length_model is None:
+                out.append(share_snippets(total, means[part]))
+            else:
+                out.append(
+                    share_snippets(total, clause_targets(total, means[part], variances[part]))
+                )
         return out
 
     def _text_batch(

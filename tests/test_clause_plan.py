@@ -42,9 +42,12 @@ def test_clause_snippets_follow_the_length_model(pipe):
         words, pos, lengths = pipe._text_batch(
             list(two.clauses), pipe.length_vectorizer, torch.float32
         )
-        probs = torch.softmax(pipe.length_model(words, pos, lengths), -1)
-        expected = (probs * torch.arange(probs.shape[-1])).sum(-1).numpy()
-    ideal = expected / expected.sum() * 40
+        counts = torch.tensor([c.count for c in two.clauses])
+        probs = torch.softmax(pipe.length_model(words, pos, lengths, counts).double(), -1)
+    units = torch.arange(probs.shape[-1], dtype=torch.float64)
+    mean = (probs * units).sum(-1).numpy()
+    variance = (probs * units**2).sum(-1).numpy() - mean**2
+    ideal = mean + variance / variance.sum() * (40 - mean.sum())
     assert np.abs(np.array(shares) - ideal).max() <= 1.0 or min(shares) == 5
     # fewer snippets than clauses: one clause
     assert pipe.clause_snippets([two.clauses], [4])[0] == [1]

@@ -1,10 +1,12 @@
 """Clause splitting and length sharing (t2m.clauses)."""
 
+import numpy as np
 import pytest
 
 from t2m.clauses import (
     caption_count,
     clause_captions,
+    clause_targets,
     repetition_count,
     share_snippets,
     split_clauses,
@@ -164,3 +166,14 @@ def test_caption_count_belongs_to_captions_of_one_clause():
     assert caption_count(both) == 0  # each clause has its own: 5, then 2
     assert [caption_count(c) for c in clause_captions(both)] == [5, 2]
     assert caption_count(tokens("a/DET person/NOUN clap/VERB five/NUM time/NOUN")) == 5
+
+
+def test_clause_targets_give_the_difference_to_the_uncertain_clauses():
+    # 30 snippets for clauses of 10 +- 1 and 10 +- 3: the second takes 9 / 10 of the 10 extra
+    np.testing.assert_allclose(clause_targets(30, [10, 10], [1, 9]), [11, 19])
+    # equal spreads: equal parts of the difference, here a shortfall
+    np.testing.assert_allclose(clause_targets(16, [12, 8], [4, 4]), [10, 6])
+    # far too short a total: targets stay positive (share_snippets rescales them)
+    targets = clause_targets(6, [5, 20], [1, 1])
+    assert targets.min() > 0
+    assert share_snippets(6, targets, minimum=2) == [2, 4]
