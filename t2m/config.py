@@ -103,12 +103,15 @@ class LengthModelConfig:
     num_classes: int = 50
     """Classes of one snippet each (``DatasetSpec.snippet_length`` frames): class = frames //
     snippet_length; must cover the dataset's ``length_limit``."""
-    count_input: bool = False
-    """Also read the repetitions a caption of one clause names (``EncodedText.count``: "claps
-    seven times" 7, 0 for none or several clauses) as two inputs beside the sentence feature:
-    the text encoder alone gave "claps three times" and "claps seven times" the same expected
-    length (3.4 s; the corpus' 2.6 and 4.4), so the clause plan shared a motion's snippets as if
-    the count did not matter. Off: the paper's model (the release format has no such input)."""
+    plan_inputs: bool = False
+    """Three inputs beside the sentence feature: the repetitions a caption of one clause names
+    (``EncodedText.count``: "claps seven times" 7; 0 for none or several clauses), whether it
+    names any, and whether the caption is a clause of a longer motion (the clause plan's
+    question, :meth:`t2m.pipeline.TextToMotion.clause_snippets`; trained by
+    ``LengthStageConfig.clause_examples``). The text encoder alone gave "claps three times" and
+    "claps seven times" the same expected length (3.4 s; the corpus' 2.6 and 4.4); and a clip
+    is at least 2 s long, so "throws one left punch" lasts 2.05 s alone but 1.5-1.8 s as a
+    clause. Off: the paper's model (the release format has no such inputs)."""
 
 
 @dataclass
@@ -339,7 +342,7 @@ def demo() -> Config:
     )
     cfg.length = LengthStageConfig(
         model=LengthModelConfig(
-            text=TextEncoderConfig(hidden_size=64), mlp_sizes=(128, 64), count_input=True
+            text=TextEncoderConfig(hidden_size=64), mlp_sizes=(128, 64), plan_inputs=True
         ),
         clause_examples=0.5,
         batch_size=64,
@@ -446,7 +449,7 @@ def tiny() -> Config:
     )
     cfg.length = LengthStageConfig(
         model=LengthModelConfig(
-            text=TextEncoderConfig(hidden_size=16), mlp_sizes=(32, 16), count_input=True
+            text=TextEncoderConfig(hidden_size=16), mlp_sizes=(32, 16), plan_inputs=True
         ),
         clause_examples=0.5,
         batch_size=16,

@@ -43,7 +43,8 @@ def test_clause_snippets_follow_the_length_model(pipe):
             list(two.clauses), pipe.length_vectorizer, torch.float32
         )
         counts = torch.tensor([c.count for c in two.clauses])
-        probs = torch.softmax(pipe.length_model(words, pos, lengths, counts).double(), -1)
+        logits = pipe.length_model(words, pos, lengths, counts, clause=True)
+        probs = torch.softmax(logits.double(), -1)
     units = torch.arange(probs.shape[-1], dtype=torch.float64)
     mean = (probs * units).sum(-1).numpy()
     variance = (probs * units**2).sum(-1).numpy() - mean**2
@@ -54,21 +55,22 @@ def test_clause_snippets_follow_the_length_model(pipe):
 
 
 def test_the_length_model_reads_each_clause_count(pipe, monkeypatch):
-    """The clause plan and the length draws give the length model each caption's count (the
-    ``tiny`` preset's length model reads it: ``LengthModelConfig.count_input``)."""
-    assert pipe.length_model.config.count_input
+    """The clause plan gives the length model each clause's count, marked as clauses; the
+    length draws give it each caption's count, as whole captions (the ``tiny`` preset's length
+    model reads both: ``LengthModelConfig.plan_inputs``)."""
+    assert pipe.length_model.config.plan_inputs
     seen = []
     model = pipe.length_model
 
-    def recording(words, pos, lengths, counts=None):
-        seen.append(counts.tolist())
-        return model(words, pos, lengths, counts)
+    def recording(words, pos, lengths, counts=None, clause=False):
+        seen.append((counts.tolist(), clause))
+        return model(words, pos, lengths, counts, clause)
 
     monkeypatch.setattr(pipe, "length_model", recording)
     (two,) = pipe.prepare(["someone hops twice, then claps five times"])
-    assert pipe.clause_snippets([two.clauses], [160])[0] and seen == [[2, 5]]
+    assert pipe.clause_snippets([two.clauses], [160])[0] and seen == [([2, 5], True)]
     pipe.sample_lengths(pipe.prepare(["a person claps five times", TWO]), torch.Generator())
-    assert seen[1] == [5, 0]
+    assert seen[1] == ([5, 0], False)
 
 
 def test_one_clause_prompts_are_what_the_whole_plan_gives(pipe):

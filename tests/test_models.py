@@ -99,25 +99,29 @@ def test_length_estimator_and_sampling():
     assert (draw(2) >= 10).all()
 
 
-def test_length_estimator_reads_counts():
-    """With ``count_input`` the count enters beside the sentence feature (count / 10 and
-    whether there is one; None reads as 0, as a caption without a count); without it the
-    counts are ignored and the weights are the paper model's."""
-    from t2m.models.length import count_features
+def test_length_estimator_reads_counts_and_clauses():
+    """With ``plan_inputs`` the count and whether the caption is a clause enter beside the
+    sentence feature (count / 10, whether there is one, clause or not; None reads as 0, as a
+    caption without a count); without it they are ignored and the weights are the paper
+    model's."""
+    from t2m.models.length import plan_features
 
     torch.manual_seed(0)
     sizes = dict(text=TextEncoderConfig(hidden_size=8), mlp_sizes=(16, 8))
     plain = LengthEstimator(WORD_DIM, LengthModelConfig(**sizes)).eval()
-    counted = LengthEstimator(WORD_DIM, LengthModelConfig(**sizes, count_input=True)).eval()
-    assert counted.head[0].in_features == plain.head[0].in_features + 2
+    planned = LengthEstimator(WORD_DIM, LengthModelConfig(**sizes, plan_inputs=True)).eval()
+    assert planned.head[0].in_features == plain.head[0].in_features + 3
     batch = text_batch(3)
     counts = torch.tensor([0, 2, 30])
     with torch.no_grad():
-        assert torch.equal(plain(*batch), plain(*batch, counts))
-        assert torch.equal(counted(*batch), counted(*batch, torch.zeros(3, dtype=torch.long)))
-        assert not torch.allclose(counted(*batch)[1:], counted(*batch, counts)[1:])
-    features = count_features(counts, torch.zeros(3, 5))
-    torch.testing.assert_close(features, torch.tensor([[0.0, 0.0], [0.2, 1.0], [2.0, 1.0]]))
+        assert torch.equal(plain(*batch), plain(*batch, counts, clause=True))
+        assert torch.equal(planned(*batch), planned(*batch, torch.zeros(3, dtype=torch.long)))
+        assert not torch.allclose(planned(*batch)[1:], planned(*batch, counts)[1:])
+        assert not torch.allclose(planned(*batch), planned(*batch, clause=True))
+    features = plan_features(counts, torch.tensor([False, True, False]), torch.zeros(3, 5))
+    expected = torch.tensor([[0.0, 0.0, 0.0], [0.2, 1.0, 1.0], [2.0, 1.0, 0.0]])
+    torch.testing.assert_close(features, expected)
+    torch.testing.assert_close(plan_features(None, True, torch.zeros(2, 5))[:, 2], torch.ones(2))
 
 
 def test_evaluator_shapes_frozen_encoder_and_contrastive_loss():

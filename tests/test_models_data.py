@@ -332,6 +332,7 @@ def test_length_examples_read_counts_and_labelled_clauses():
     whole = data.length_batch(items, np.random.default_rng(3))
     assert whole["counts"].tolist() == [0, 5]  # several clauses: their counts are the clauses'
     assert whole["length_class"].tolist() == [25, 15]
+    assert whole["clause"].tolist() == [False, False]
     # at 0 no extra draws: the same batch as the plain call, from the same generator state
     again = data.length_batch(items, np.random.default_rng(3), 0.0)
     assert all(torch.equal(whole[k], again[k]) for k in whole)
@@ -348,5 +349,6 @@ def test_length_examples_read_counts_and_labelled_clauses():
         np.testing.assert_array_equal(batch["words"][0].numpy(), clause.words)
         assert length == clause.length
         assert (int(batch["counts"][1]), int(batch["length_class"][1])) == (5, 15)
+        assert batch["clause"].tolist() == [True, False]
         seen.add(count)
     assert seen == {2, 4}

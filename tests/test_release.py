@@ -225,7 +225,7 @@ def paper_codes_run(tiny_run, tiny_dataset, tiny_config, tmp_path_factory):
         shutil.copytree(tiny_run / stage, run / stage)
     config = apply_overrides(
         tiny_config,
-        {"generator.model.count_clock": "false", "length.model.count_input": "false"},
+        {"generator.model.count_clock": "false", "length.model.plan_inputs": "false"},
     )
     train_stage("generator", config, tiny_dataset, run)
     train_stage("length", config, tiny_dataset, run)

@@ -293,14 +293,16 @@ class MotionTextData:
         self, indices: np.ndarray, rng: np.random.Generator, clause_examples: float = 0.0
     ) -> dict[str, torch.Tensor]:
         """Caption + length class (snippets: frames // snippet_length, frames capped at
-        ``max_frames``): ``length_class`` (B,), and ``counts`` (B,) the repetitions each
-        caption names (:func:`t2m.clauses.caption_count`, as ``EncodedText.count``). With
-        ``clause_examples`` > 0, that share of the captions whose clauses pair with labelled
-        segments is replaced by one of those clauses (drawn at random) and its segment's length
-        (``LengthStageConfig.clause_examples``; no extra draws at 0)."""
+        ``max_frames``): ``length_class`` (B,), ``counts`` (B,) the repetitions each caption
+        names (:func:`t2m.clauses.caption_count`, as ``EncodedText.count``) and ``clause`` (B,)
+        whether it is a clause of its clip. With ``clause_examples`` > 0, that share of the
+        captions whose clauses pair with labelled segments is replaced by one of those clauses
+        (drawn at random) and its segment's length (``LengthStageConfig.clause_examples``; no
+        extra draws at 0)."""
         batch, choices = self._text_rows(indices, rng)
         frames = np.minimum(self.lengths[indices], self.spec.max_frames)
         counts = [self.caption_counts[i][c] for i, c in zip(indices, choices)]
+        clause = np.zeros(len(indices), dtype=bool)
         if clause_examples > 0:
             rows = [self.tokens[i][0][c] for i, c in zip(indices, choices)]
             cats = [self.tokens[i][1][c] for i, c in zip(indices, choices)]
@@ -311,18 +313,15 @@ class MotionTextData:
                     clause_rows, clause_cats, length, count, share = examples[
                         int(rng.integers(len(examples)))
                     ]
-                    rows[row], cats[row], lengths[row], counts[row] = (
-                        clause_rows,
-                        clause_cats,
-                        length,
-                        count,
-                    )
+                    rows[row], cats[row] = clause_rows, clause_cats
+                    lengths[row], counts[row], clause[row] = length, count, True
                     frames[row] = min(round(share * self.lengths[index]), self.spec.max_frames)
             batch["words"] = torch.from_numpy(self.vectorizer.lookup(np.stack(rows)))
             batch["pos"] = torch.from_numpy(pos_onehot(np.stack(cats)))
             batch["text_lengths"] = torch.from_numpy(lengths)
         batch["length_class"] = torch.from_numpy(frames // self.spec.snippet_length)
         batch["counts"] = torch.tensor(counts, dtype=torch.long)
+        batch["clause"] = torch.from_numpy(clause)
         return batch
 
     def fixed_crop_batch(

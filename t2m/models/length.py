@@ -1,6 +1,6 @@
 """Text2length: a caption -> a distribution over motion lengths in snippets.
 
-Text encoder (BiGRU) -> sentence feature (2H) [+ the caption's count, ``config.count_input``] ->
+Text encoder (BiGRU) -> sentence feature (2H) [+ count and clause inputs, ``config.plan_inputs``] ->
 [Linear -> LayerNorm -> LeakyReLU] per MLP size -> Linear to ``num_classes``; class ``c`` means
 ``c`` snippets, ``c * snippet_length`` frames of the dataset's spec
 (:class:`dataset_tools.skeleton.DatasetSpec`; 4 for HumanML3D and KIT-ML).
@@ -26,7 +26,7 @@ class LengthEstimator(nn.Module):
         self.config = config
         self.text_encoder = TextEncoder(word_dim, config.text, vocab_size)
         layers: list[nn.Module] = []
-        size = self.text_encoder.output_size + COUNT_INPUTS * config.count_input
+        size = self.text_encoder.output_size + PLAN_INPUTS * config.plan_inputs
         for width in config.mlp_sizes:
             layers += [FastLinear(size, width), nn.LayerNorm(width), nn.LeakyReLU(0.2)]
             size = width
@@ -39,29 +39,36 @@ class LengthEstimator(nn.Module):
         pos: torch.Tensor,
         lengths: torch.Tensor,
         counts: torch.Tensor | None = None,
+        clause: bool = False,
     ) -> torch.Tensor:
-        """``counts`` (B,): the repetitions each caption names (``config.count_input``; None:
-        none named); ignored without ``count_input``."""
+        """``counts`` (B,): the repetitions each caption names (None: none named); ``clause``:
+        the captions are clauses of longer motions, as the clause plan asks (bool or (B,)).
+        Both read only with ``config.plan_inputs``."""
         sentence = self.text_encoder.sentence(words, pos, lengths)
-        if self.config.count_input:
-            sentence = torch.cat([sentence, count_features(counts, sentence)], dim=-1)
+        if self.config.plan_inputs:
+            sentence = torch.cat([sentence, plan_features(counts, clause, sentence)], dim=-1)
         return self.head(sentence)
 
 
-COUNT_INPUTS = 2
-"""Inputs a count adds (:func:`count_features`)."""
+PLAN_INPUTS = 3
+"""Inputs ``LengthModelConfig.plan_inputs`` adds (:func:`plan_features`)."""
 
 COUNT_SCALE = 10.0
 """A count's input is count / COUNT_SCALE (counts above 2 x COUNT_SCALE read as 2 x COUNT_SCALE)."""
 
 
-def count_features(counts: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:
-    """(B, 2) inputs of the counts (B,) captions name (None: all 0): count / COUNT_SCALE and
-    whether there is one, in ``like``'s dtype and device."""
+def plan_features(
+    counts: torch.Tensor | None, clause: bool | torch.Tensor, like: torch.Tensor
+) -> torch.Tensor:
+    """(B, 3) inputs, in ``like``'s (B, F) dtype and device: count / COUNT_SCALE and whether
+    there is one (``counts`` (B,), None: all 0), and whether the caption is a clause of a longer
+    motion (``clause``, bool or (B,))."""
+    batch = like.shape[0]
     if counts is None:
-        return like.new_zeros(like.shape[0], COUNT_INPUTS)
+        counts = like.new_zeros(batch)
     counts = counts.to(like.device, like.dtype).clamp(0, 2 * COUNT_SCALE)
-    return torch.stack([counts / COUNT_SCALE, (counts > 0).to(like.dtype)], dim=-1)
+    part = torch.as_tensor(clause, device=like.device).to(like.dtype).expand(batch)
+    return torch.stack([counts / COUNT_SCALE, (counts > 0).to(like.dtype), part], dim=-1)
 
 
 def length_loss(logits: torch.Tensor, target_class: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -294,10 +294,10 @@ def export_release(
                 "reads a count clock or its progress (retrain it with "
                 "--generator.model.count_clock=false --generator.model.progress_frequencies=0)"
             )
-    if "length" in stages and stages["length"].config.length.model.count_input:
+    if "length" in stages and stages["length"].config.length.model.plan_inputs:
         raise UsageError(
             "the release's length estimator reads the text only; this one also reads the "
-            "caption's count (retrain it with --length.model.count_input=false)"
+            "caption's count (retrain it with --length.model.plan_inputs=false)"
         )
     for warning in _size_warnings(stages):
         logger.warning("the original code cannot load this export: %s", warning)

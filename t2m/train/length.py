@@ -31,7 +31,11 @@ class LengthObjective(nn.Module):
 
     def forward(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         logits = self.estimator(
-            batch["words"], batch["pos"], batch["text_lengths"], batch.get("counts")
+            batch["words"],
+            batch["pos"],
+            batch["text_lengths"],
+            batch.get("counts"),
+            batch.get("clause", False),
         )
         return length_loss(logits, batch["length_class"])
 
