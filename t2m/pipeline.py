@@ -499,28 +499,59 @@ class TextToMotion:
         generator: torch.Generator,
         repeats: int = 1,
         batch_size: int = 256,
+        by_clause: bool = True,
     ) -> list[int]:
         """Draw lengths in frames from the text2length model: ``repeats`` draws per prompt,
-        prompt-major (the model runs once per prompt, in batches of ``batch_size``)."""
+        prompt-major (the model runs once per prompt, in batches of ``batch_size``).
+
+        With ``by_clause`` (the clause plan) and a length model that reads clauses
+        (``LengthModelConfig.plan_inputs``), a prompt of several clauses draws each clause's
+        length as a clause, with its count, and takes their sum (at least the dataset's
+        shortest motion): "throws one punch, then claps five times" gets the five claps' time,
+        which a whole caption's count-blind draw does not. Prompts of one clause, and every
+        prompt otherwise, draw the whole caption's length (the paper's), first and in order."""
         if self.length_model is None:
             raise ValueError(
                 "no text2length model loaded: give lengths (--length / --seconds) "
                 "or load the `length` stage (`make train-len`)"
             )
         unit = self.spec.snippet_length
+        min_units, max_units = self.spec.min_frames // unit, self.spec.max_snippets
+        by_clause = by_clause and self.length_model.config.plan_inputs
+        split = [by_clause and len(item.clauses) > 1 for item in prepared]
         # Both models share one vocabulary (checked on construction), so one encoding serves.
-        encoded = [item.encoded for item in prepared]
-        logits = []
+        whole = [item.encoded for item, parts in zip(prepared, split) if not parts]
+        units = torch.zeros(len(prepared), repeats, dtype=torch.long)
         with torch.inference_mode():
-            for start in range(0, len(encoded), batch_size):
-                chunk = encoded[start : start + batch_size]
-                words, pos, lengths = self._text_batch(chunk, self.length_vectorizer, torch.float32)
-                counts = torch.tensor([c.count for c in chunk], device=self.device)
-                logits.append(self.length_model(words, pos, lengths, counts).float())
-            per_draw = torch.cat(logits).repeat_interleave(repeats, dim=0)  # (N * repeats, K)
-            units = sample_lengths(per_draw, generator, min_units=self.spec.min_frames // unit)
-        max_units = self.spec.max_snippets
-        return [int(u) * unit for u in units.clamp(max=max_units).tolist()]
+            if whole:
+                per_draw = self._length_logits(whole, batch_size).repeat_interleave(repeats, dim=0)
+                drawn = sample_lengths(per_draw, generator, min_units=min_units)
+                units[torch.tensor([not parts for parts in split])] = drawn.view(-1, repeats).cpu()
+            clauses = [c for item, parts in zip(prepared, split) if parts for c in item.clauses]
+            if clauses:
+                logits = self._length_logits(clauses, batch_size, clause=True)
+                probs = torch.softmax(logits, -1).repeat_interleave(repeats, dim=0)
+                drawn = torch.multinomial(probs, 1, generator=generator).view(-1, repeats).cpu()
+                start = 0
+                for row, (item, parts) in enumerate(zip(prepared, split)):
+                    if parts:
+                        end = start + len(item.clauses)
+                        units[row] = drawn[start:end].sum(0).clamp(min=min_units)
+                        start = end
+        return [int(u) * unit for u in units.clamp(max=max_units).flatten().tolist()]
+
+    def _length_logits(
+        self, encoded: Sequence[EncodedText], batch_size: int, clause: bool = False
+    ) -> torch.Tensor:
+        """(N, K) float32 length logits of captions (``clause``: as clauses of longer motions),
+        in batches of ``batch_size``."""
+        logits = []
+        for start in range(0, len(encoded), batch_size):
+            chunk = encoded[start : start + batch_size]
+            words, pos, lengths = self._text_batch(chunk, self.length_vectorizer, torch.float32)
+            counts = torch.tensor([c.count for c in chunk], device=self.device)
+            logits.append(self.length_model(words, pos, lengths, counts, clause).float())
+        return torch.cat(logits)
 
     @torch.inference_mode()
     def generate_features(
@@ -696,6 +727,7 @@ class TextToMotion:
                     generator,
                     repeats=num_samples,
                     batch_size=batch_size,
+                    by_clause=plan == "clauses",
                 )
             )
             for p in unsized:

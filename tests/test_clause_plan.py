@@ -56,8 +56,9 @@ def test_clause_snippets_follow_the_length_model(pipe):
 
 def test_the_length_model_reads_each_clause_count(pipe, monkeypatch):
     """The clause plan gives the length model each clause's count, marked as clauses; the
-    length draws give it each caption's count, as whole captions (the ``tiny`` preset's length
-    model reads both: ``LengthModelConfig.plan_inputs``)."""
+    length draws give it each caption's count, a whole caption of one clause and the clauses of
+    one of several (the ``tiny`` preset's length model reads both:
+    ``LengthModelConfig.plan_inputs``)."""
     assert pipe.length_model.config.plan_inputs
     seen = []
     model = pipe.length_model
@@ -66,11 +67,49 @@ def test_the_length_model_reads_each_clause_count(pipe, monkeypatch):
         seen.append((counts.tolist(), clause))
         return model(words, pos, lengths, counts, clause)
 
+    recording.config = model.config
     monkeypatch.setattr(pipe, "length_model", recording)
     (two,) = pipe.prepare(["someone hops twice, then claps five times"])
     assert pipe.clause_snippets([two.clauses], [160])[0] and seen == [([2, 5], True)]
     pipe.sample_lengths(pipe.prepare(["a person claps five times", TWO]), torch.Generator())
-    assert seen[1] == ([5, 0], False)
+    assert seen[1:] == [([5], False), ([0, 0], True)]  # TWO's clauses: as clauses
+    pipe.sample_lengths(pipe.prepare([TWO]), torch.Generator(), by_clause=False)
+    assert seen[3] == ([0], False)
+
+
+def test_lengths_of_prompts_of_several_clauses_are_drawn_clause_by_clause(pipe):
+    """With the clause plan a prompt of several clauses draws each clause's length as a clause
+    (with its count) and sums them; prompts of one clause, and the whole plan, draw the whole
+    caption's length as before."""
+    from t2m.models.length import sample_lengths
+
+    one, two = pipe.prepare([ONE, "someone hops twice, then claps five times"])
+    unit, spec = pipe.spec.snippet_length, pipe.spec
+    seed = lambda: torch.Generator().manual_seed(4)  # noqa: E731
+    drawn = pipe.sample_lengths([one, two], seed(), repeats=3)
+    with torch.inference_mode():
+        whole = pipe._length_logits([one.encoded, two.encoded], 8)
+        parts = pipe._length_logits(list(two.clauses), 8, clause=True)
+    generator = seed()
+    first = sample_lengths(whole[:1].repeat(3, 1), generator, min_units=spec.min_frames // unit)
+    units = torch.multinomial(
+        torch.softmax(parts, -1).repeat_interleave(3, 0), 1, generator=generator
+    )
+    summed = units.view(2, 3).sum(0).clamp(spec.min_frames // unit, spec.max_snippets)
+    assert drawn == [int(u) * unit for u in first.tolist() + summed.tolist()]
+    assert pipe.sample_lengths([one, two], seed(), repeats=3, by_clause=False) == [
+        int(u) * unit
+        for u in sample_lengths(whole.repeat_interleave(3, 0), seed(), spec.min_frames // unit)
+        .clamp(max=spec.max_snippets)
+        .tolist()
+    ]
+    # generate draws through it: the clause plan's lengths, the whole plan's
+    for plan, by_clause in (("clauses", True), ("whole", False)):
+        made = pipe.generate([TWO], num_samples=2, seed=5, plan=plan)[0]
+        expected = pipe.sample_lengths(
+            pipe.prepare([TWO]), torch.Generator().manual_seed(5), 2, by_clause=by_clause
+        )
+        assert [m.num_frames for m in made] == expected
 
 
 def test_one_clause_prompts_are_what_the_whole_plan_gives(pipe):

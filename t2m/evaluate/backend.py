@@ -284,8 +284,12 @@ class CheckpointBackend:
         generator = torch.Generator(pipeline.device).manual_seed(seed)
         encoded = self._encode(pipeline.vectorizer, captions)
         if lengths is None:
+            # the clause plan draws a caption of several clauses clause by clause (as
+            # t2m.sample does); the paper's plan draws whole captions
+            parts = [self._clauses(pipeline, c) if self.plan == "clauses" else () for c in captions]
             prepared = [
-                PreparedText(c.text, e, (), ()) for c, e in zip(captions, encoded, strict=True)
+                PreparedText(c.text, e, (), (), p)
+                for c, e, p in zip(captions, encoded, parts, strict=True)
             ]
             frames = np.concatenate(
                 [
