@@ -12,12 +12,14 @@ Steps of :meth:`TextToMotion.generate`:
 2. fix every motion's length: given frames are rounded to whole snippets and clamped to the
    dataset's limits (HumanML3D: 4-frame snippets, 40..196 frames at 20 fps; KIT-ML: 24..196 at
    12.5 fps; :class:`dataset_tools.skeleton.DatasetSpec`, stored in the checkpoints), missing
-   ones are drawn from the text2length model;
+   ones are drawn from the text2length model (with ``plan="clauses"``, a prompt of several
+   clauses as the sum of its clauses' draws, :meth:`TextToMotion.sample_lengths`);
 3. generate snippet codes with the temporal VAE's prior, batched across prompts and samples
    (items sorted by length so a batch wastes few steps), and decode them to features. With
    ``plan="clauses"`` (the default) a prompt of several clauses ("jumps twice, then waves") is
    generated clause by clause (:mod:`t2m.clauses`): each clause, as a caption of its own, gets
-   the share of the length the text2length model expects for it, and continues from the code
+   the length the text2length model expects for it plus a variance-weighted share of the rest
+   (:meth:`TextToMotion.clause_snippets`), and continues from the code
    the previous clause ended on; ``plan="whole"`` is the paper's single pass over the prompt;
 4. de-normalise the features with the statistics stored in the checkpoint and recover joints
    (the spec's number) with ``dataset_tools.representation.recover_from_ric``.
@@ -445,7 +447,7 @@ class TextToMotion:
         self, clauses: Sequence[Sequence[EncodedText]], frames: Sequence[int]
     ) -> list[list[int]]:
         """Each item's snippets (``frames // snippet_length``) shared among its clauses: each
-        clause gets the length the text2length model expects for it alone (its mean) plus a
+        clause gets the length the text2length model expects for it as a clause (its mean) plus a
         share of the difference to the item's length in proportion to that length's variance
         (:func:`t2m.clauses.clause_targets`; equal shares without a length model), at least
         1 s each where there is room (:func:`t2m.clauses.share_snippets`). An item with fewer
