@@ -457,9 +457,7 @@ class TextToMotion:
         means, variances = np.ones(len(flat)), np.ones(len(flat))
         if self.length_model is not None and flat:
             with torch.inference_mode():
-                words, pos, lengths = self._text_batch(flat, self.length_vectorizer, torch.float32)
-                counts = torch.tensor([c.count for c in flat], device=self.device)
-                logits = self.length_model(words, pos, lengths, counts, clause=True)
+                logits = self._length_logits(flat, batch_size=256, clause=True)
                 probs = torch.softmax(logits.double(), -1).cpu().numpy()
             units = np.arange(probs.shape[-1], dtype=np.float64)
             means = probs @ units
