@@ -386,7 +386,7 @@ def test_corpus_scoring_needs_neither_torch_nor_t2m():
 
 def test_semantic_accuracy_reaches_the_table():
     def semantic(names, motions):
-        return {"all": 0.5, "segments": 0.75, "action_walk": 0.25}
+        return {"all": 0.5, "segments": 0.75, "action_walk": 0.25, "scored_action_walk": 12.0}
 
     config = evaluate.EvalConfig(replications=2, mm_texts=4, mm_samples=10)
     result = evaluate.run_protocol(_clips(64), FakeBackend(), config, semantic=semantic)
@@ -396,7 +396,11 @@ def test_semantic_accuracy_reaches_the_table():
         assert summary["rows"][row]["semantic_accuracy_segments"]["mean"] == 0.75
     text = evaluate.format_markdown(summary)
     assert "Semantic accuracy" in text
-    assert "| walk | 0.250 ±0.000 | 0.250 ±0.000 | 0.250 ±0.000 |" in text
+    assert "| walk | 12 | 0.250 ±0.000 | 0.250 ±0.000 | 0.250 ±0.000 |" in text
+    # a scorer without segment counts: the column reads "-"
+    bare = lambda names, motions: {"all": 0.5, "action_walk": 0.25}  # noqa: E731
+    result = evaluate.run_protocol(_clips(64), FakeBackend(), config, semantic=bare)
+    assert "| walk | - | 0.250 ±0.000 |" in evaluate.format_markdown(evaluate.summarize(result))
 
 
 def test_a_subset_is_shared_by_all_draws_of_a_replication():

@@ -113,6 +113,7 @@ def test_scorer_reports_aligned_and_fixed_timing(walk_then_wave):
     assert scores["all"] == 1.0 and scores["segments"] == 1.0
     assert scores["all_fixed_timing"] == 0.0 and scores["segments_fixed_timing"] == 0.5
     assert scores["action_walk"] == 1.0 and scores["fixed_timing_action_walk"] == 0.0
+    assert scores["scored_action_walk"] == 1.0 and scores["scored_action_wave"] == 1.0
 
 
 def test_a_neighbour_that_makes_such_events_cannot_absorb_or_split_one():

@@ -88,7 +88,8 @@ class SemanticScorer:
         """Raw features (T_i, D) of the named items -> ``all`` (items fully right),
         ``segments`` (segments right), ``action_<name>`` (segments of that action right), and
         the same with the clip's own timing: ``all_fixed_timing``, ``segments_fixed_timing``,
-        ``fixed_timing_action_<name>``."""
+        ``fixed_timing_action_<name>``; ``scored_action_<name>``: how many segments of that
+        action were scored (what a per-action share rests on)."""
         items = 0
         right = {"aligned": 0, "fixed": 0}
         per_action: dict[str, list[int]] = {}  # action -> [aligned right, fixed right, total]
@@ -120,6 +121,7 @@ class SemanticScorer:
         for action, (aligned, fixed, count) in sorted(per_action.items()):
             scores[f"action_{action}"] = aligned / count
             scores[f"fixed_timing_action_{action}"] = fixed / count
+            scores[f"scored_action_{action}"] = float(count)
         return scores
 
 

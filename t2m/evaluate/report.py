@@ -96,14 +96,20 @@ def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
     if not actions:
         return []
     lines = [
-        "Segments recovered, per action:",
+        "Segments recovered, per action (segments: how many were scored per replication, so "
+        "how much one segment moves the share):",
         "",
-        "| Action | " + " | ".join(ROWS) + " |",
-        "|---|" + "---|" * len(ROWS),
+        "| Action | segments | " + " | ".join(ROWS) + " |",
+        "|---|---|" + "---|" * len(ROWS),
     ]
     for action in actions:
         cells = [_cell(summary["rows"][row].get(prefix + action)) for row in ROWS]
-        lines.append(f"| {action} | " + " | ".join(cells) + " |")
+        scored = [
+            summary["rows"][row].get(f"semantic_accuracy_scored_action_{action}") for row in ROWS
+        ]
+        counts = [entry["mean"] for entry in scored if entry is not None]
+        segments = f"{counts[0]:.0f}" if counts else "-"
+        lines.append(f"| {action} | {segments} | " + " | ".join(cells) + " |")
     return lines
 
 
