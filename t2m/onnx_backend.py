@@ -15,7 +15,8 @@ Two precisions:
 * ``int8``: symmetric int8 weights, activations quantised on the fly, in two sessions. One
   sequence runs ``MatMulNBits`` (one scale per block of :data:`INT8_BLOCK` inputs of a row, made
   by ONNX Runtime's own quantiser, int8 arithmetic); batches run ``DynamicQuantizeMatMul``
-  (one scale per output), whose kernel is the faster one from two sequences on
+  (one scale per output, 7-bit weights so that no CPU's u8 x s8 kernel can saturate:
+  :data:`DYNAMIC_WEIGHT_LEVELS`), whose kernel is the faster one from two sequences on
   (:data:`BATCHED_FROM`); its weights are made from the blockwise ones, and only when a batch
   first comes.
 
@@ -372,18 +373,32 @@ def _dequantised(
     return values.reshape(len(values), -1)[:, :inputs]
 
 
+DYNAMIC_WEIGHT_LEVELS = 63
+"""``DynamicQuantizeMatMul``'s weights take the integers -63..63 (7 bits), not -127..127.
+
+Its activations are quantised per call to the full unsigned range 0..255, and on x86 CPUs
+without VNNI ONNX Runtime multiplies u8 by s8 with ``vpmaddubsw``, which adds each pair of
+adjacent products into a *saturating* int16: |a0 w0 + a1 w1| <= 2 * 255 * |w|max must stay
+<= 32767, so |w|max <= 64. With 127, a row of same-signed weights against large activations
+clips the pair sums (codes off by 17-20 % of the largest at paper size on AVX2; tested by
+``tests/test_onnx_backend.py::test_int8_products_cannot_saturate``). 63 leaves
+2 * 255 * 63 = 32130. The cost is one bit of weight resolution (the weight rounding error
+doubles); VNNI CPUs (``vpdpbusd``, int32 sums) would not need it, but the same weights run on
+every CPU."""
+
+
 def per_output_int8(
     rows: Callable[[int, int], np.ndarray], outputs: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """``DynamicQuantizeMatMul``'s int8 (I, O) of the weight (O, I) that ``rows(start, stop)``
     gives a few float32 rows at a time, and its scales (O,): symmetric, each output's largest
-    magnitude mapped to 127, zero point 0."""
+    magnitude mapped to :data:`DYNAMIC_WEIGHT_LEVELS`, zero point 0."""
     first = rows(0, _QUANTISE_ROWS)
     quantized = np.empty((first.shape[1], outputs), np.int8)
     scales = np.empty(outputs, np.float32)
     for start in range(0, outputs, _QUANTISE_ROWS):
         chunk = first if start == 0 else rows(start, start + _QUANTISE_ROWS)
-        scale = np.maximum(np.abs(chunk).max(1), 1e-12) / 127.0
+        scale = np.maximum(np.abs(chunk).max(1), 1e-12) / DYNAMIC_WEIGHT_LEVELS
         quantized[:, start : start + len(chunk)] = np.round(chunk / scale[:, None]).T
         scales[start : start + len(chunk)] = scale
     return quantized, scales
@@ -438,6 +453,40 @@ def step_model(step: StepWeights):
         "t2m_generation_step",
         [tensor(name, *sizes[name]) for name in STEP_INPUTS],
         [tensor(name, *out_sizes[name]) for name in STEP_OUTPUTS],
+        g.initializers,
+    )
+    opsets = [helper.make_opsetid("", OPSET), helper.make_opsetid(MICROSOFT, 1)]
+    return helper.make_model(graph, opset_imports=opsets), g.external
+
+
+def product_model(weight: np.ndarray, weights: str):
+    """The ONNX model of one product ``x (B, I) -> x W^T (B, O)`` with ``weight`` (O, I) float32
+    stored in the format ``weights`` (:data:`WEIGHT_FORMATS`), as :func:`step_model` stores
+    each of its products: the same nodes and the same quantisation, for checking one product
+    against float arithmetic on the CPU at hand. Returns (model, external initialisers)."""
+    from onnx import TensorProto, helper
+
+    if weights not in WEIGHT_FORMATS:
+        raise ValueError(f"unknown weight format {weights!r}; use one of {WEIGHT_FORMATS}")
+    outputs, inputs = weight.shape
+    arrays: dict[str, np.ndarray] = {}
+    rows = torch.from_numpy(np.ascontiguousarray(weight, np.float32))
+    if weights == "fp32":
+        arrays["product.weight"] = rows.numpy()
+    elif weights == "blockwise":
+        arrays["product.weight"], arrays["product.scales"] = blockwise_int8_rows([rows])
+    else:
+        arrays["product.weight"], arrays["product.scale"] = per_output_int8(
+            lambda start, stop: rows[start:stop].numpy(), outputs
+        )
+    step = StepWeights(weights, 0, 0, inputs, {"product": inputs}, {}, arrays)
+    g = _Graph(step)
+    g.op("Identity", [g.linear("product", "x")], ["y"])
+    graph = helper.make_graph(
+        g.nodes,
+        "t2m_product",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["batch", inputs])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, ["batch", outputs])],
         g.initializers,
     )
     opsets = [helper.make_opsetid("", OPSET), helper.make_opsetid(MICROSOFT, 1)]
