@@ -29,9 +29,12 @@ lengths, batch size and precision give the same motions, bit for bit, on the sam
 
 Precision: ``fp32`` (reference), ``bf16`` (weights and activations in bfloat16) or ``int8``
 (dynamic int8 quantisation of the recurrent cells and linear layers, CPU only; the decoder runs
-in bfloat16). At batch 1 the prior / generator step reads every weight once per 4 frames, so
-smaller weights are faster. ``backend="onnx"`` runs that step in ONNX Runtime instead of torch
-(fp32 and int8, :mod:`t2m.onnx_backend`).
+in bfloat16 where the hardware computes it natively, else in float32). At batch 1 the prior /
+generator step reads every weight once per 4 frames, so smaller weights are faster, but only
+where bfloat16 is native (:func:`t2m.hardware.native_bf16`: a GPU, or a CPU with AVX512_BF16 or
+AMX). Elsewhere bf16 is slower than fp32 (:data:`BF16_EMULATED_COST`): it still runs when asked
+for, with a warning. ``backend="onnx"`` runs that step in ONNX Runtime instead of torch (fp32 and
+int8, :mod:`t2m.onnx_backend`).
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from t2m.clauses import clause_captions, clause_targets, share_snippets
 from t2m.cleanup import clean_features
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
+from t2m.hardware import device_description, native_bf16
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
     MovementDecoder,
@@ -69,6 +73,28 @@ from t2m.quantize import quantize_int8
 logger = logging.getLogger(__name__)
 
 PRECISIONS = ("fp32", "bf16", "int8")
+BF16_EMULATED_COST = (
+    "it took 1.1x fp32's CPU time at batch 1 and 4.9x at batch 32 (the decoder alone 4.6x) on "
+    "an AMD EPYC Zen 3 with AVX2 only (paper-size models, one thread)"
+)
+"""What bf16 costs where bfloat16 is not native (measured with the models and prompts of
+:mod:`t2m.benchmarks.sample`); against the original T2M it took 0.80x of its time at batch 1 (0.27x
+on an AVX-512 CPU) and 2.79x at batch 32."""
+
+
+def offered_precisions(device: str | torch.device) -> list[str]:
+    """The precisions worth offering on ``device`` (the web app's choices): fp32; bf16 where
+    bfloat16 is native (elsewhere it is slower than fp32, though it still runs when asked for);
+    int8 on the CPU."""
+    device = torch.device(device)
+    return [
+        precision
+        for precision in PRECISIONS
+        if (precision != "bf16" or native_bf16(device))
+        and (precision != "int8" or device.type == "cpu")
+    ]
+
+
 PLANS = ("clauses", "whole")
 """How a prompt is generated: clause by clause (:mod:`t2m.clauses`) or in one pass (the paper)."""
 
@@ -157,7 +183,8 @@ class TextToMotion:
         length_model: text2length (needed only when lengths are not given).
         length_vectorizer: its vocabulary; must be cut from the VAE's (same origin).
         device: where the models run (the modules are moved there).
-        precision: "fp32", "bf16" or "int8" (CPU only).
+        precision: "fp32", "bf16" or "int8" (CPU only). bf16 pays only where bfloat16 is
+            native (:func:`t2m.hardware.native_bf16`); elsewhere it runs with a warning.
         training_words: the words of the captions the model was trained on (stored in
             generator checkpoints); prompts are checked against them. Default (checkpoints
             written before they were stored): the vocabulary's words.
@@ -210,6 +237,14 @@ class TextToMotion:
             raise ValueError("int8 inference runs on the CPU only; use --precision bf16 on a GPU")
         self.precision = precision
         self.dtype = torch.bfloat16 if precision == "bf16" else torch.float32
+        native = native_bf16(self.device)
+        if precision == "bf16" and not native:
+            logger.warning(
+                "bf16 runs slower than fp32 on %s, which has no native bfloat16: %s; "
+                "fp32 or int8 is faster here",
+                device_description(self.device),
+                BF16_EMULATED_COST,
+            )
         self.spec = spec or spec_for_dim(normalizer.dim)
         if self.spec.feature_dim != normalizer.dim:
             raise ValueError(
@@ -244,9 +279,17 @@ class TextToMotion:
                 vae = copy.copy(vae)  # shares the weights
             set_generation_plan(vae, onnx_plan)
         self.vae = vae
-        # The decoder's transposed convolutions have no dynamic-int8 kernels; in both reduced
-        # modes they run in bfloat16 (3x faster at batch 32 with AMX, ~0.5% relative error).
-        self.decoder_dtype = torch.float32 if precision == "fp32" else torch.bfloat16
+        # The decoder's transposed convolutions have no dynamic-int8 kernels. With int8 they run
+        # in bfloat16 where it is native (3x faster at batch 32 with AMX, ~0.5% relative error),
+        # else in float32 (bf16 took 4.6x fp32's time there).
+        bf16_decoder = precision == "bf16" or (precision == "int8" and native)
+        self.decoder_dtype = torch.bfloat16 if bf16_decoder else torch.float32
+        if precision == "int8" and not native:
+            logger.info(
+                "int8: the movement decoder runs in float32 on %s, which has no native "
+                "bfloat16 (a bf16 decoder took 4.6x fp32's time on an AVX2 CPU)",
+                device_description(self.device),
+            )
         if self.decoder_dtype != torch.float32:
             decoder = (copy.deepcopy(decoder) if copy_models else decoder).to(self.decoder_dtype)
         self.decoder = decoder

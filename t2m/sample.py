@@ -516,7 +516,8 @@ class OutputOptions:
     threads: int = field(default=0, metadata=option(metavar="N"))
     """torch CPU threads (0: torch's choice; 1 is fastest on a busy machine)"""
     precision: Literal["fp32", "bf16", "int8"] = "fp32"
-    """inference precision (int8 is CPU only, and an edit cannot optimise through it)"""
+    """inference precision (int8 is CPU only, and an edit cannot optimise through it; bf16 is
+    faster only on a GPU or a CPU with AVX512_BF16 or AMX, elsewhere slower, with a warning)"""
     backend: Literal["torch", "onnx"] = "torch"
     """what runs the generation steps: torch, or ONNX Runtime (fp32 and int8 on the CPU)"""
 

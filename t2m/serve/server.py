@@ -38,7 +38,7 @@ from urllib.parse import quote, urlsplit
 from dataset_tools.command import UsageError
 from dataset_tools.skeleton import skeleton_for
 from dataset_tools.viz import RenderConfig, _chain_side  # the renderings' colours and sides
-from t2m.pipeline import PRECISIONS, TextToMotion
+from t2m.pipeline import TextToMotion, offered_precisions
 from t2m.serve import api
 from t2m.serve.editing import edit, edit_info
 from t2m.serve.results import CONTENT_TYPES, DOWNLOAD_KINDS, Expired, ResultStore
@@ -105,7 +105,7 @@ class App:
             "max_frames": spec.max_frames,
             "snippet_frames": spec.snippet_length,
             "automatic_length": self.pipe.length_model is not None,
-            "precisions": [p for p in PRECISIONS if p != "int8" or self.pipe.device.type == "cpu"],
+            "precisions": offered_precisions(self.pipe.device),
             "downloads": list(self.store.kinds),
             "skeleton": {
                 "joint_names": list(skeleton.joint_names),

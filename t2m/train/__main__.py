@@ -59,7 +59,8 @@ class TrainOptions:
     device: str | None = None
     """auto, cpu, cuda, cuda:N (default: the config's, auto)"""
     bf16: bool | None = None
-    """bfloat16 autocast (default: the config's, off)"""
+    """bfloat16 autocast (default: the config's, off); faster only on a GPU or a CPU with
+    AVX512_BF16 or AMX, elsewhere much slower (with a warning)"""
     seed: int | None = None
     """random seed (default: the config's, 0)"""
     print_config: bool = False

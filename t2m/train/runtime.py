@@ -18,8 +18,17 @@ import torch.distributed as dist
 from torch import nn
 
 from dataset_tools.command import UsageError
+from t2m.hardware import device_description, native_bf16
 
 logger = logging.getLogger(__name__)
+
+BF16_AUTOCAST_COST = (
+    "an autoencoder step took 33x its fp32 time, a temporal-VAE step 12x, on an AMD EPYC Zen 3 "
+    "with AVX2 only (demo sizes, one thread)"
+)
+"""What ``--bf16`` costs where bfloat16 is not native (:func:`t2m.hardware.native_bf16`;
+measured as :mod:`t2m.benchmarks.train` steps); at paper size the autoencoder step took 38x the
+original T2M's time (28 s a step)."""
 
 
 @dataclass
@@ -53,7 +62,8 @@ class Runtime:
             logger.info("%d CPU threads from this epoch on", threads)
 
     def autocast(self) -> contextlib.AbstractContextManager:
-        """bfloat16 autocast when enabled (CUDA or CPU), else a no-op."""
+        """bfloat16 autocast when enabled (CUDA or CPU), else a no-op (:func:`start` warns
+        where bfloat16 is not native)."""
         if not self.bf16:
             return contextlib.nullcontext()
         return torch.autocast(device_type=self.device.type, dtype=torch.bfloat16)
@@ -124,7 +134,11 @@ def available_memory() -> int | None:
 
 
 def start(device: str = "auto", bf16: bool = False, num_threads: int = 0) -> Runtime:
-    """Open the process group when launched by torchrun, choose the device, set threads."""
+    """Open the process group when launched by torchrun, choose the device, set threads.
+
+    ``bf16`` is kept as asked; where bfloat16 is not native (a CPU without AVX512_BF16 or AMX) the
+    main process warns once that it runs slower than fp32.
+    """
     world_size = int(os.environ.get("WORLD_SIZE", "1"))
     rank = int(os.environ.get("RANK", "0"))
     local_rank = int(os.environ.get("LOCAL_RANK", str(rank)))
@@ -135,6 +149,13 @@ def start(device: str = "auto", bf16: bool = False, num_threads: int = 0) -> Run
         backend = "nccl" if resolved.type == "cuda" else "gloo"
         dist.init_process_group(backend=backend, rank=rank, world_size=world_size)
         logger.info("process %d of %d (%s)", rank, world_size, backend)
+    if bf16 and rank == 0 and not native_bf16(resolved):
+        logger.warning(
+            "bf16 autocast trains slower than fp32 on %s, which has no native bfloat16: %s; "
+            "leave --bf16 off here",
+            device_description(resolved),
+            BF16_AUTOCAST_COST,
+        )
     return Runtime(resolved, rank, world_size, bf16)
 
 
