@@ -62,8 +62,18 @@ $(STAMP): setup.cfg pyproject.toml
 	$(py) -m pip install -q -e '.[test,onnx]'
 	touch $(call quote,$(STAMP))
 
+# The numerics tests: run a second time with oneDNN and ATen held to AVX2, so that on an AVX-512
+# machine they also exercise the kernels of the common AVX2 CPUs (on an AVX2 machine the second
+# pass repeats the first). ONNX Runtime has no such switch: tests/test_int8_saturation.py drives
+# its int8 products to the clip of the non-VNNI kernels on whatever CPU runs it.
+NUMERICS_TESTS := tests/test_onednn.py tests/test_fast_recurrence.py tests/test_temporal_vae.py \
+	tests/test_models.py tests/test_speed_paths.py tests/test_release.py \
+	tests/test_onnx_backend.py tests/test_int8_saturation.py tests/test_precision_choice.py
+
 test: install
+	@$(py) -c 'from t2m.hardware import cpu_description; print("cpu:", cpu_description())'
 	$(py) -m pytest -q tests
+	ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 $(py) -m pytest -q -p no:cacheprovider $(NUMERICS_TESTS)
 
 lint: install
 	$(call quote,$(VENV_DIR)/bin/ruff) check .

@@ -18,6 +18,14 @@ import pytest
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
+
+def pytest_report_header(config) -> str:
+    """The CPU and the kernels it runs (the suite's tolerances hold on every x86-64 CPU; a
+    failure report says which one it came from)."""
+    from t2m.hardware import cpu_description
+
+    return f"cpu: {cpu_description()}"
+
 # kind -> captions as (text, tagged tokens); the tags are what spaCy + HumanML3D rules produce.
 CAPTIONS: dict[str, list[tuple[str, str]]] = {
     "walk_forward": [

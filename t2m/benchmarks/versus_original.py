@@ -175,6 +175,7 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
             vae, decoder, Normalizer(mean, std), vectorizer, torch.zeros(512), precision=precision
         )
         for precision in ("fp32", "bf16", "int8")
+        if precision != "bf16" or _BF16["run"]
     }
     if onnx_backend.available():  # the optional ONNX Runtime backend, same weights
         for precision in onnx_backend.ONNX_PRECISIONS:
@@ -456,7 +457,8 @@ def memory_sides() -> tuple[str, ...]:
     from t2m import onnx_backend
 
     onnx = onnx_backend.ONNX_PRECISIONS if onnx_backend.available() else ()
-    return ("fp32", "bf16", "int8", *(f"onnx_{precision}" for precision in onnx))
+    torch_sides = ("fp32", "bf16", "int8") if _BF16["run"] else ("fp32", "int8")
+    return (*torch_sides, *(f"onnx_{precision}" for precision in onnx))
 
 
 def peak_memory(original: Path) -> dict[str, float]:
@@ -540,7 +542,19 @@ def summarise(name: str, times: dict[str, list[tuple[float, float]]]) -> list[di
     return rows
 
 
-def measure(original: Path, rounds: int, threads: int, only: set[str] | None) -> dict:
+_BF16 = {"run": True}
+"""Whether the bf16 sides run (:func:`measure` sets it): only where bfloat16 is native, unless
+asked for (elsewhere they are slower than fp32 and only show the cost of emulation)."""
+
+
+def measure(
+    original: Path, rounds: int, threads: int, only: set[str] | None, bf16: bool | None = None
+) -> dict:
+    """Every row of the module docstring (those of ``only``); ``bf16``: run the bf16 sides
+    (default: where :func:`t2m.hardware.native_bf16` says bfloat16 is native)."""
+    from t2m.hardware import cpu_description, native_bf16
+
+    _BF16["run"] = native_bf16("cpu") if bf16 is None else bf16
     orig = import_original(original)
     results: list[dict] = []
 
@@ -548,6 +562,8 @@ def measure(original: Path, rounds: int, threads: int, only: set[str] | None) ->
         return only is None or name in only
 
     def add(name: str, sides: dict[str, Callable[[], object]], count: int) -> None:
+        if not _BF16["run"]:
+            sides = {side: run for side, run in sides.items() if "bf16" not in side}
         rows = summarise(name, interleave(sides, count))
         for row in rows:  # as it comes: a long run shows its progress
             print(json.dumps(row), file=sys.stderr, flush=True)
@@ -580,6 +596,8 @@ def measure(original: Path, rounds: int, threads: int, only: set[str] | None) ->
         "environment": {
             "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
             "cpu": _cpu(),
+            "cpu_kernels": cpu_description(),
+            "bf16_rows": _BF16["run"],
             "cores": os.cpu_count(),
             "threads": threads,
             "load_average_at_end": os.getloadavg(),
@@ -605,6 +623,8 @@ def to_markdown(results: dict) -> str:
         f"Measured {env['date']} on {env['cpu']} ({env['cores']} cores, {env['threads']} torch "
         f"threads, load average at the end {', '.join(f'{x:.1f}' for x in env['load_average_at_end'])}"
         f"); torch {env['torch']}, Python {env['python']}; {env['rounds']} interleaved rounds.",
+        f"Kernels: {env.get('cpu_kernels', '-')}"
+        + ("" if env.get("bf16_rows", True) else "; bf16 rows not run (no native bfloat16)."),
         "",
         "| measure | original | ours | ratio ours / original (min-max) | CPU-time ratio |",
         "| --- | --- | --- | --- | --- |",
@@ -630,12 +650,21 @@ def main(argv: list[str] | None = None) -> int:
         "--only", nargs="*", choices=("features", "generation", "training", "memory")
     )
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
+    parser.add_argument(
+        "--bf16",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="run the bf16 rows (default: only where bfloat16 is native; elsewhere they are "
+        "slower than fp32)",
+    )
     parser.add_argument("--memory-child", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.memory_child:
         print(memory_child(args.memory_child, str(args.original)))
         return 0
-    results = measure(args.original, args.rounds, args.threads, set(args.only or []) or None)
+    results = measure(
+        args.original, args.rounds, args.threads, set(args.only or []) or None, args.bf16
+    )
     if args.out:
         from dataset_tools.io import write_json_atomic
 
