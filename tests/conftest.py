@@ -26,6 +26,7 @@ def pytest_report_header(config) -> str:
 
     return f"cpu: {cpu_description()}"
 
+
 # kind -> captions as (text, tagged tokens); the tags are what spaCy + HumanML3D rules produce.
 CAPTIONS: dict[str, list[tuple[str, str]]] = {
     "walk_forward": [
