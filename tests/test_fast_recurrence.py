@@ -1,7 +1,9 @@
 """The generator stage's fast paths against the plain modules: the oneDNN Linear
 (``t2m.models.fast_recurrence.linear``), the fine-tuned decoder (``t2m.train.generator.decode``),
 and the training loop's autograd node without gradients (validation) and with outputs the loss
-does not read. Tolerances as in ``tests/test_temporal_vae.py``: float32 sums in another order."""
+does not read. Tolerances: float32 sums in another order, so the fast path and the plain one are
+compared through their distances to a float64 evaluation of the same weights
+(``tests.tolerances.assert_same_rounding``: each within 16x the other's)."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from t2m.models.autoencoder import MovementDecoder
 from t2m.models.fast_recurrence import linear
 from t2m.train.generator import decode
 from tests.test_temporal_vae import CODE, LATENT, make_vae, randn, text
+from tests.tolerances import as_float64, assert_same_rounding
 
 
 def _grads(output: torch.Tensor, tensors: list[torch.Tensor]) -> tuple[torch.Tensor, ...]:
@@ -30,11 +33,16 @@ def test_linear_equals_f_linear(contiguous):
     weight = randn(5, 7, seed=2).requires_grad_(True)
     bias = randn(5, seed=3).requires_grad_(True)
     fast, plain = linear(inputs, weight, bias), F.linear(inputs, weight, bias)
-    torch.testing.assert_close(fast, plain, rtol=1e-5, atol=1e-6)
-    for got, want in zip(
-        _grads(fast, [inputs, weight, bias]), _grads(plain, [inputs, weight, bias]), strict=True
+    exact_tensors = [t.detach().double().requires_grad_() for t in (inputs, weight, bias)]
+    exact = F.linear(*exact_tensors)
+    assert_same_rounding(fast, plain, exact)
+    for got, want, wanted in zip(
+        _grads(fast, [inputs, weight, bias]),
+        _grads(plain, [inputs, weight, bias]),
+        _grads(exact, exact_tensors),
+        strict=True,
     ):
-        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+        assert_same_rounding(got, want, wanted)
 
 
 def test_linear_under_autocast_is_torch_s():
@@ -49,10 +57,14 @@ def test_decode_equals_the_decoder():
     codes = randn(2, 5, CODE, seed=1).requires_grad_(True)
     fast, plain = decode(decoder, codes), decoder(codes)
     assert fast.shape == (2, 20, 23)
-    torch.testing.assert_close(fast, plain, rtol=1e-5, atol=1e-6)
-    tensors = [codes, *decoder.parameters()]
-    for got, want in zip(_grads(fast, tensors), _grads(plain, tensors), strict=True):
-        torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+    decoder64, codes64 = as_float64(decoder), codes.detach().double().requires_grad_()
+    exact = decoder64(codes64)
+    assert_same_rounding(fast, plain, exact)
+    tensors, tensors64 = [codes, *decoder.parameters()], [codes64, *decoder64.parameters()]
+    for got, want, wanted in zip(
+        _grads(fast, tensors), _grads(plain, tensors), _grads(exact, tensors64), strict=True
+    ):
+        assert_same_rounding(got, want, wanted)
 
 
 @pytest.mark.parametrize("teacher_forcing", [True, False])
@@ -63,6 +75,7 @@ def test_the_loop_without_gradients_gives_the_same_outputs(teacher_forcing):
     with torch.no_grad():
         without = vae(*text(vae), codes, torch.zeros(CODE), teacher_forcing, noise)
     for key, value in with_grad.items():
+        # the same operations on the same operands: equal bit for bit
         torch.testing.assert_close(without[key], value, rtol=0, atol=0, msg=key)
 
 
@@ -71,21 +84,28 @@ def test_outputs_the_loss_does_not_read_get_no_gradient_through_the_loop():
     states are not read, so the prior gets zero gradients and the rest what the plain step gives."""
     vae = make_vae()
     codes, noise = randn(3, 6, CODE, seed=1), randn(3, 6, LATENT, seed=3)
-    parameters = dict(vae.named_parameters())
     grads = {}
-    for fast in (True, False):
-        outputs = vae(*text(vae), codes, torch.zeros(CODE), False, noise, fast=fast)
+    for model, fast in ((vae, True), (vae, False), (as_float64(vae), False)):
+        parameters = dict(model.named_parameters())
+        dtype = next(model.parameters()).dtype
+        outputs = model(
+            *text(model),
+            codes.to(dtype),
+            torch.zeros(CODE, dtype=dtype),
+            False,
+            noise.to(dtype),
+            fast=fast,
+        )
         found = torch.autograd.grad(
             outputs["codes"].square().sum(), list(parameters.values()), allow_unused=True
         )
-        grads[fast] = dict(zip(parameters, found, strict=True))
-    for name, plain in grads[False].items():
-        fast = grads[True][name]
+        grads[dtype, fast] = dict(zip(parameters, found, strict=True))
+    for name, plain in grads[torch.float32, False].items():
+        fast = grads[torch.float32, True][name]
         if plain is None:  # not reached by the plain step: zero (or none) in the fast one
             assert fast is None or not fast.any(), name
         else:
-            scale = plain.abs().max().clamp_min(1e-6)
-            torch.testing.assert_close(fast, plain, rtol=0, atol=1e-5 * scale, msg=name)
+            assert_same_rounding(fast, plain, grads[torch.float64, False][name], msg=name)
 
 
 @pytest.mark.parametrize("teacher_forcing", [True, False])
