@@ -16,6 +16,7 @@ from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.text_encoder import TextEncoder
+from tests.tolerances import assert_same_rounding, gamma
 
 WORD_DIM, L = 12, 22
 AE = AutoencoderConfig(hidden_size=24, code_size=16, dropout=0.2)
@@ -48,14 +49,26 @@ def test_autoencoder_shapes_and_loss():
         + 0.001 * codes.abs().mean()
         + 0.001 * (codes[:, 1:] - codes[:, :-1]).abs().mean()
     )
-    assert torch.allclose(losses["loss"], expected)
+    # Tolerances: means of 18,936 (and 288, 270) terms summed by other kernels in another
+    # order, so both sides are held to the float64 loss of the same tensors (each within 16x
+    # the other's distance; tests.tolerances.assert_same_rounding). A wrong weight or term
+    # (0.01 for 0.001, the smoothness left out) moves the loss by 1e-3 or more, rounding 1e-7.
+    exact = autoencoder_loss(reconstruction.double(), motion.double(), codes.double())
+    assert_same_rounding(losses["loss"], expected, exact["loss"])
     smooth = autoencoder_loss(reconstruction, motion, codes, reconstruction_loss="smooth_l1")
+    exact_smooth = autoencoder_loss(
+        reconstruction.double(), motion.double(), codes.double(), reconstruction_loss="smooth_l1"
+    )
     # Huber with beta 1: half the squared error below 1, the error less a half above
     error = (reconstruction - motion).abs()
     huber = torch.where(error < 1, 0.5 * error**2, error - 0.5).mean()
-    assert torch.allclose(smooth["reconstruction"], huber)
-    assert torch.allclose(
-        smooth["loss"] - smooth["reconstruction"], expected - losses["reconstruction"]
+    assert_same_rounding(smooth["reconstruction"], huber, exact_smooth["reconstruction"])
+    # the regularisers alone, each side a loss less its reconstruction (cancellation: the float64
+    # difference is the reference, floored at u times it)
+    assert_same_rounding(
+        smooth["loss"] - smooth["reconstruction"],
+        expected - losses["reconstruction"],
+        exact_smooth["loss"] - exact_smooth["reconstruction"],
     )
     with pytest.raises(ValueError, match="unknown reconstruction loss"):
         autoencoder_loss(reconstruction, motion, codes, reconstruction_loss="l2")
@@ -74,7 +87,9 @@ def test_text_encoder_masks_padding_and_takes_ids():
     noisy = words.clone()
     noisy[0, lengths[0] :] = 100.0  # padding content must not matter
     _, sentence2 = encoder(noisy, pos, lengths)
-    assert torch.allclose(sentence, sentence2)
+    # the same operations on the same shapes; the valid tokens' values are the same and no
+    # product of theirs reads a padding row: equal bit for bit
+    assert torch.equal(sentence, sentence2)
     trainable = TextEncoder(WORD_DIM, TextEncoderConfig(hidden_size=10), vocab_size=30)
     ids, pos, lengths = text_batch(2, vocab=30)
     assert trainable(ids, pos, lengths)[1].shape == (2, 20)
@@ -145,15 +160,24 @@ def test_evaluator_shapes_frozen_encoder_and_contrastive_loss():
     # content past a motion's length (beyond the convolutions' reach of 3 frames) is ignored
     padded = motion.clone()
     padded[1, 27:] = 3.0
-    assert torch.allclose(evaluator.embed_motion(padded, motion_lengths)[1], moving[1], atol=1e-6)
+    # the same operations on the same shapes, and no output read reaches the changed frames:
+    # equal bit for bit
+    assert torch.equal(evaluator.embed_motion(padded, motion_lengths)[1], moving[1])
     with pytest.raises(ValueError, match="zero shift"):
         contrastive_loss(text, moving, 0)
     same = contrastive_loss(text, text, 1, margin=10.0)
-    assert same["positive"] < 1e-9
+    # pairwise_distance adds eps = 1e-6 to each of the 6 differences: 6e-12 per pair, within
+    # 8 roundings (eps to float32, squares, sum, sqrt, square, mean; observed 6.0000004e-12);
+    # any real distance is 1e-6 or more
+    assert same["positive"] <= 6 * (1e-6) ** 2 * (1 + gamma(8))
     far = contrastive_loss(
         torch.zeros(3, 2), torch.tensor([[0.0, 20.0], [0.0, 0.0], [0.0, 0.0]]), 1, margin=10.0
     )
-    assert torch.allclose(far["positive"], torch.tensor(400.0 / 3), rtol=1e-4)
+    # squared distances (20 - eps)^2 + eps^2, 2 eps^2, 2 eps^2 (pairwise_distance's eps = 1e-6),
+    # their mean within 8 roundings of positive terms, gamma_8 = 4.8e-7 relative (observed
+    # 5.3e-8); a distance not squared, or summed instead of averaged, is off by 3x or more
+    expected = ((20 - 1e-6) ** 2 + 1e-12 + 2 * 2e-12) / 3
+    assert abs(far["positive"].item() - expected) <= gamma(8) * expected
 
 
 def test_config_accepts_exactly_the_autoencoder_losses():

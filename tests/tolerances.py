@@ -39,6 +39,15 @@ def gamma(n: int, u: float = U) -> float:
     return n * u / (1 - n * u)
 
 
+def sin_cos_bound(angle: torch.Tensor, roundings: int) -> torch.Tensor:
+    """Elementwise bound on |fl32(sin a) - sin(angle)| (or cos) where the float32 angle a is
+    ``angle`` (exact, float64) computed with ``roundings`` rounded float32 products and quotients
+    of exact values (2 pi rounded to float32 is one): |a - angle| <= gamma_roundings |angle|,
+    sin and cos have slope at most 1, and their float32 value is within 1 ulp (ATen's Sleef
+    ``u10`` kernels, glibc's sinf / cosf), at most 2u for a value in [-1, 1]."""
+    return gamma(roundings) * angle.double().abs() + 2 * U
+
+
 def max_abs(tensor: torch.Tensor) -> float:
     return float(tensor.detach().double().abs().max())
 
