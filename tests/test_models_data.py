@@ -155,7 +155,8 @@ def test_glove_text_file_of_any_dimension_and_fingerprint(tmp_path):
     path.write_text("".join(f"{w} {' '.join(map(str, v))}\n" for w, v in rows.items()))
     vectors = load_vectorizer(str(path))
     assert vectors.dim == 3
-    np.testing.assert_allclose(vectors.encode_tokens(["walk/VERB"]).words[1], [0.5, 0.5, 0.5])
+    # copied from the file: 0.5 is exact in float32
+    np.testing.assert_array_equal(vectors.encode_tokens(["walk/VERB"]).words[1], [0.5, 0.5, 0.5])
     info = vectors.info()
     assert vectorizer_from_info(info).fingerprint() == info["fingerprint"]
     with pytest.raises(ValueError, match="differ"):
@@ -190,8 +191,10 @@ def test_normalizer_weights_root_and_contacts():
     mean = np.linspace(-1, 1, 263).astype(np.float32)
     std = np.full(263, 2.0, np.float32)
     normalizer = Normalizer.weighted(mean, std, 5.0)
-    assert np.allclose(normalizer.std[:4], 0.4) and np.allclose(normalizer.std[-4:], 0.4)
-    assert np.allclose(normalizer.std[4:-4], 2.0)
+    # 2 / 5 is one float32 rounding (relative 2^-24); the other entries are copied exactly
+    weighted = np.r_[normalizer.std[:4], normalizer.std[-4:]]
+    np.testing.assert_allclose(weighted, 0.4, rtol=2.0**-23, atol=0)
+    np.testing.assert_array_equal(normalizer.std[4:-4], 2.0)
     features = np.random.default_rng(0).normal(size=(5, 263)).astype(np.float32)
     # float32 round trip (x - m) / s * s + m: 4 roundings, within gamma_4 (|x - m| + |x|) of x
     # elementwise (about 2e-6 at |x| = 4; observed 2.4e-7); a wrong std slice or weight on
@@ -211,7 +214,9 @@ def test_real_humanml3d_statistics_load():
         pytest.skip(f"{reference} not available")
     normalizer = Normalizer.from_dataset(reference)
     raw_std = np.load(reference / "Std.npy")
-    np.testing.assert_allclose(normalizer.std[4:259], raw_std[4:259])
+    np.testing.assert_array_equal(normalizer.std[4:259], raw_std[4:259])  # copied
+    # std / 5 and then x 5: two float32 roundings, relative 2 x 2^-24 = 1.2e-7; 1e-6 leaves 8x
+    # (a feature_bias of 4 or 6 would be off by 20%)
     np.testing.assert_allclose(normalizer.std[:4] * 5, raw_std[:4], rtol=1e-6)
     clip = np.load(reference / "new_joint_vecs" / "012314.npy")
     normalised = normalizer.normalize(clip)
@@ -265,6 +270,8 @@ def test_batches_are_deterministic_and_disjoint_across_processes(tiny_dataset):
         motion = window["motion"][row].numpy()
         np.testing.assert_array_equal(motion, data.motions[index][start : start + 48])
         expected = (start + 4 * np.arange(12)) / data.lengths[index]
+        # a quotient rounded to float32 (relative 2^-24 = 6e-8; 1e-6 leaves 16x): a window off
+        # by one frame moves it by 1 / length >= 0.5%
         np.testing.assert_allclose(window["done"][row].numpy(), expected, rtol=1e-6)
 
 
@@ -310,9 +317,11 @@ def test_crops_read_their_clause_clock(tmp_path):
     crop = data.fixed_crop_batch(np.array([0]), np.random.default_rng(1), 100)
     # snippets 0-9 are the hops' (40 of 100 frames), 10-24 the claps'
     assert crop["counts"][0].tolist() == [2] * 10 + [4] * 15
+    # shares below 1 rounded to float32 (at most 6e-8; 1e-6 leaves 16x); a wrong clause
+    # boundary moves them by 1 / 15 or more
     np.testing.assert_allclose(crop["done"][0, :10].numpy(), np.arange(10) / 10, atol=1e-6)
     np.testing.assert_allclose(crop["done"][0, 10:].numpy(), np.arange(15) / 15, atol=1e-6)
-    np.testing.assert_allclose(crop["clause_snippets"][0].numpy(), [10] * 10 + [15] * 15)
+    np.testing.assert_array_equal(crop["clause_snippets"][0].numpy(), [10] * 10 + [15] * 15)
 
 
 def test_length_examples_read_counts_and_labelled_clauses():
