@@ -26,6 +26,25 @@ def _reference_joints() -> np.ndarray:
     return np.load(REFERENCE_JOINTS).astype(np.float64)
 
 
+U = 2.0**-24  # float32's unit roundoff: the file's keys, vertices and times
+
+
+def _float32_bound(root_positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How far the file's float32 values can move each joint from the writer's forward
+    kinematics: (T, 22) metres and (22,) radians of turn. The root's translation rounds by at
+    most U |root|; a quaternion key rounds each component by at most U of itself, which turns its
+    (renormalised) rotation by at most 2U; turns add along the chain and move a bone by its
+    length times the angle. Node offsets are JSON float64 (exact); 1e-12 m: the float64 FK."""
+    moved, turned = np.zeros((len(root_positions), 22)), np.zeros(22)
+    for joint, parent in enumerate(SMPL.parents):
+        if parent < 0:
+            moved[:, joint], turned[joint] = U * np.linalg.norm(root_positions, axis=-1), 2 * U
+        else:
+            moved[:, joint] = moved[:, parent] + turned[parent] * SMPL.bone_lengths[joint]
+            turned[joint] = turned[parent] + 2 * U
+    return moved + 1e-12, turned
+
+
 def _accessor(gltf, index: int) -> np.ndarray:
     """An accessor's values as a (count, width) array, read through pygltflib's objects."""
     accessor = gltf.accessors[index]
@@ -93,14 +112,22 @@ def test_independent_reader_reproduces_the_joints(tmp_path):
     positions, names, times, gltf = _read_with_pygltflib(path)
     assert names == list(SMPL.joint_names)
     assert positions.shape == joints.shape
-    np.testing.assert_allclose(times, np.arange(80) / 20.0, atol=1e-6)
-    assert np.linalg.norm(positions - joints, axis=-1).max() < 0.01  # metres
+    # float32 key times: within U of themselves (observed 0.76 U); a wrong fps is off by 5%.
+    exact_times = np.arange(80) / 20.0
+    assert (np.abs(times - exact_times) <= U * exact_times).all()
+    # The writer's FK (which test_export holds to the input) to float32 rounding: observed
+    # 5.3e-8 m against bounds of 5e-8 (root) to 7.7e-7 m; a wrong key order or axis is off by cm.
+    solved = motion_from_joints(joints)
+    moved, _ = _float32_bound(solved.root_positions)
+    assert (np.linalg.norm(positions - solved.joints(), axis=-1) <= moved).all()
     assert gltf.animations[0].extras["fps"] == 20.0
     # every rotation key is a unit quaternion, and consecutive keys are on the near side
     for channel in gltf.animations[0].channels:
         if channel.target.path == "rotation":
             values = _accessor(gltf, gltf.animations[0].samplers[channel.sampler].output)
-            np.testing.assert_allclose(np.linalg.norm(values, axis=-1), 1.0, atol=1e-5)
+            # Rounding each component by <= U of itself moves the norm by <= U, plus float64's
+            # ~2e-16 (observed 0.68 U); a key that is not a rotation is off by far more.
+            np.testing.assert_allclose(np.linalg.norm(values, axis=-1), 1.0, rtol=0, atol=U + 1e-15)
             assert (np.sum(values[1:] * values[:-1], axis=-1) >= 0).all()
 
 
@@ -115,7 +142,7 @@ def test_skinned_mesh_follows_the_skeleton(tmp_path):
     vertices = _accessor(gltf, primitive.attributes.POSITION)
     bound = _accessor(gltf, primitive.attributes.JOINTS_0)[:, 0].astype(int)
     weights = _accessor(gltf, primitive.attributes.WEIGHTS_0)
-    np.testing.assert_allclose(weights.sum(axis=1), 1.0)
+    np.testing.assert_array_equal(weights.sum(axis=1), 1.0)  # (1, 0, 0, 0): exact
     inverse_bind = _accessor(gltf, gltf.skins[0].inverseBindMatrices).reshape(-1, 4, 4)
     inverse_bind = np.swapaxes(inverse_bind, 1, 2)  # column-major in the file
     frame = 3
@@ -125,8 +152,16 @@ def test_skinned_mesh_follows_the_skeleton(tmp_path):
     centres = skinned.reshape(-1, 8, 3).mean(axis=1)
     children = [j for j, p in enumerate(SMPL.parents) if p >= 0]
     assert len(centres) == len(children) == 21
-    expected = (joints[frame, children] + joints[frame, [SMPL.parents[j] for j in children]]) / 2
-    assert np.linalg.norm(centres - expected, axis=-1).max() < 0.01
+    # Midpoints of the writer's FK: the parent's float32 bound, its turn times the half bone,
+    # and the float32 vertices and inverse binds (|.| <= 1 m: 2 sqrt(3) U m). Observed 4.8e-8 m
+    # against >= 2.6e-7 m; a box bound to the wrong joint or a wrong bind is off by decimetres.
+    solved = motion_from_joints(joints)
+    fk, parents = solved.joints()[frame], [SMPL.parents[j] for j in children]
+    expected = (fk[children] + fk[parents]) / 2
+    moved, turned = _float32_bound(solved.root_positions[frame : frame + 1])
+    bound = moved[0, parents] + turned[parents] * SMPL.bone_lengths[children] / 2
+    bound += 2 * np.sqrt(3) * U
+    assert (np.linalg.norm(centres - expected, axis=-1) <= bound).all()
 
 
 def test_glb_container_layout(tmp_path):
@@ -153,8 +188,10 @@ def test_export_command_writes_glb_and_refuses_bad_input(tmp_path, capsys):
     np.save(source, joints)
     assert export.main([str(source), str(tmp_path / "out.glb"), "--fps", "10"]) == 0
     positions, _, times, _ = _read_with_pygltflib(tmp_path / "out.glb")
-    assert times[1] == pytest.approx(0.1)
-    assert np.linalg.norm(positions - joints, axis=-1).max() < 0.01
+    assert abs(times[1] - 0.1) <= U * 0.1  # one float32 rounding
+    solved = motion_from_joints(joints)  # what the command solves from the float32 file
+    moved, _ = _float32_bound(solved.root_positions)
+    assert (np.linalg.norm(positions - solved.joints(), axis=-1) <= moved).all()
     capsys.readouterr()
     assert export.main([str(source), str(tmp_path / "out.obj")]) == 2
     assert ".glb" in capsys.readouterr().err
@@ -174,7 +211,9 @@ def test_sample_glb_option_writes_a_glb_per_motion(tiny_run, tmp_path):
     for rep in range(2):
         # The tiny model's bone lengths drift from the target skeleton's; the file holds the
         # skeleton motion the BVH writer solves (target bone lengths, the same rotations).
-        solved = motion_from_joints(np.load(out / f"sample00_rep{rep:02d}.npy")).joints()
+        # The .npy holds the very array the .glb was written from: float32 rounding only.
+        solved = motion_from_joints(np.load(out / f"sample00_rep{rep:02d}.npy"))
         positions, _, _, _ = _read_with_pygltflib(out / f"sample00_rep{rep:02d}.glb")
-        assert np.linalg.norm(positions - solved, axis=-1).max() < 0.01
+        moved, _ = _float32_bound(solved.root_positions)
+        assert (np.linalg.norm(positions - solved.joints(), axis=-1) <= moved).all()
     assert "sample00_rep01.glb" in json.loads((out / "results.json").read_text())["files"]

@@ -118,9 +118,9 @@ def make_amass_npz(
 def test_z_up_to_y_up_is_a_proper_rotation():
     points = np.random.default_rng(0).normal(size=(5, 3))
     rotated = z_up_to_y_up(points)
-    np.testing.assert_allclose(rotated[:, 1], points[:, 2])
+    np.testing.assert_array_equal(rotated[:, 1], points[:, 2])  # products with 0 and 1: exact
     matrix = z_up_to_y_up(np.eye(3))
-    assert np.isclose(np.linalg.det(matrix), 1.0)
+    assert np.linalg.det(matrix) == 1.0  # a signed permutation: LU is exact
     with pytest.raises(ValueError, match="up axis"):
         to_y_up(points, "x")
 
@@ -160,12 +160,17 @@ def test_parse_tiny_bvh_and_forward_kinematics():
     assert bvh.names == ["Hips", "Chest", "Arm"]
     assert bvh.parents == [-1, 0, 1]
     assert bvh.channels[2] == ["Zrotation", "Yrotation", "Xrotation"]
-    assert bvh.motion.shape == (2, 12) and bvh.fps == pytest.approx(20.0)
+    assert bvh.motion.shape == (2, 12) and bvh.fps == 20.0  # 1 / 0.05 rounds to 20
     positions = forward_kinematics(bvh.parents, *local_transforms(bvh))
-    np.testing.assert_allclose(positions[0], [[1, 2, 3], [1, 12, 3], [6, 12, 3]], atol=1e-12)
+    # Zero angles: cos 0 = 1 and sin 0 = 0, small integers: exact.
+    np.testing.assert_array_equal(positions[0], [[1, 2, 3], [1, 12, 3], [6, 12, 3]])
     # Frame 1: the root turns 90 degrees about z, so the chest (0, 10, 0) goes to (-10, 0, 0) and
     # the arm's +x offset to +y; the arm's own x rotation does not move its joint.
-    np.testing.assert_allclose(positions[1], [[0, 0, 0], [-10, 0, 0], [-10, 5, 0]], atol=1e-9)
+    # cos(fl(pi / 2)) = 6e-17 times offsets <= 10, and a few 2^-53 roundings at 10 (observed
+    # 8.9e-16); 1e-14 leaves 11x; a wrong channel order puts the arm 5 away.
+    np.testing.assert_allclose(
+        positions[1], [[0, 0, 0], [-10, 0, 0], [-10, 5, 0]], rtol=0, atol=1e-14
+    )
 
 
 def test_euler_order_matches_scipy_intrinsic():
@@ -173,7 +178,9 @@ def test_euler_order_matches_scipy_intrinsic():
     angles = rng.uniform(-180, 180, size=(20, 3))
     for order in ("ZXY", "XYZ", "ZYX", "YXZ"):
         expected = Rotation.from_euler(order, angles, degrees=True).as_matrix()
-        np.testing.assert_allclose(euler_to_matrix(angles, order), expected, atol=1e-12)
+        # float64, unit entries: fl(radians), sin / cos (1 ulp) and two 3x3 products, ~2e-15
+        # each side (observed 4.4e-16); 1e-14 leaves 2.5x; a wrong order is off by O(1).
+        np.testing.assert_allclose(euler_to_matrix(angles, order), expected, rtol=0, atol=1e-14)
 
 
 @pytest.mark.parametrize(
@@ -210,7 +217,9 @@ def test_user_mapping_file_and_unknown_joint(tmp_path):
         tmp_path / "tiny.bvh", BvhOptions(mapping=str(tmp_path / "map.json"), scale=0.01)
     )
     assert motion.joints.shape == (2, 22, 3)
-    np.testing.assert_allclose(motion.joints[0, 6], [0.01, 0.07, 0.03])  # halfway Hips-Chest
+    # Halfway Hips-Chest, scaled by 0.01: a midpoint and a product, <= 2 roundings (observed
+    # exact); a wrong fraction or scale is off by 1% or more.
+    np.testing.assert_allclose(motion.joints[0, 6], [0.01, 0.07, 0.03], rtol=2 * 2.0**-52)
     mapping["head"] = "Skull"
     (tmp_path / "bad.json").write_text(__import__("json").dumps(mapping))
     with pytest.raises(ValueError, match="Skull"):
@@ -247,9 +256,10 @@ def test_real_bvh_files_are_upright_face_forward_and_sided(
 ):
     path = MOCAP / relative
     names, parents, offsets, positions, file_fps = read_bvh(path)
-    assert len(names) == {"bandai": 22, "cmu_cc": 101}[mapping] and file_fps == pytest.approx(
-        fps, rel=1e-4
-    )
+    # Frame times printed to 6 or 7 decimals (0.016667, 0.0333333): half a last digit over 1/60 s
+    # is 3.0e-5 relative (observed 2.0e-5 for CMU, 1e-6 for Bandai); a wrong rate is 50%+ off.
+    assert len(names) == {"bandai": 22, "cmu_cc": 101}[mapping]
+    assert file_fps == pytest.approx(fps, rel=3e-5, abs=0)
     motion = load_bvh_motion(path)
     joints = motion.joints
     assert motion.metadata["mapping"] == mapping and motion.metadata["scale"] == 0.01
@@ -257,7 +267,7 @@ def test_real_bvh_files_are_upright_face_forward_and_sided(
     # Upright: head well above the pelvis, feet near the floor, a person 1.3-1.9 m to the head.
     assert (joints[:, 15, 1] - joints[:, 0, 1] > 0.4).all()
     height = joints[:, 15, 1].mean() - joints[..., 1].min()
-    assert 1.3 < height < 1.9
+    assert 1.3 < height < 1.9  # adult head heights; a wrong scale (cm as m) is 100x off
     # Faces forward: the toes point the way the hips face.
     toes = np.einsum("ti,ti->t", joints[:, 10] - joints[:, 7], _facing(joints))
     assert toes.mean() > 0.03
@@ -288,7 +298,9 @@ def test_axis_angle_to_matrix_matches_scipy_and_is_exact_at_zero():
     rotvecs[0] = 0.0
     rotvecs[1] = 1e-10
     expected = Rotation.from_rotvec(rotvecs).as_matrix()
-    np.testing.assert_allclose(axis_angle_to_matrix(rotvecs), expected, atol=1e-12)
+    # float64 Rodrigues against scipy's quaternion path, unit entries, angles <= 3.2: ~10
+    # roundings each side (observed 4.4e-16); 1e-14 leaves 5x; a sign or transpose is O(1).
+    np.testing.assert_allclose(axis_angle_to_matrix(rotvecs), expected, rtol=0, atol=1e-14)
 
 
 def test_smplh_fk_matches_a_per_frame_reference():
@@ -307,13 +319,16 @@ def test_smplh_fk_matches_a_per_frame_reference():
             else:
                 world[joint] = world[parent] * local
                 expected[joint] = expected[parent] + world[parent].apply(rest[joint] - rest[parent])
-        np.testing.assert_allclose(joints[frame], expected + trans[frame], atol=1e-10)
-    # Bone lengths are those of the rest pose in every frame.
+        # float64 chains of depth <= 10 at |x| <= 2.6: per level a 3x3 product and a sum, ~1e-15
+        # (observed 4.4e-16); 1e-13 leaves 10x over 10 levels; a wrong parent is off by cm.
+        np.testing.assert_allclose(joints[frame], expected + trans[frame], rtol=0, atol=1e-13)
+    # Bone lengths are those of the rest pose in every frame (float64, observed 3.7e-16).
     lengths = np.linalg.norm(joints[:, 1:] - joints[:, SMPLH_PARENTS[1:]], axis=-1)
     np.testing.assert_allclose(
         lengths,
         np.broadcast_to(np.linalg.norm(rest[1:] - rest[SMPLH_PARENTS[1:]], axis=-1), lengths.shape),
-        atol=1e-10,
+        rtol=0,
+        atol=1e-13,
     )
 
 
@@ -327,7 +342,9 @@ def test_load_amass_rest_pose_is_the_shaped_rest_joints_y_up(tmp_path):
     motion = load_amass(path, models)
     assert motion.joints.shape == (3, 52, 3) and motion.fps == 60.0
     assert motion.metadata["gender"] == "male"
-    np.testing.assert_allclose(motion.joints[0], smplh_rest_joints_y_up(), atol=1e-9)
+    # float64: the regressor's 9-term rows undo the fixture's solve, then FK subtracts and adds
+    # back, ~12 roundings at <= 1.7 m, 5e-15 (observed 4.4e-16); an axis swap is off by metres.
+    np.testing.assert_allclose(motion.joints[0], smplh_rest_joints_y_up(), rtol=0, atol=1e-14)
 
 
 def test_load_amass_gender_bytes_fallback_and_errors(tmp_path):
@@ -357,7 +374,7 @@ def test_load_joints_axes_and_widths(tmp_path):
     np.save(tmp_path / "a.npy", array)
     motion = load_joints(tmp_path / "a.npy", JointsOptions(fps=30, up="z"))
     assert motion.joints.shape == (10, 22, 3) and motion.fps == 30.0
-    np.testing.assert_allclose(motion.joints[..., 1], array[:, :22, 2], rtol=1e-6)
+    np.testing.assert_array_equal(motion.joints[..., 1], array[:, :22, 2])  # a copy: exact
     np.save(tmp_path / "h.npy", rng.normal(size=(4, 52, 3)))
     assert load_joints(tmp_path / "h.npy", JointsOptions()).joints.shape == (4, 52, 3)
     np.save(tmp_path / "bad.npy", rng.normal(size=(4, 10, 3)))
