@@ -1,4 +1,9 @@
-"""BVH export: round trips, a third-party parser, twist choice (no spinning limbs), errors."""
+"""BVH export: round trips, a third-party parser, twist choice (no spinning limbs), errors.
+
+Float64 bounds here carry about 10x more than the rounding counts beside them give: numpy's
+AVX-512 builds compute float64 sin, cos and arccos with kernels of up to 4 ulp (not 1), and
+other CPUs sum in another order.
+"""
 
 from __future__ import annotations
 
@@ -120,7 +125,7 @@ def test_reference_clip_round_trips_through_own_fk():
     # Offsets carry the target bone lengths: unit vector times length, two float64 norms, ~10
     # roundings of 2^-53 at 0.43 m (5e-16; observed 2.8e-17); a wrong length is off by >= 1 mm.
     np.testing.assert_allclose(
-        np.linalg.norm(motion.offsets, axis=-1), SMPL.bone_lengths, rtol=0, atol=1e-15
+        np.linalg.norm(motion.offsets, axis=-1), SMPL.bone_lengths, rtol=0, atol=1e-14
     )
 
 
@@ -184,9 +189,9 @@ def test_metres_units_and_euler_channels_invert_exactly(tmp_path):
     euler = motion.euler_degrees()
     back = Rotation.from_euler("ZXY", euler.reshape(-1, 3), degrees=True).as_matrix()
     # float64 matrix -> angles -> matrix, tens of roundings of unit entries (observed 1.9e-15);
-    # 1e-13 leaves 50x for the angles' conditioning; a wrong order or sign is off by O(1).
+    # 1e-12 leaves 500x for the angles' conditioning; a wrong order or sign is off by O(1).
     np.testing.assert_allclose(
-        back.reshape(motion.local_rotations.shape), motion.local_rotations, rtol=0, atol=1e-13
+        back.reshape(motion.local_rotations.shape), motion.local_rotations, rtol=0, atol=1e-12
     )
 
 
@@ -206,11 +211,11 @@ def test_rest_pose_gives_identity_rotations():
     pose = _pose({})
     motion = motion_from_joints(np.repeat(pose[None], 3, axis=0), fit_rest_pose=False)
     # float64: bone directions differenced at <= 1 m over >= 0.057 m bones carry ~4e-15 (observed
-    # 8.9e-16, and 1.3e-14 degrees); 1e-13 leaves 25x; a wrong rest direction is off by degrees.
+    # 8.9e-16, and 1.3e-14 degrees); 1e-12 leaves 250x; a wrong rest direction is off by degrees.
     np.testing.assert_allclose(
-        motion.local_rotations, np.broadcast_to(np.eye(3), (3, 22, 3, 3)), rtol=0, atol=1e-13
+        motion.local_rotations, np.broadcast_to(np.eye(3), (3, 22, 3, 3)), rtol=0, atol=1e-12
     )
-    np.testing.assert_allclose(motion.euler_degrees(), 0.0, rtol=0, atol=np.degrees(1e-13))
+    np.testing.assert_allclose(motion.euler_degrees(), 0.0, rtol=0, atol=np.degrees(1e-12))
 
 
 def test_straight_arm_circling_does_not_spin():
@@ -229,7 +234,7 @@ def test_straight_arm_circling_does_not_spin():
     # A spinning twist jumps by tens of degrees a frame; observed 1.1 against the bound 6.4.
     assert steps.max() < 2 * sweep.max() + 0.5
     # Target bone lengths: exact but for float64 rounding at <= 1.8 m (observed 1.8e-15).
-    assert np.linalg.norm(motion.joints() - joints, axis=-1).max() < 1e-13
+    assert np.linalg.norm(motion.joints() - joints, axis=-1).max() < 1e-12
 
 
 def test_bending_limbs_are_hinges():
@@ -249,7 +254,7 @@ def test_bending_limbs_are_hinges():
         frames.append(_pose({4: thigh, 7: shin, 10: foot, 18: upper, 20: fore}))
     joints = np.stack(frames)
     motion = motion_from_joints(joints)
-    assert np.linalg.norm(motion.joints() - joints, axis=-1).max() < 1e-13  # as above: 9.9e-16
+    assert np.linalg.norm(motion.joints() - joints, axis=-1).max() < 1e-12  # as above: 9.9e-16
     for joint, axis in ((4, 0), (18, 1)):
         rotvec = Rotation.from_matrix(motion.local_rotations[:, joint]).as_rotvec()
         angle = np.linalg.norm(rotvec, axis=-1)

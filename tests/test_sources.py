@@ -1,4 +1,9 @@
-"""Motion sources: BVH parsing and mappings (with the real files), SMPL-H FK, joint arrays."""
+"""Motion sources: BVH parsing and mappings (with the real files), SMPL-H FK, joint arrays.
+
+Float64 bounds here carry about 10x more than the rounding counts beside them give: numpy's
+AVX-512 builds compute float64 sin, cos and arccos with kernels of up to 4 ulp (not 1), and
+other CPUs sum in another order.
+"""
 
 from __future__ import annotations
 
@@ -167,9 +172,9 @@ def test_parse_tiny_bvh_and_forward_kinematics():
     # Frame 1: the root turns 90 degrees about z, so the chest (0, 10, 0) goes to (-10, 0, 0) and
     # the arm's +x offset to +y; the arm's own x rotation does not move its joint.
     # cos(fl(pi / 2)) = 6e-17 times offsets <= 10, and a few 2^-53 roundings at 10 (observed
-    # 8.9e-16); 1e-14 leaves 11x; a wrong channel order puts the arm 5 away.
+    # 8.9e-16); 1e-13 leaves 110x; a wrong channel order puts the arm 5 away.
     np.testing.assert_allclose(
-        positions[1], [[0, 0, 0], [-10, 0, 0], [-10, 5, 0]], rtol=0, atol=1e-14
+        positions[1], [[0, 0, 0], [-10, 0, 0], [-10, 5, 0]], rtol=0, atol=1e-13
     )
 
 
@@ -179,8 +184,8 @@ def test_euler_order_matches_scipy_intrinsic():
     for order in ("ZXY", "XYZ", "ZYX", "YXZ"):
         expected = Rotation.from_euler(order, angles, degrees=True).as_matrix()
         # float64, unit entries: fl(radians), sin / cos (1 ulp) and two 3x3 products, ~2e-15
-        # each side (observed 4.4e-16); 1e-14 leaves 2.5x; a wrong order is off by O(1).
-        np.testing.assert_allclose(euler_to_matrix(angles, order), expected, rtol=0, atol=1e-14)
+        # each side (observed 4.4e-16); 1e-13 leaves 25x; a wrong order is off by O(1).
+        np.testing.assert_allclose(euler_to_matrix(angles, order), expected, rtol=0, atol=1e-13)
 
 
 @pytest.mark.parametrize(
@@ -299,8 +304,8 @@ def test_axis_angle_to_matrix_matches_scipy_and_is_exact_at_zero():
     rotvecs[1] = 1e-10
     expected = Rotation.from_rotvec(rotvecs).as_matrix()
     # float64 Rodrigues against scipy's quaternion path, unit entries, angles <= 3.2: ~10
-    # roundings each side (observed 4.4e-16); 1e-14 leaves 5x; a sign or transpose is O(1).
-    np.testing.assert_allclose(axis_angle_to_matrix(rotvecs), expected, rtol=0, atol=1e-14)
+    # roundings each side (observed 4.4e-16); 1e-13 leaves 50x; a sign or transpose is O(1).
+    np.testing.assert_allclose(axis_angle_to_matrix(rotvecs), expected, rtol=0, atol=1e-13)
 
 
 def test_smplh_fk_matches_a_per_frame_reference():
@@ -320,15 +325,15 @@ def test_smplh_fk_matches_a_per_frame_reference():
                 world[joint] = world[parent] * local
                 expected[joint] = expected[parent] + world[parent].apply(rest[joint] - rest[parent])
         # float64 chains of depth <= 10 at |x| <= 2.6: per level a 3x3 product and a sum, ~1e-15
-        # (observed 4.4e-16); 1e-13 leaves 10x over 10 levels; a wrong parent is off by cm.
-        np.testing.assert_allclose(joints[frame], expected + trans[frame], rtol=0, atol=1e-13)
+        # (observed 4.4e-16); 1e-12 leaves 100x over 10 levels; a wrong parent is off by cm.
+        np.testing.assert_allclose(joints[frame], expected + trans[frame], rtol=0, atol=1e-12)
     # Bone lengths are those of the rest pose in every frame (float64, observed 3.7e-16).
     lengths = np.linalg.norm(joints[:, 1:] - joints[:, SMPLH_PARENTS[1:]], axis=-1)
     np.testing.assert_allclose(
         lengths,
         np.broadcast_to(np.linalg.norm(rest[1:] - rest[SMPLH_PARENTS[1:]], axis=-1), lengths.shape),
         rtol=0,
-        atol=1e-13,
+        atol=1e-12,
     )
 
 
@@ -344,7 +349,7 @@ def test_load_amass_rest_pose_is_the_shaped_rest_joints_y_up(tmp_path):
     assert motion.metadata["gender"] == "male"
     # float64: the regressor's 9-term rows undo the fixture's solve, then FK subtracts and adds
     # back, ~12 roundings at <= 1.7 m, 5e-15 (observed 4.4e-16); an axis swap is off by metres.
-    np.testing.assert_allclose(motion.joints[0], smplh_rest_joints_y_up(), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(motion.joints[0], smplh_rest_joints_y_up(), rtol=0, atol=1e-13)
 
 
 def test_load_amass_gender_bytes_fallback_and_errors(tmp_path):
