@@ -54,8 +54,9 @@ from dataset_tools.io import (
 from dataset_tools.mirror import mirror_caption, mirror_joints
 from dataset_tools.parallel import imap_unordered
 from dataset_tools.representation import FeatureLayout, process_motion, target_offsets_from_example
-from dataset_tools.skeleton import HUMANML3D, SMPL
+from dataset_tools.skeleton import SMPL
 from dataset_tools.sources import ClipError, ClipTask, Motion, fps_problem
+from dataset_tools.spec import HUMANML3D
 from dataset_tools.stats import FeatureStats, mean_and_pooled_std
 
 logger = logging.getLogger(__name__)

@@ -12,7 +12,7 @@ names of the first releases (``ae``, ``t2m``, ``eval``) are still read, in overr
 Sizes derived from the data (feature dimension, word-vector dimension) are not configured here;
 they come from the dataset and the word vectors and are stored in the checkpoints. Nor are the
 frame rate, snippet length and frame limits: they are the dataset's
-(:class:`dataset_tools.skeleton.DatasetSpec`); :func:`validate_for_spec` checks a Config against
+(:class:`dataset_tools.spec.DatasetSpec`); :func:`validate_for_spec` checks a Config against
 them when a stage starts.
 """
 
@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from dataset_tools.skeleton import DatasetSpec
+    from dataset_tools.spec import DatasetSpec
 
 from dataset_tools.command import UsageError
 
@@ -50,7 +50,7 @@ class DataConfig:
     """How captions are read and motions normalised.
 
     The frame rate, the snippet length and the frame limits are not settings: they belong to the
-    dataset (:class:`dataset_tools.skeleton.DatasetSpec`, found from the dataset's feature
+    dataset (:class:`dataset_tools.spec.DatasetSpec`, found from the dataset's feature
     dimension and stored in every checkpoint). Config files of earlier releases still carry them
     as ``unit_length``, ``min_frames``, ``max_frames`` and ``length_limit``; they are read when
     they hold the values every earlier release used (:data:`LEGACY_DATA_KEYS`) and refused

@@ -24,7 +24,8 @@ from dataset_tools.command import (
 from dataset_tools.gltf import write_glb
 from dataset_tools.humanml3d import read_joints
 from dataset_tools.io import check_output_file
-from dataset_tools.skeleton import HUMANML3D, SMPL
+from dataset_tools.skeleton import SMPL
+from dataset_tools.spec import HUMANML3D
 
 
 @dataclass

@@ -19,7 +19,7 @@ from dataset_tools.command import (
 )
 from dataset_tools.humanml3d import read_joints
 from dataset_tools.io import check_output_file
-from dataset_tools.skeleton import spec_for_joints
+from dataset_tools.spec import spec_for_joints
 from dataset_tools.viz import FORMATS, render_animation, render_keyframes
 
 SUFFIXES = tuple(f".{name}" for name in FORMATS) + (".png",)

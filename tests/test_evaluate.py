@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from dataset_tools.command import field_docs
-from dataset_tools.skeleton import HUMANML3D
+from dataset_tools.spec import HUMANML3D
 from dataset_tools.synth.scoring import SemanticScorer, find_corpus_labels
 from t2m import evaluate
 from t2m.data.dataset import Caption, Clip

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from dataset_tools.humanml3d import Caption
-from dataset_tools.skeleton import HUMANML3D, KIT_ML
+from dataset_tools.spec import HUMANML3D, KIT_ML
 from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer

@@ -13,15 +13,8 @@ import pytest
 from conftest import CAPTIONS, KINDS
 from PIL import Image
 
-from dataset_tools.skeleton import (
-    HUMANML3D,
-    KIT,
-    KIT_ML,
-    SMPL,
-    DatasetSpec,
-    spec_for_dim,
-    spec_for_folder,
-)
+from dataset_tools.skeleton import KIT, SMPL
+from dataset_tools.spec import HUMANML3D, KIT_ML, DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.config import apply_overrides, from_dict, tiny
 from t2m.data.dataset import MotionTextData, load_split
 from t2m.data.normalization import Normalizer

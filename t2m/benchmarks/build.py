@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from dataset_tools.build import BuildConfig, build_dataset
-from dataset_tools.skeleton import HUMANML3D, SMPL
+from dataset_tools.skeleton import SMPL
+from dataset_tools.spec import HUMANML3D
 from dataset_tools.texts import load_nlp
 
 CAPTIONS = (

@@ -28,7 +28,7 @@ def write_paper_run(run_dir: Path) -> None:
     """Paper-size ``generator`` and ``length`` checkpoints of random weights in ``run_dir``."""
     import numpy as np
 
-    from dataset_tools.skeleton import HUMANML3D
+    from dataset_tools.spec import HUMANML3D
     from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.data.words import BUILTIN_GLOVE, load_vectorizer

@@ -68,7 +68,7 @@ def _alternate(loads: dict[str, object], rounds: int) -> dict[str, float]:
 def _paper_checkpoints(folder: Path, glove: Path) -> tuple[dict[str, Path], int]:
     """Run folders ``file`` and ``table`` with one paper-size generator checkpoint each, and
     the size of the table."""
-    from dataset_tools.skeleton import HUMANML3D
+    from dataset_tools.spec import HUMANML3D
     from t2m.config import apply_overrides, preset
     from t2m.data.normalization import Normalizer
     from t2m.train import ModelSizes, find_stage

@@ -4,7 +4,7 @@
 lines are :mod:`dataset_tools.humanml3d`'s): features and tagged captions. A caption with a time
 range makes its own sub-clip (as the original does); clips outside
 ``min_frames <= T < length_limit`` of the dataset's spec
-(:class:`dataset_tools.skeleton.DatasetSpec`) are skipped.
+(:class:`dataset_tools.spec.DatasetSpec`) are skipped.
 
 :class:`MotionTextData` keeps the normalised motions and the captions as vocabulary ids, and cuts
 batches for each stage. Every batch is a pure function of the item indices and a
@@ -26,7 +26,7 @@ from tqdm import tqdm
 from dataset_tools import humanml3d
 from dataset_tools.humanml3d import SPLITS, Caption
 from dataset_tools.io import load_npy
-from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
+from dataset_tools.spec import DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors, pos_onehot
 from t2m.streams import Stream, stream_rng

@@ -175,7 +175,7 @@ class MocapCheckConfig:
 
 def _content_clips(dataset: Path) -> dict[str, list[np.ndarray]]:
     """Joints (T, 22, 3) of every clip of the dataset, by its content caption."""
-    from dataset_tools.skeleton import spec_for_folder
+    from dataset_tools.spec import spec_for_folder
     from t2m.data.dataset import load_split
 
     spec = spec_for_folder(dataset)

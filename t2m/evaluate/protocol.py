@@ -44,7 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools.command import UsageError, option
-from dataset_tools.skeleton import HUMANML3D, DatasetSpec
+from dataset_tools.spec import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
 from t2m.data.dataset import Caption, Clip
 from t2m.evaluate import metrics, physical

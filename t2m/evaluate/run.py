@@ -19,7 +19,7 @@ import torch
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import check_output_folder
-from dataset_tools.skeleton import spec_for_folder
+from dataset_tools.spec import spec_for_folder
 from t2m.data.dataset import load_split
 from t2m.evaluate.backend import Backend, CheckpointBackend
 from t2m.evaluate.protocol import EvalConfig, find_scorer, run_protocol

@@ -42,7 +42,7 @@ from dataset_tools.command import (
     parse_config,
 )
 from dataset_tools.io import atomic_write, save_npy_atomic, write_text_atomic
-from dataset_tools.skeleton import HUMANML3D, KIT_ML
+from dataset_tools.spec import HUMANML3D, KIT_ML
 from t2m.data.normalization import Normalizer
 from t2m.data.words import GLOVE_FOLDER_FILES, WordVectors
 from t2m.models.temporal_vae import sinusoidal_table

@@ -21,7 +21,7 @@ import torch
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import load_npy
-from dataset_tools.skeleton import DatasetSpec, spec_for_dim
+from dataset_tools.spec import DatasetSpec, spec_for_dim
 from t2m.config import (
     AutoencoderConfig,
     EvaluatorConfig,

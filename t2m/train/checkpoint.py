@@ -46,7 +46,7 @@ from torch import nn
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import atomic_write, write_text_atomic
-from dataset_tools.skeleton import DatasetSpec, spec_for_dim
+from dataset_tools.spec import DatasetSpec, spec_for_dim
 from t2m.config import Config, from_dict
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors

@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import write_json_atomic
-from dataset_tools.skeleton import DatasetSpec, spec_for_dim, spec_for_folder
+from dataset_tools.spec import DatasetSpec, spec_for_dim, spec_for_folder
 from t2m.config import Config, StageConfig, from_dict, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
