@@ -180,3 +180,18 @@ def assert_same_rounding(
     assert mine <= factor * theirs and theirs <= factor * mine, (
         f"{msg}: distances to float64 {mine:.3g} and {theirs:.3g} differ by more than {factor}x"
     )
+
+
+U64 = 2.0**-53
+"""float64's unit roundoff: the relative error of one rounded float64 +, -, *, / or sqrt."""
+
+LIBM_ULPS = 4
+"""Roundings to count for one float64 sin, cos, arctan2 or arccos in numpy: its own and glibc's
+kernels are within 1 ulp, the SVML kernels of numpy's AVX-512 builds within 4 ulp."""
+
+
+def float64_bound(roundings: float, magnitude: float = 1.0) -> float:
+    """gamma_roundings in float64 (u = 2^-53) times ``magnitude``: the bound on the error of a
+    float64 computation counted as ``roundings`` rounded operations on values of at most that
+    size, in any summation order (each transcendental counted as :data:`LIBM_ULPS`)."""
+    return gamma(int(-(-roundings // 1)), U64) * magnitude
