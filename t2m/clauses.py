@@ -24,7 +24,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from t2m.data.words import COUNT_WORDS, MOTION_WORDS
+from t2m.lexicon import COUNT_WORDS, MOTION_WORDS
 
 CONNECTIVES = frozenset(
     {"then", "afterwards", "afterward", "subsequently", "finally", "later", "next"}

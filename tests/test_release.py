@@ -401,7 +401,8 @@ def test_export_refuses_to_overwrite(paper_codes_run, exported):
 
 
 def test_the_release_glove_folder_as_word_vectors_for_our_training():
-    from t2m.data.words import MOTION_WORDS, load_vectorizer, vectorizer_from_info
+    from t2m.data.words import load_vectorizer, vectorizer_from_info
+    from t2m.lexicon import MOTION_WORDS
 
     vectors = load_vectorizer(str(REFERENCE / "glove"))
     assert (vectors.size, vectors.dim) == (4199, 300) and vectors.words[:3] == ["sos", "eos", "unk"]

@@ -121,7 +121,8 @@ def test_older_checkpoints_naming_the_file_still_load(tiny_run, tmp_path):
 
 
 def test_a_table_keeps_the_release_motion_word_lists():
-    from t2m.data.words import RELEASE_MOTION_WORDS, WordVectors
+    from t2m.data.words import WordVectors
+    from t2m.lexicon import RELEASE_MOTION_WORDS
 
     words = ["sos", "eos", "unk", "head", "walk", "quark"]
     vectors = np.arange(len(words) * 4, dtype=np.float32).reshape(-1, 4)

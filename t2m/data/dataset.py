@@ -27,6 +27,7 @@ from dataset_tools import humanml3d
 from dataset_tools.humanml3d import SPLITS, Caption
 from dataset_tools.io import load_npy
 from dataset_tools.spec import DatasetSpec, spec_for_dim, spec_for_folder
+from t2m.clauses import caption_count, clause_captions, repetition_count, split_clauses
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors, pos_onehot
 from t2m.streams import Stream, stream_rng
@@ -185,8 +186,6 @@ class MotionTextData:
             [count_clocks(c.tokens, clip.segments) for c in clip.captions] for clip in clips
         ]
         # Per clip and caption, the repetitions it names as one clause (0: none, or several)
-        from t2m.clauses import caption_count  # t2m.clauses reads t2m.data.words
-
         self.caption_counts = [[caption_count(c.tokens) for c in clip.captions] for clip in clips]
         # Per clip and caption, its clauses paired with labelled segments, as length examples
         self.clause_examples = [
@@ -362,8 +361,6 @@ def clause_examples(
     """A caption's clauses as standalone captions (:func:`t2m.clauses.clause_captions`, as the
     clause plan encodes them) with their labelled segments' shares of the clip, when the caption
     has two or more clauses and as many as the clip has segments; else none."""
-    from t2m.clauses import caption_count, clause_captions  # t2m.clauses reads t2m.data.words
-
     clauses = clause_captions(tokens)
     if len(clauses) < 2 or segments is None or len(segments) != len(clauses):
         return []
@@ -384,8 +381,6 @@ def count_clocks(
     them clause by clause (:meth:`t2m.pipeline.TextToMotion.generate_features`). A caption of one
     clause spans the clip; one of several spans the clip's labelled segments in order when it
     has as many clauses as the clip has segments, else it gets no clock (one span, count 0)."""
-    from t2m.clauses import repetition_count, split_clauses  # t2m.clauses reads t2m.data.words
-
     clauses = split_clauses(tokens)
     if len(clauses) == 1:
         spans = [(0.0, 1.0, repetition_count(tokens))]

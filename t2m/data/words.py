@@ -14,8 +14,9 @@ Three vocabularies:
   (:func:`load_glove_file`, :func:`glove_cache_dir`) and later loads memory-map them.
 * a folder in the format of the original T2M release's GloVe subset (``our_vab_data.npy``,
   ``our_vab_words.pkl``, ``our_vab_idx.pkl``: 4,199 words x 300), read by
-  :func:`read_glove_folder` with the release's motion-word lists (:data:`RELEASE_MOTION_WORDS`),
-  so captions encode exactly as the release's models and evaluator were fed.
+  :func:`read_glove_folder` with the release's motion-word lists
+  (:data:`~t2m.lexicon.RELEASE_MOTION_WORDS`), so captions encode exactly as the release's
+  models and evaluator were fed.
 * ``trainable``: a vocabulary collected from the training captions; the text encoders then own
   an ``nn.Embedding`` and the "word vectors" handed to them are integer ids (22,).
 
@@ -54,6 +55,8 @@ from typing import Any
 import numpy as np
 
 from dataset_tools.io import write_text_atomic
+from t2m.clauses import caption_count
+from t2m.lexicon import COUNT_WORDS, MOTION_WORDS, RELEASE_MOTION_WORDS
 
 logger = logging.getLogger(__name__)
 
@@ -62,33 +65,11 @@ TRAINABLE = "trainable"
 COUNTS_SUFFIX = "+counts"
 """Appended to a pre-trained vocabulary's name: one more column, the count a word names."""
 COUNT_SCALE = 4.0
-COUNT_WORDS: dict[str, float] = {
-    "once": 1,
-    "twice": 2,
-    "thrice": 3,
-    "one": 1,
-    "two": 2,
-    "three": 3,
-    "four": 4,
-    "five": 5,
-    "six": 6,
-    "seven": 7,
-    "eight": 8,
-    "nine": 9,
-    "ten": 10,
-    "eleven": 11,
-    "twelve": 12,
-    "dozen": 12,
-    "single": 1,
-    "double": 2,
-    "triple": 3,
-    "couple": 2,
-}
 
 
 def count_values(words: Sequence[str]) -> np.ndarray:
-    """(N, 1) float32: the count each word names (:data:`COUNT_WORDS`) / :data:`COUNT_SCALE`,
-    0 for other words."""
+    """(N, 1) float32: the count each word names (:data:`~t2m.lexicon.COUNT_WORDS`) /
+    :data:`COUNT_SCALE`, 0 for other words."""
     values = [COUNT_WORDS.get(word, 0.0) / COUNT_SCALE for word in words]
     return np.asarray(values, dtype=np.float32)[:, None]
 
@@ -113,53 +94,6 @@ POS_CATEGORIES: tuple[str, ...] = (
 POS_INDEX: dict[str, int] = {name: index for index, name in enumerate(POS_CATEGORIES)}
 NUM_POS = len(POS_CATEGORIES)
 
-# Motion words whose role matters more than their part of speech; they override the tag.
-MOTION_WORDS: dict[str, frozenset[str]] = {
-    "LOCATION": frozenset(
-        "left right clockwise counterclockwise anticlockwise forward forwards back backward "
-        "backwards up down straight curve around sideways".split()
-    ),
-    "BODY_PART": frozenset(
-        "arm arms hand hands foot feet leg legs knee knees head face chin mouth eye shoulder "
-        "shoulders elbow wrist waist hip hips thigh torso chest finger toe neck".split()
-    ),
-    "OBJECT": frozenset(
-        "stair stairs chair floor ball ground wall table dumbbell handrail box door window car "
-        "rope bar step".split()
-    ),
-    "ACTION": frozenset(
-        "walk run jog sprint jump hop skip kick punch throw catch wave clap squat sit stand "
-        "kneel crawl climb turn spin rotate bend lean lift raise lower swing dance stumble "
-        "stretch stop step shuffle stroll balance".split()
-    ),
-    "DESCRIPTOR": frozenset(
-        "slowly quickly fast slow careful carefully happily happy sadly sad angrily angry "
-        "gently briskly casually".split()
-    ),
-}
-# The original T2M release's lists (utils/word_vectorizer.py there), shorter than ours: its
-# models and evaluator saw "head" or "arms" tagged by spaCy, not as body parts.
-RELEASE_MOTION_WORDS: dict[str, frozenset[str]] = {
-    "LOCATION": frozenset(
-        "left right clockwise counterclockwise anticlockwise forward back backward up down "
-        "straight curve".split()
-    ),
-    "BODY_PART": frozenset(
-        "arm chin foot feet face hand mouth leg waist eye knee shoulder thigh".split()
-    ),
-    "OBJECT": frozenset(
-        "stair dumbbell chair window floor car ball handrail baseball basketball".split()
-    ),
-    "ACTION": frozenset(
-        "walk run swing pick bring kick put squat throw hop dance jump turn stumble stop sit "
-        "lift lower raise wash stand kneel stroll rub bend balance flap jog shuffle lean rotate "
-        "spin spread climb".split()
-    ),
-    "DESCRIPTOR": frozenset(
-        "slowly carefully fast careful slow quickly happy angry sad happily angrily sadly".split()
-    ),
-}
-
 
 def _overrides(motion_words: dict[str, frozenset[str]]) -> dict[str, str]:
     return {word: category for category, words in motion_words.items() for word in words}
@@ -172,7 +106,7 @@ START_TOKEN, END_TOKEN, UNKNOWN_TOKEN = "sos/OTHER", "eos/OTHER", "unk/OTHER"
 
 def pos_category(word: str, pos: str, overrides: dict[str, str] | None = None) -> int:
     """Index of the POS one-hot for ``word`` tagged ``pos``; motion words override the tag
-    (``overrides``: word -> category, default :data:`MOTION_WORDS`)."""
+    (``overrides``: word -> category, default :data:`~t2m.lexicon.MOTION_WORDS`)."""
     category = (_OVERRIDE if overrides is None else overrides).get(word)
     if category is None:
         category = pos if pos in POS_INDEX else "OTHER"
@@ -371,8 +305,6 @@ class WordVectors:
 
     def encode_tokens(self, tokens: Sequence[str]) -> EncodedText:
         """``word/POS`` tokens (no sos/eos) -> :class:`EncodedText` of ``max_tokens + 2`` rows."""
-        from t2m.clauses import caption_count  # t2m.clauses reads this module's word lists
-
         rows, categories, length = self.token_ids(tokens)
         return EncodedText(self.lookup(rows), pos_onehot(categories), length, caption_count(tokens))
 
