@@ -13,7 +13,8 @@ The stages, their make targets, models and prerequisites are one table, :mod:`t2
 """
 
 from t2m.train.checkpoint import ModelSizes, TrainedStage
-from t2m.train.stages import STAGE_NAMES, STAGES, Stage, find_stage, load_stage, train_stage
+from t2m.train.job import Stage
+from t2m.train.stages import STAGE_NAMES, STAGES, find_stage, load_stage, train_stage
 
 __all__ = [
     "STAGES",

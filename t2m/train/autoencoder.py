@@ -11,15 +11,9 @@ from torch import nn
 from t2m.data.dataset import MotionTextData
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.train.checkpoint import ModelSizes
+from t2m.train.job import StageJob
 from t2m.train.runtime import adam, seed_init
-from t2m.train.stage import (
-    LossesOf,
-    StageJob,
-    StageRun,
-    check_batches,
-    load_stage_data,
-    validation_chunks,
-)
+from t2m.train.stage import LossesOf, StageRun, check_batches, load_stage_data, validation_chunks
 
 
 class AutoencoderObjective(nn.Module):

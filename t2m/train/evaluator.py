@@ -10,8 +10,9 @@ from torch import nn
 
 from t2m.data.dataset import MotionTextData
 from t2m.models.evaluator import Evaluator, contrastive_loss
+from t2m.train.job import StageJob
 from t2m.train.runtime import adam, seed_init
-from t2m.train.stage import LossesOf, StageJob, StageRun, start_on_autoencoder, to_device
+from t2m.train.stage import LossesOf, StageRun, start_on_autoencoder, to_device
 
 
 class EvaluatorObjective(nn.Module):

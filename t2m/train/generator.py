@@ -27,21 +27,15 @@ import numpy as np
 import torch
 from torch import nn
 
+from t2m.accel.recurrence import linear
 from t2m.config import Config, GeneratorStageConfig
 from t2m.data.dataset import MotionTextData
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
-from t2m.models.fast_recurrence import linear
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
 from t2m.streams import Stream, stream_rng
+from t2m.train.job import StageJob
 from t2m.train.runtime import adam, seed_init
-from t2m.train.stage import (
-    LossesOf,
-    StageJob,
-    StageRun,
-    start_on_autoencoder,
-    to_device,
-    validation_chunks,
-)
+from t2m.train.stage import LossesOf, StageRun, start_on_autoencoder, to_device, validation_chunks
 
 logger = logging.getLogger(__name__)
 
@@ -109,7 +103,7 @@ class GeneratorObjective(nn.Module):
 
 def decode(decoder: MovementDecoder, codes: torch.Tensor) -> torch.Tensor:
     """``decoder(codes)`` (B, S, C) -> (B, 4S, D), its output Linear through
-    :func:`t2m.models.fast_recurrence.linear` (oneDNN): 1.3-1.4x faster for the fine-tuned
+    :func:`t2m.accel.recurrence.linear` (oneDNN): 1.3-1.4x faster for the fine-tuned
     decoder's forward and backward at demo size on one CPU thread."""
     hidden = decoder.net(codes.transpose(1, 2)).transpose(1, 2)
     return linear(hidden, decoder.out.weight, decoder.out.bias)

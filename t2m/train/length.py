@@ -10,10 +10,10 @@ from torch import nn
 
 from t2m.data.dataset import MotionTextData
 from t2m.models.length import LengthEstimator, length_loss
+from t2m.train.job import StageJob
 from t2m.train.runtime import adam, seed_init
 from t2m.train.stage import (
     LossesOf,
-    StageJob,
     StageRun,
     check_batches,
     load_stage_data,

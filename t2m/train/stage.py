@@ -1,12 +1,12 @@
-"""What every stage loop shares: its inputs, its data, and :class:`StageRun`, the loop skeleton.
+"""What every stage loop shares: its data, and :class:`StageRun`, the loop skeleton.
 
-A stage loop (``t2m/train/autoencoder.py`` ...) is given a :class:`StageJob`, reads its data,
-builds its models and optimizer, then opens a :class:`StageRun`, which restores them from
-``latest.pt`` on resume (after refusing a checkpoint of another stage, size or vocabulary),
-writes ``config.json``, and runs the epochs: :meth:`StageRun.train_epoch` (seeded batches,
-optimiser steps, records, periodic ``latest.pt``), :meth:`StageRun.validate` (fixed validation
-batches) and :meth:`StageRun.end_epoch` (record, ``best.pt``). :meth:`StageRun.train_epochs` is
-the whole loop of a stage trained for a number of epochs.
+A stage loop (``t2m/train/autoencoder.py`` ...) is given a :class:`~t2m.train.job.StageJob`,
+reads its data, builds its models and optimizer, then opens a :class:`StageRun`, which restores
+them from ``latest.pt`` on resume (after refusing a checkpoint of another stage, size or
+vocabulary), writes ``config.json``, and runs the epochs: :meth:`StageRun.train_epoch` (seeded
+batches, optimiser steps, records, periodic ``latest.pt``), :meth:`StageRun.validate` (fixed
+validation batches) and :meth:`StageRun.end_epoch` (record, ``best.pt``).
+:meth:`StageRun.train_epochs` is the whole loop of a stage trained for a number of epochs.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
@@ -49,11 +49,9 @@ from t2m.train.checkpoint import (
     read_checkpoint,
     write_config,
 )
+from t2m.train.job import StageJob
 from t2m.train.logbook import Logbook
-from t2m.train.runtime import Runtime, clip_gradients, seed_step, unwrap
-
-if TYPE_CHECKING:
-    from t2m.train.stages import Stage
+from t2m.train.runtime import clip_gradients, seed_step, unwrap
 
 logger = logging.getLogger(__name__)
 
@@ -63,29 +61,6 @@ FINISHED = "finished.json"
 # A stage's step: (batch item indices, the batch's random generator) -> named losses, "loss"
 # the one optimised.
 LossesOf = Callable[[np.ndarray, np.random.Generator], dict[str, torch.Tensor]]
-
-
-@dataclass
-class StageJob:
-    """What a stage's loop is given (see :func:`t2m.train.stages.train_stage`).
-
-    Attributes:
-        stage: the registry's record of the stage.
-        config: the run's settings.
-        dataset_dir: the HumanML3D-layout folder to train on.
-        run_dir: the run folder; the stage writes into its own folder there.
-        runtime: device and process rank.
-        resume: continue from ``latest.pt``.
-        prerequisites: the trained stages this one builds on, by name.
-    """
-
-    stage: Stage
-    config: Config
-    dataset_dir: Path
-    run_dir: Path
-    runtime: Runtime
-    resume: bool = False
-    prerequisites: dict[str, TrainedStage] = field(default_factory=dict)
 
 
 @dataclass

@@ -13,20 +13,18 @@ A stage's name is also its config section (``--generator.batch_size=16``) and it
 run folder (``checkpoints/demo/generator/``). Runs written before the renaming keep their
 folders (``ae/ t2m/ eval/``): a stage is read from, and resumed in, the folder that exists.
 
-Adding a stage is one :class:`Stage` in :data:`STAGES`, its config section in ``t2m.config``
-and its loop module.
+Adding a stage is one :class:`~t2m.train.job.Stage` in :data:`STAGES`, its config section in
+``t2m.config`` and its loop module.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from torch import nn
 
 from dataset_tools.command import UsageError
+from t2m.accel import accelerate
 from t2m.config import Config, from_dict
 from t2m.data.normalization import Normalizer
 from t2m.data.words import vectorizer_from_info
@@ -45,48 +43,15 @@ from t2m.train.checkpoint import (
 )
 from t2m.train.evaluator import train_evaluator
 from t2m.train.generator import train_generator
+from t2m.train.job import Stage, StageJob
 from t2m.train.length import train_length
 from t2m.train.runtime import Runtime
-from t2m.train.stage import FINISHED, StageJob
+from t2m.train.stage import FINISHED
 
 
-@dataclass(frozen=True)
-class Stage:
-    """One training stage.
-
-    Attributes:
-        name: what users see and type; also its config section and its folder.
-        make_target: the ``make`` target that trains it (named in "run this first" messages).
-        models: the names of the modules its checkpoints store.
-        build: fresh (untrained) models from a Config and the data's sizes, by name.
-        train: its loop (see :class:`t2m.train.stage.StageJob`).
-        needs: the stages it builds on (trained first; given to ``train`` loaded).
-        old_names: names of the first releases: accepted wherever a stage is named, and the
-            folder and checkpoint names of runs written then.
-    """
-
-    name: str
-    make_target: str
-    models: tuple[str, ...]
-    build: Callable[[Config, ModelSizes], dict[str, nn.Module]]
-    train: Callable[[StageJob], Path]
-    needs: tuple[str, ...] = ()
-    old_names: tuple[str, ...] = ()
-
-    def folder(self, run_dir: str | Path) -> Path:
-        """The stage's folder in ``run_dir``: the one that exists (a run of the first releases
-        keeps its old folder name), else the stage's name."""
-        for name in (self.name, *self.old_names):
-            if (Path(run_dir) / name).is_dir():
-                return Path(run_dir) / name
-        return Path(run_dir) / self.name
-
-    def not_trained(self, run_dir: str | Path) -> UsageError:
-        """The one-line error for a missing stage, naming the make target that trains it."""
-        return UsageError(
-            f"no trained {self.name!r} stage in {self.folder(run_dir)} (run "
-            f"`make {self.make_target}` with the same PRESET/CHECKPOINTS first)"
-        )
+def _accelerated(models: dict[str, nn.Module]) -> dict[str, nn.Module]:
+    """``models`` with :func:`t2m.accel.accelerate` applied (float32, torch)."""
+    return {name: accelerate(module) for name, module in models.items()}
 
 
 STAGES: tuple[Stage, ...] = (
@@ -94,9 +59,9 @@ STAGES: tuple[Stage, ...] = (
         name="autoencoder",
         make_target="train-ae",
         models=("autoencoder",),
-        build=lambda config, sizes: {
-            "autoencoder": MovementAutoencoder(sizes.feature_dim, config.autoencoder.model)
-        },
+        build=lambda config, sizes: _accelerated(
+            {"autoencoder": MovementAutoencoder(sizes.feature_dim, config.autoencoder.model)}
+        ),
         train=train_autoencoder,
         old_names=("ae",),
     ),
@@ -104,9 +69,9 @@ STAGES: tuple[Stage, ...] = (
         name="length",
         make_target="train-len",
         models=("length",),
-        build=lambda config, sizes: {
-            "length": LengthEstimator(sizes.word_dim, config.length.model, sizes.vocab_size)
-        },
+        build=lambda config, sizes: _accelerated(
+            {"length": LengthEstimator(sizes.word_dim, config.length.model, sizes.vocab_size)}
+        ),
         train=train_length,
         old_names=("len", "text2length"),
     ),
@@ -114,12 +79,14 @@ STAGES: tuple[Stage, ...] = (
         name="generator",
         make_target="train-t2m",
         models=("vae", "decoder"),
-        build=lambda config, sizes: {
-            "vae": TemporalVAE(
-                sizes.word_dim, sizes.code_size, config.generator.model, sizes.vocab_size
-            ),
-            "decoder": MovementDecoder(sizes.feature_dim, config.autoencoder.model),
-        },
+        build=lambda config, sizes: _accelerated(
+            {
+                "vae": TemporalVAE(
+                    sizes.word_dim, sizes.code_size, config.generator.model, sizes.vocab_size
+                ),
+                "decoder": MovementDecoder(sizes.feature_dim, config.autoencoder.model),
+            }
+        ),
         train=train_generator,
         needs=("autoencoder",),
         old_names=("t2m",),
@@ -128,15 +95,17 @@ STAGES: tuple[Stage, ...] = (
         name="evaluator",
         make_target="train-eval",
         models=("evaluator",),
-        build=lambda config, sizes: {
-            "evaluator": Evaluator(
-                sizes.word_dim,
-                sizes.feature_dim,
-                config.autoencoder.model,
-                config.evaluator.model,
-                sizes.vocab_size,
-            )
-        },
+        build=lambda config, sizes: _accelerated(
+            {
+                "evaluator": Evaluator(
+                    sizes.word_dim,
+                    sizes.feature_dim,
+                    config.autoencoder.model,
+                    config.evaluator.model,
+                    sizes.vocab_size,
+                )
+            }
+        ),
         train=train_evaluator,
         needs=("autoencoder",),
         old_names=("eval",),
