@@ -315,12 +315,11 @@ def paper() -> Config:
     return cfg
 
 
-PAPER_NOTES = """Sizes and optimisation settings of Guo et al. (CVPR 2022). Epoch counts are ours: an
-autoencoder epoch is one random 24-frame window per clip, and the generator's curriculum
-advances on validation patience, so step counts differ from the original scripts'.
-Normalisation as the release trained: root and foot-contact std divided by 25 (feature_bias);
-the original scripts meant 5 but divide the shared std array once per dataset they build, and
-the release's meta/std.npy holds the dataset std / 25 on those dimensions."""
+PAPER_NOTES = """Sizes and optimisation settings of Guo et al. (CVPR 2022), for HumanML3D or KIT-ML
+on a GPU. Epoch counts are ours: an autoencoder epoch is one random 24-frame window per clip,
+and the generator's curriculum advances on validation patience, so step counts differ from the
+original scripts'. Normalisation as the release trained: root and foot-contact std divided by
+25 (data.feature_bias), as in the release's meta/std.npy."""
 
 
 def demo() -> Config:
@@ -386,58 +385,16 @@ def demo() -> Config:
     return cfg
 
 
-DEMO_NOTES = """Small models that train all four stages on the demo corpus in about 12 minutes (make demo, 2 cores).
-Measured on the 2-core development machine (one thread): autoencoder 1.4 min, length 0.5,
-generator 12, evaluator 1.3. The curriculum grows by 3 snippets per stage, at most five epochs
-per stage. Quick-evaluation semantic accuracy by epochs per stage: 1 -> 0.19, 3 -> 0.40,
-5 -> 0.49; with the smooth-L1 autoencoder, 0.58.
-Smooth L1, not the original's L1: with L1 this autoencoder reconstructed a one-handed wave at a
-third of its amplitude, half of it on the wrong arm (semantic accuracy of its reconstructions
-for wave 0.26, of the generator's samples 0); with smooth L1, 0.97.
-Generator (2026-12-01): whole clips (generator.whole_clips) and a curriculum of four lengths
-(10, 23, 36, 49 snippets; at most 4 epochs each, 8 more at the last). The earlier schedule
-(13 lengths, 3 snippets apart, at most 5 epochs each, crops only) trained captions such as
-"jumps three times, then waves" against crops of one jump, and its longest lengths saw only
-the 44 training clips that long. Quick evaluation, ground-truth lengths, same autoencoder,
-length model and evaluator: semantic accuracy 0.542 -> 0.620, R-precision top 1 0.740 ->
-0.781, FID 0.80 -> 0.22, MM-Dist 2.34 -> 1.90, MultiModality 1.10 -> 0.76; the generator stage
-took 0.87x the time (1142 s against 1308 s, side by side on the loaded 2-core machine).
-For make demo's 15 minutes (2026-12-01, evening): 2 epochs at each of the first three lengths,
-12 at the last (18 in all), and captions kept up to 28 words (5.8% of the corpus' captions are
-longer than 20 and lost their last words). Generator epochs timed at load average about 1: 18,
-30, 37 and 40 s at 10, 23, 36 and 49 snippets, so 18 epochs take about 11 minutes and make demo
-(with t2m.demo's second process for the length model, the evaluator and the samples) about 15
-from a fresh clone; the earlier 24 epochs about 18 (20 in one process). Semantic accuracy over the whole test split
-(600 items x 2 draws, ground-truth lengths), generators trained from the same autoencoder:
-16 epochs 0.548, 18 epochs 0.603 (this preset, with 28-word captions: 0.598, quick evaluation
-0.560 +- 0.015; 0.604 with a cosine learning-rate decay too, 0.577 with the decay alone: it was
-removed), 24 epochs 0.628, 26 epochs 0.649; quality is still rising with epochs at the last
-length when the time budget ends. With t2m.demo's thread switch (the generator on two threads
-once the second process is done), a fresh-clone make demo took 12.2 minutes (+ 76 s install;
-2026-12-01, load about 1.7): quick evaluation semantic accuracy 0.622 +- 0.004 (order and
-counts; 0.562 with fixed timing).
-Recipe checks (2026-12-02; whole test split, 2 draws, ground-truth lengths; the 18-epoch
-generator 0.621): kl_weight 0.1 -> 0.519 (the latent collapses: counted one-off actions improve,
-clap, hop and wave fall to 0), 0.03 -> 0.595, 0.003 -> 0.580; grad_clip 5 -> 0.604; lr 2e-3 ->
-0.576; one curriculum stage at 49 snippets for the same CPU -> 0.592; text encoder hidden size
-192 -> 0.629 (quick evaluation 0.628 +- 0.011, 5% more CPU). None is kept: no gain beyond the
-spread between trainings (README, "Generator recipe for counts and composition").
-2026-12-02: the generator's training step 1.27x faster at these sizes; the time saved buys 3 more
-epochs at the last length (2/2/2/15, 21 epochs): fresh-clone make demo 12.1 minutes + 79 s install
-(13.4), quick evaluation semantic accuracy 0.669 +- 0.030 (whole test split 0.654; 18 epochs 0.621).
-2026-12-02 (later): clause-by-clause generation (t2m.clauses) made make demo 1.3 minutes faster
-than budgeted (12.2 with install); 4 more epochs at the last length (2/2/2/19, 25 epochs, the
-generator 6.9 minutes at two threads): whole test split, ground-truth lengths, one pass 0.675 ->
-0.721, clause by clause 0.818 -> 0.846 (clap 0.45 -> 0.51, punch 0.64 -> 0.68).
-2026-12-02 (fifth session): the count clock (TemporalVAEConfig.count_clock, margin 3 snippets),
-the same stages and seed, generator retrained: whole test split, clause plan, ground-truth
-lengths 0.839 -> 0.872, clap 0.44 -> 0.78, punch 0.71 -> 0.74 (README, "A count clock").
-2026-12-02 (sixth session): the length model reads the count and whether a caption is a clause
-(LengthModelConfig.plan_inputs) and trains on labelled clauses half the time
-(LengthStageConfig.clause_examples 0.5; same epochs, same time); the clause plan gives each
-clause its expected length plus a variance-weighted share of the rest (t2m.clauses.
-clause_targets). Same demo stages, length model retrained: whole test split 0.855 -> 0.891,
-clap 0.69 -> 0.85, punch 0.69 -> 0.83 (README, "Clause lengths that know the count")."""
+DEMO_NOTES = """Small models that train all four stages on the procedural demo corpus on two CPU
+cores (make demo). The autoencoder uses smooth L1 (the original's L1 loses one-handed waves at
+this size); the generator trains whole clips over four curriculum lengths (10, 23, 36, 49
+snippets: 2 epochs each, 19 at the last, no patience) with a count clock ("claps five times"
+turns a clock five times between a 0.6 s wind-up and wind-down); the length model reads a
+caption's count and whether it is a clause. make demo from a fresh clone: 9.9 min after the
+install on a 2-core Intel Xeon (AVX-512), 2026-12-02; 19.8 min on a 2-core AMD EPYC Zen 3
+(AVX2), 2026-12-03 (time make demo). Its quick evaluation (python -m t2m.evaluate --quick
+--plan clauses): semantic accuracy 0.878 +- 0.018 and 0.870 +- 0.018. docs/results.md,
+docs/performance.md."""
 
 
 def tiny() -> Config:

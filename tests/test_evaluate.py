@@ -182,7 +182,7 @@ def test_standard_settings_have_no_deviation():
     assert notes == ["replications = 5 (standard: 20)"]
 
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+USAGE_PAGE = Path(__file__).resolve().parents[1] / "docs" / "evaluation.md"
 
 
 def test_help_lists_the_documented_options_with_their_docstrings(capsys, monkeypatch):
@@ -193,7 +193,7 @@ def test_help_lists_the_documented_options_with_their_docstrings(capsys, monkeyp
     text = " ".join(capsys.readouterr().out.split())
     usage = next(
         line
-        for line in README.read_text().splitlines()
+        for line in USAGE_PAGE.read_text().splitlines()
         if line.startswith("`python -m t2m.evaluate --dataset")
     )
     documented = set(re.findall(r"--[a-z][a-z-]+", usage))

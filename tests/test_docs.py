@@ -1,0 +1,106 @@
+"""The documentation: README.md is the front door, docs/ holds the reference, and the option
+tables in docs/ are what the commands define (``tools/docs_options.py`` regenerates them)."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+DOCS = ROOT / "docs"
+
+
+def _docs_options():
+    spec = importlib.util.spec_from_file_location(
+        "docs_options", ROOT / "tools" / "docs_options.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+docs_options = _docs_options()
+
+
+def _pages() -> list[Path]:
+    return [README, *sorted(DOCS.glob("*.md"))]
+
+
+def test_option_tables_match_the_commands():
+    stale = [str(path.relative_to(ROOT)) for path in docs_options.stale_pages()]
+    assert not stale, f"stale option tables in {stale}: run python tools/docs_options.py --write"
+
+
+def test_every_command_page_has_its_tables():
+    specs = {
+        match["spec"]
+        for path in DOCS.glob("*.md")
+        for match in docs_options.BLOCK.finditer(path.read_text())
+    }
+    assert {
+        "t2m.sample:SampleConfig",
+        "t2m.edit.__main__:EditConfig",
+        "t2m.serve.__main__:ServeConfig",
+        "t2m.train.__main__:parser",
+        "t2m.evaluate.__main__:parser",
+    } <= specs
+
+
+def test_a_table_is_regenerated_from_its_dataclass():
+    page = "intro\n<!-- options dataset_tools.synth.cli:SynthConfig -->\n| old |\n<!-- /options -->\nend\n"
+    fresh = docs_options.render(page)
+    assert fresh != page and "| old |" not in fresh
+    assert "| `--clips CLIPS` | number of clips (default: 2000) |" in fresh
+    assert "| `--out OUT` | output folder |" in fresh
+    assert fresh.startswith("intro\n") and fresh.endswith("<!-- /options -->\nend\n")
+    assert docs_options.render(fresh) == fresh
+
+
+def test_unset_shows_a_field_without_its_dataclass_default():
+    table = docs_options.options_table("dataset_tools.build:BuildConfig unset=workers")
+    row = next(line for line in table.splitlines() if line.startswith("| `--workers"))
+    assert "(default:" not in row
+    assert "| `--max-seconds MAX_SECONDS` |" in table and "(default: 10.0)" in table
+
+
+def test_a_marker_naming_nothing_is_an_error():
+    with pytest.raises(LookupError, match="no_such_module"):
+        docs_options.options_table("no_such_module:Config")
+
+
+def test_readme_is_a_front_door():
+    lines = README.read_text().splitlines()
+    assert len(lines) <= 300
+    linked = set(re.findall(r"\]\(docs/([\w.-]+\.md)\)", README.read_text()))
+    assert linked == {path.name for path in DOCS.glob("*.md")}, "every docs page linked"
+
+
+@pytest.mark.parametrize("page", _pages(), ids=lambda path: path.name)
+def test_relative_links_resolve(page):
+    for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+        if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            continue
+        assert (page.parent / target.split("#")[0]).exists(), f"{page.name}: {target}"
+
+
+@pytest.mark.parametrize("page", _pages(), ids=lambda path: path.name)
+def test_shown_commands_exist(page):
+    for module in set(re.findall(r"python -m ([a-z_][\w.]*[a-z_])", page.read_text())):
+        assert importlib.util.find_spec(module) is not None, f"{page.name}: python -m {module}"
+    makefile = (ROOT / "Makefile").read_text()
+    for target in set(re.findall(r"(?:`|^)make ([a-z][\w-]*)", page.read_text(), re.MULTILINE)):
+        assert re.search(rf"^{target}:", makefile, re.MULTILINE), f"{page.name}: make {target}"
+
+
+# performance.md keeps the benchmark figures and is reworded by its own change.
+@pytest.mark.parametrize(
+    "page", [p for p in _pages() if p.name != "performance.md"], ids=lambda path: path.name
+)
+def test_pages_speak_of_the_software_not_of_its_making(page):
+    text = page.read_text()
+    for phrase in (r"\bsessions?\b", r"\bwe\b", r"\btried\b", r"\bthe lead\b"):
+        assert not re.search(phrase, text, re.IGNORECASE), f"{page.name}: {phrase}"
