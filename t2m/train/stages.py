@@ -22,6 +22,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
+from torch import nn
 
 from dataset_tools.command import UsageError
 from t2m.accel import accelerate
