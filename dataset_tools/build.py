@@ -19,6 +19,8 @@ re-run resumes.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
 import os
 import platform
@@ -32,7 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools import humanml3d, segment, texts
-from dataset_tools.build_safety import claim_output, content_options, exclusive, refuse_unsafe_names
+from dataset_tools.build_safety import claim_output, exclusive, refuse_unsafe_names
 from dataset_tools.command import (
     CommandParser,
     UsageError,
@@ -163,6 +165,29 @@ class BuildConfig:
                     raise UsageError(f"--splits folder {self.splits_dir} has no {split}.txt")
         self._validate_output()
 
+    def content_options(self, reading: dict) -> dict:
+        """The options that decide what a clip's files hold (JSON values), for
+        ``build_options.json`` (:func:`~dataset_tools.build_safety.claim_output`).
+
+        The source kind, the resolved reading options ``reading`` (frame rate, up axis, BVH
+        mapping, scale and first frame), crop length and seed, and the content (SHA-256) of the
+        small files that shape clips: index, target skeleton, mapping file. Where files live is
+        not part of it (the same sources moved elsewhere give the same clips); neither are the
+        worker count, the splits (rewritten by every run) or the caption files (a changed caption
+        needs ``--force``).
+        """
+        mapping_file = Path(self.mapping) if self.mapping and Path(self.mapping).is_file() else None
+        record = {
+            "source": self.source,
+            "reading": {key: value for key, value in reading.items() if key != "body_model_dir"},
+            "max_seconds": self.max_seconds,
+            "seed": self.seed,
+            "index_sha256": _sha256(self.index),
+            "target_skeleton_sha256": _sha256(self.target_skeleton),
+            "mapping_sha256": _sha256(mapping_file),
+        }
+        return json.loads(json.dumps(record))  # tuples as lists, as they read back
+
     def _validate_output(self) -> None:
         """The output folder can be written and is none of the folders the build reads (it
         rewrites ``texts/`` and the split files, and would read its own outputs as sources)."""
@@ -180,6 +205,10 @@ class BuildConfig:
                 f"--splits {self.splits_dir} is the folder whose split files the build writes; "
                 "copy them elsewhere"
             )
+
+
+def _sha256(path: Path | None) -> str | None:
+    return None if path is None else hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 @dataclass
@@ -618,7 +647,7 @@ def build_dataset(config: BuildConfig) -> dict:
     target_offsets = None
     if config.target_skeleton is not None:
         target_offsets = target_offsets_from_example(load_npy(config.target_skeleton))
-    record = content_options(config, options)
+    record = config.content_options(options)
     clock = time.perf_counter()
     all_tasks = list_tasks(config)
     tasks, skipped = refuse_unsafe_names(all_tasks)

@@ -1,7 +1,8 @@
 """What keeps a dataset folder safe while ``dataset_tools.build`` writes into it.
 
 - ``build_options.json`` (:data:`dataset_tools.humanml3d.OPTIONS_FILE`), written before the
-  first clip, records the options that shape a clip (:func:`content_options`); a re-run with
+  first clip, records the options that shape a clip
+  (:meth:`dataset_tools.build.BuildConfig.content_options`); a re-run with
   other options, or into a non-empty folder that no build wrote, is refused
   (:func:`claim_output`; ``--force`` rebuilds every clip of an earlier build with the new ones);
 - one build at a time writes into a folder (:func:`exclusive`, a lock on the folder);
@@ -14,22 +15,17 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import hashlib
 import json
 import os
 import unicodedata
 from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from dataset_tools import humanml3d
 from dataset_tools.command import UsageError
 from dataset_tools.humanml3d import OPTIONS_FILE, mirror_name
 from dataset_tools.io import write_json_atomic
 from dataset_tools.sources import ClipTask
-
-if TYPE_CHECKING:
-    from dataset_tools.build import BuildConfig
 
 OPTIONS_FORMAT = 1
 # The longest file name most file systems take; a clip's longest is its mirror's temporary file.
@@ -99,34 +95,6 @@ def refuse_unsafe_names(tasks: Sequence[ClipTask]) -> tuple[list[ClipTask], list
         for index, reason in sorted(refused.items())
     ]
     return kept, refusals
-
-
-def _sha256(path: Path | None) -> str | None:
-    return None if path is None else hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def content_options(config: BuildConfig, options: dict) -> dict:
-    """The options that decide what a clip's files hold (JSON values), for ``build_options.json``.
-
-    The source kind, the resolved reading options (frame rate, up axis, BVH mapping, scale and
-    first frame), crop length and seed, and the content (SHA-256) of the small files that shape
-    clips: index, target skeleton, mapping file. Where files live is not part of it (the same
-    sources moved elsewhere give the same clips); neither are the worker count, the splits
-    (rewritten by every run) or the caption files (a changed caption needs ``--force``).
-    """
-    mapping = config.mapping
-    mapping_file = Path(mapping) if mapping and Path(mapping).is_file() else None
-    reading = {key: value for key, value in options.items() if key != "body_model_dir"}
-    record = {
-        "source": config.source,
-        "reading": reading,
-        "max_seconds": config.max_seconds,
-        "seed": config.seed,
-        "index_sha256": _sha256(config.index),
-        "target_skeleton_sha256": _sha256(config.target_skeleton),
-        "mapping_sha256": _sha256(mapping_file),
-    }
-    return json.loads(json.dumps(record))  # tuples as lists, as they read back
 
 
 def _read_options_record(out_dir: Path) -> dict | None:
