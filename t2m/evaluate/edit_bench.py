@@ -477,14 +477,14 @@ def _rprec_fid(backend, captions, motions, reference) -> dict:
 
 
 def _paper_pipeline():
-    """Paper-sized models with random weights (as ``t2m.benchmarks.sample`` times sampling), with
-    a movement encoder: for latency only."""
-    from t2m.benchmarks.sample import _paper_pipeline as sampling_pipeline
+    """The random-weight pipeline of :func:`~t2m.evaluate.paper_sized.paper_sized_pipeline`
+    (what ``t2m.benchmarks.sample`` times) with a movement encoder: for latency only."""
     from t2m.config import paper
+    from t2m.evaluate.paper_sized import paper_sized_pipeline
     from t2m.models.autoencoder import CONTACT_DIMS, MovementEncoder
     from t2m.pipeline import TextToMotion
 
-    pipe, (vae, decoder, initial_code) = sampling_pipeline("fp32")
+    pipe, (vae, decoder, initial_code) = paper_sized_pipeline("fp32")
     torch.manual_seed(0)
     encoder = MovementEncoder(pipe.spec.feature_dim - CONTACT_DIMS, paper().autoencoder.model)
     return TextToMotion(
