@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dataset_tools import physical
 from dataset_tools.representation import process_motion
-from t2m.evaluate import physical
 
 FPS = 20.0
 FEET = (7, 8, 10, 11)

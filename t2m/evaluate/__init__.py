@@ -7,8 +7,8 @@ standard protocol). The package's rooms:
 - :mod:`~t2m.evaluate.protocol`: settings (:class:`EvalConfig`), drawing the test items, the
   replications and metric rows (:func:`run_protocol`), the scorer plug-ins (:func:`find_scorer`);
 - :mod:`~t2m.evaluate.metrics`: the formulas (R-precision, FID, MM-Dist, diversity, ...);
-- :mod:`~t2m.evaluate.physical`: physical plausibility (foot skating ratio, jerk, ground
-  penetration, floating), tabled beside the protocol's metrics for every row;
+- physical plausibility (foot skating ratio, jerk, ground penetration, floating), tabled beside
+  the protocol's metrics for every row, is measured by :mod:`dataset_tools.physical` (numpy);
 - :mod:`~t2m.evaluate.backend`: what the protocol needs from the models (:class:`Backend`), the
   generator behind it (:class:`CheckpointBackend`: a run of ours or the original T2M release) and
   the evaluator that embeds, fed its way (:class:`Embedder`: the run's own, or the release's

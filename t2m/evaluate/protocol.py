@@ -22,7 +22,7 @@ The protocol, per replication (each with its own seed):
    10 pairs per caption.
 4. Each metric is reported as mean and 95% interval ``1.96 sigma / sqrt(replications)``.
 5. Physical quality of every row's motions (foot skating, jerk, penetration, floating; see
-   :mod:`t2m.evaluate.physical`), the jerk curve compared with the reference draw's.
+   :mod:`dataset_tools.physical`), the jerk curve compared with the reference draw's.
 
 Unlike the original, generation is batched. When the dataset comes with a scorer (the procedural
 demo corpus does: ``dataset_tools.synth.scoring``), a row also reports semantic accuracy: how
@@ -43,11 +43,12 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from tqdm import tqdm
 
+from dataset_tools import physical
 from dataset_tools.command import UsageError, option
 from dataset_tools.spec import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
 from t2m.data.dataset import Caption, Clip
-from t2m.evaluate import metrics, physical
+from t2m.evaluate import metrics
 from t2m.evaluate.backend import Backend
 from t2m.streams import EvalStream, GenerationStream, stream_rng, stream_seed
 
@@ -295,7 +296,7 @@ class ProtocolResult:
     config: EvalConfig
     timings_s: dict[str, float] = field(default_factory=dict)
     physical: dict[str, dict[str, list[float]]] = field(default_factory=dict)
-    """Per row, per figure of :mod:`t2m.evaluate.physical`, the value of each replication."""
+    """Per row, per figure of :mod:`dataset_tools.physical`, the value of each replication."""
 
 
 class _Timer:

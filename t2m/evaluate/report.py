@@ -113,7 +113,7 @@ def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
-# Columns of the physical-quality table (figures of t2m.evaluate.physical): title, digits.
+# Columns of the physical-quality table (figures of dataset_tools.physical): title, digits.
 PHYSICAL_COLUMNS = {
     "skating_ratio": ("Foot skating ratio ↓", 3),
     "penetration_mm": ("Penetration, mm ↓", 1),
@@ -129,7 +129,7 @@ def _physical_table(summary: dict[str, Any]) -> list[str]:
     if not any("physical_skating_ratio" in summary["rows"][row] for row in ROWS):
         return []
     lines = [
-        "Physical quality (see `t2m.evaluate.physical`):",
+        "Physical quality (see `dataset_tools.physical`):",
         "",
         "| Method | " + " | ".join(title for title, _ in PHYSICAL_COLUMNS.values()) + " |",
         "|---|" + "---|" * len(PHYSICAL_COLUMNS),
