@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dataset_tools import physical
+from dataset_tools import cleanup, physical
 from dataset_tools.representation import process_motion, recover_from_ric
 from dataset_tools.skeleton import SMPL
-from t2m import cleanup
 from tests.conftest import synth_joints
 
 LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))  # hip, knee, ankle, toe

@@ -44,6 +44,7 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools import physical
+from dataset_tools.cleanup import clean_features
 from dataset_tools.command import UsageError, option
 from dataset_tools.spec import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
@@ -119,9 +120,9 @@ class EvalConfig:
     """how a caption is generated: whole (one pass, as the paper evaluates) or clauses (a
     caption of several clauses clause by clause, as t2m.sample does by default; t2m.clauses)"""
     clean: bool = False
-    """pass generated motions through the foot-contact clean-up (t2m.cleanup, as t2m.sample
-    does by default) before they are embedded and scored; the standard protocol judges the raw
-    model output"""
+    """pass generated motions through the foot-contact clean-up (dataset_tools.cleanup, as
+    t2m.sample does by default) before they are embedded and scored; the standard protocol
+    judges the raw model output"""
 
     def __post_init__(self) -> None:
         at_least = {
@@ -366,7 +367,7 @@ def _multimodality(
 
 class CleanedBackend:
     """A :class:`Backend` whose generated motions (raw features) go through the foot-contact
-    clean-up (:func:`t2m.cleanup.clean_features`)."""
+    clean-up (:func:`dataset_tools.cleanup.clean_features`)."""
 
     def __init__(self, backend: Backend):
         self.backend = backend
@@ -380,8 +381,6 @@ class CleanedBackend:
     def generate(
         self, captions: Sequence[Caption], lengths: np.ndarray | None, seed: int
     ) -> list[np.ndarray]:
-        from t2m.cleanup import clean_features
-
         return [clean_features(f) for f in self.backend.generate(captions, lengths, seed)]
 
 
