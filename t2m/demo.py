@@ -259,8 +259,9 @@ def final_losses(run_dir: Path) -> dict[str, dict]:
 
 def sample_prompts(run_dir: Path, out: Path, num_samples: int, render: str, seed: int) -> None:
     """Step 3: the example prompts, several motions each, rendered, with BVH files."""
+    from t2m.outputs import sample_to_folder
     from t2m.pipeline import TextToMotion
-    from t2m.sample import Prompt, sample_to_folder
+    from t2m.prompts import Prompt
 
     pipe = TextToMotion.from_checkpoints(run_dir, device="auto")
     sample_to_folder(
@@ -325,7 +326,7 @@ def run_demo(config: DemoConfig) -> str:
     dataset, run_dir, out = config.dataset, config.checkpoints, config.out
     eval_dir = out.parent / f"{out.name}_eval"
     # 0. the output folders, before the long work (the samples replace only an earlier demo's)
-    from t2m.sample import check_out
+    from t2m.outputs import check_out
 
     check_out(out, overwrite=True)
     check_output_folder(eval_dir, "the evaluation folder")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from t2m import sample
+from t2m import outputs, sample
 from t2m.pipeline import TextToMotion, frames_for, frames_for_seconds
 
 
@@ -51,8 +51,8 @@ def test_cli_writes_the_output_contract(tiny_run, tmp_path, capsys):
         expected |= {
             f"sample00_rep{rep:02d}{suffix}" for suffix in (".npy", "_feats.npy", ".gif", ".bvh")
         }
-    assert {p.name for p in out.iterdir()} == expected | {sample.MARKER}
-    assert set(json.loads((out / sample.MARKER).read_text())["files"]) == expected
+    assert {p.name for p in out.iterdir()} == expected | {outputs.MARKER}
+    assert set(json.loads((out / outputs.MARKER).read_text())["files"]) == expected
     joints = np.load(out / "sample00_rep01.npy")
     feats = np.load(out / "sample00_rep01_feats.npy")
     assert joints.shape == (44, 22, 3) and joints.dtype == np.float32
@@ -278,7 +278,7 @@ def test_unwritable_or_occupied_out(tiny_run, tmp_path, capsys):
     assert code == 2 and "not empty" in err
     # --overwrite replaces only an earlier output (it deletes the folder), never other files.
     code, err = _run(capsys, *argv, "--overwrite")
-    assert code == 2 and sample.MARKER in err
+    assert code == 2 and outputs.MARKER in err
     assert (occupied / "keep.txt").read_text() == "mine"
     (occupied / "keep.txt").unlink()
     code, err = _run(capsys, *argv)

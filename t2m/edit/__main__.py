@@ -27,7 +27,8 @@ from dataset_tools.command import CommandParser, UsageError, command, option, pa
 from t2m.config import check_seed
 from t2m.edit.core import Method, SearchSettings
 from t2m.edit.modes import Mode, Part
-from t2m.sample import OutputOptions, write_motions
+from t2m.options import OutputOptions
+from t2m.outputs import write_motions
 
 logger = logging.getLogger("t2m.edit")
 

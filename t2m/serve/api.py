@@ -13,9 +13,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from dataset_tools.command import UsageError
-from dataset_tools.skeleton import DatasetSpec
+from dataset_tools.spec import DatasetSpec
 from t2m.pipeline import PRECISIONS, GeneratedMotion, PreparedText, frames_for
-from t2m.sample import Prompt, parse_prompt_line
+from t2m.prompts import Prompt, parse_prompt_line
 
 GENERATE_KEYS = {"prompts", "seconds", "samples", "seed", "precision"}
 

@@ -1,6 +1,6 @@
 """The web app's generated files: one folder per request under the server's work folder, named
-by an unguessable token, written by ``t2m.sample``'s writers, removed after a set time or when
-the folder grows past a set size.
+by an unguessable token, written by the writers of :mod:`t2m.outputs`, removed after a set time
+or when the folder grows past a set size.
 
 * A request's id is ``secrets.token_urlsafe(16)`` (128 random bits): knowing one request's links
   tells nothing about another's. Nothing lists the ids; the page keeps its own history.
@@ -25,8 +25,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from t2m.outputs import motion_file_name, write_motion_file, write_summaries
 from t2m.pipeline import GeneratedMotion
-from t2m.sample import motion_file_name, write_motion_file, write_summaries
 
 logger = logging.getLogger(__name__)
 

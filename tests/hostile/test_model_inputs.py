@@ -20,9 +20,10 @@ import pytest
 import torch
 
 from dataset_tools.command import UsageError
-from t2m import export, render, sample
+from t2m import export, outputs, render, sample
 from t2m.demo import DemoConfig, run_demo
 from t2m.evaluate.__main__ import main as evaluate_main
+from t2m.prompts import Prompt
 from t2m.train.__main__ import main as train_main
 from t2m.train.checkpoint import read_checkpoint
 
@@ -75,7 +76,7 @@ def test_overwrite_never_replaces_a_folder_we_did_not_write(tiny_run, tmp_path, 
     before = snapshot(mine)
     code, err = _sample(capsys, tiny_run, mine, "--length", "40", "--overwrite")
     assert code == 2
-    one_line(err, "--overwrite refuses", sample.MARKER)
+    one_line(err, "--overwrite refuses", outputs.MARKER)
     assert snapshot(mine) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]  # no temp folder either
 
@@ -108,7 +109,7 @@ def test_stale_temp_folders_of_killed_runs_are_cleaned_and_only_ours(tiny_run, t
     stranger = tmp_path / f".out.{dead_pid()}.ghi_3.tmp"  # our pattern, not our marker
     for folder in (ours, alive):
         folder.mkdir()
-        (folder / sample.MARKER).write_text(marker)
+        (folder / outputs.MARKER).write_text(marker)
         (folder / "sample00_rep00.npy").write_bytes(b"half")
     stranger.mkdir()
     (stranger / "data").write_text("someone's")
@@ -156,9 +157,9 @@ def test_a_model_producing_nan_writes_nothing(tiny_run, tmp_path):
     with torch.no_grad():
         for parameter in pipe.decoder.parameters():
             parameter.fill_(float("nan"))
-    prompts = [sample.Prompt("a person walks forward", 40)]
+    prompts = [Prompt("a person walks forward", 40)]
     with pytest.raises(UsageError, match="NaN or infinite"):
-        sample.sample_to_folder(pipe, prompts, tmp_path / "out", render="none")
+        outputs.sample_to_folder(pipe, prompts, tmp_path / "out", render="none")
     assert not list(tmp_path.iterdir())
 
 
