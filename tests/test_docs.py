@@ -135,3 +135,28 @@ def test_named_files_and_modules_exist(page):
     for dotted in set(re.findall(r"`((?:t2m|dataset_tools)\.[\w.]*\w)", text)):
         if dotted.rpartition(".")[2] not in FILE_SUFFIXES:
             assert _resolves(dotted), f"{page.name}: {dotted}"
+
+
+def test_readme_layout_names_every_module():
+    """README's "What is where" names each module and folder directly under dataset_tools/ and
+    t2m/, and nothing that is gone."""
+    text = README.read_text()
+    block = text[text.index("## What is where") :]
+    block = block[block.index("```\n") + 4 :]
+    block = block[: block.index("```")]
+    named: dict[str, set[str]] = {}
+    package = None
+    for line in block.splitlines():
+        if not line.startswith(" "):
+            package = line.split()[0].rstrip("/")
+            continue
+        names = re.findall(r"(?<![\w./-])(\w+\.py|\w+/)(?![\w/])", line)
+        named.setdefault(package, set()).update(names)
+    for package in ("dataset_tools", "t2m"):
+        present = {
+            entry.name + ("/" if entry.is_dir() else "")
+            for entry in (ROOT / package).iterdir()
+            if entry.name not in ("__init__.py", "__main__.py", "__pycache__")
+            and (entry.is_dir() or entry.suffix == ".py")
+        }
+        assert named[package] == present, (package, named[package] ^ present)
