@@ -3,9 +3,11 @@
 A table sits between two marker comments in a page::
 
     <!-- options t2m.sample:SampleConfig -->
+
     | option | meaning |
     | --- | --- |
     | `--num-samples N` | different motions per prompt (default: 1) |
+
     <!-- /options -->
 
 The opening marker names what the command builds its options from: a config dataclass
@@ -83,7 +85,8 @@ def options_table(spec: str) -> str:
 def render(text: str) -> str:
     """``text`` with every options block regenerated (LookupError: a marker names nothing)."""
     return BLOCK.sub(
-        lambda match: match["open"] + options_table(match["spec"]) + match["close"], text
+        lambda match: match["open"] + "\n" + options_table(match["spec"]) + "\n" + match["close"],
+        text,
     )
 
 
