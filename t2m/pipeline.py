@@ -34,7 +34,7 @@ generator step reads every weight once per 4 frames, so smaller weights are fast
 where bfloat16 is native (:func:`t2m.hardware.native_bf16`: a GPU, or a CPU with AVX512_BF16 or
 AMX). Elsewhere bf16 is slower than fp32 (:data:`BF16_EMULATED_COST`): it still runs when asked
 for, with a warning. ``backend="onnx"`` runs that step in ONNX Runtime instead of torch (fp32 and
-int8, :mod:`t2m.onnx_backend`).
+int8, :mod:`t2m.accel.onnx`). The models run through :func:`t2m.accel.accelerate`.
 """
 
 from __future__ import annotations
@@ -49,11 +49,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dataset_tools.cleanup import clean_features
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
-from dataset_tools.skeleton import HUMANML3D, DatasetSpec, spec_for_dim
+from dataset_tools.spec import HUMANML3D, DatasetSpec, spec_for_dim
+from t2m.accel import BACKENDS, ONNX_PRECISIONS, PRECISIONS, accelerate
+from t2m.accel.onnx import require as require_onnx
 from t2m.clauses import clause_captions, clause_targets, share_snippets
-from t2m.cleanup import clean_features
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
 from t2m.hardware import device_description, native_bf16
@@ -63,16 +65,11 @@ from t2m.models.autoencoder import (
     MovementEncoder,
     check_snippet_length,
 )
-from t2m.models.fast_recurrence import set_generation_plan
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
-from t2m.onnx_backend import BACKENDS, ONNX_PRECISIONS, OnnxGenerationPlan
-from t2m.onnx_backend import require as require_onnx
-from t2m.quantize import quantize_int8
 
 logger = logging.getLogger(__name__)
 
-PRECISIONS = ("fp32", "bf16", "int8")
 BF16_EMULATED_COST = (
     "it took 1.1x fp32's CPU time at batch 1 and 4.9x at batch 32 (the decoder alone 4.6x) on "
     "an AMD EPYC Zen 3 with AVX2 only (paper-size models, one thread)"
@@ -198,7 +195,7 @@ class TextToMotion:
             and, without an ``encoder``, releases the VAE's posterior
             (:meth:`~t2m.models.temporal_vae.TemporalVAE.release_posterior`: nothing here reads it).
         backend: ``"torch"``, or ``"onnx"``: the prior / generator steps run in ONNX Runtime
-            (:mod:`t2m.onnx_backend`; fp32 and int8 on the CPU, needs the ``onnx`` extra), from
+            (:mod:`t2m.accel.onnx`; fp32 and int8 on the CPU, needs the ``onnx`` extra), from
             a snapshot of the weights (int8: taken here; fp32: at the first generation).
     """
 
@@ -263,22 +260,16 @@ class TextToMotion:
             )
             training_words = set(vectorizer.words) - {"sos", "eos", "unk"}
         self.training_words = frozenset(training_words)
-        vae = original_vae = vae.to(self.device).eval()
+        vae = vae.to(self.device).eval()
         decoder = decoder.to(self.device).eval()
         if not copy_models and encoder is None:
             # nothing here reads the posterior without an encoder (it reads an edit's kept start)
             vae.release_posterior()
-        if backend == "onnx":  # from the float weights, before they are converted
-            onnx_plan = OnnxGenerationPlan(vae, precision)
-        if precision == "int8":  # with the onnx backend, no torch plan: nothing would read it
-            vae = quantize_int8(vae, inplace=not copy_models, plan=backend == "torch")
-        elif precision == "bf16":
-            vae = (copy.deepcopy(vae) if copy_models else vae).to(torch.bfloat16)
-        if backend == "onnx":
-            if vae is original_vae and copy_models:  # the caller's module keeps its own plan
-                vae = copy.copy(vae)  # shares the weights
-            set_generation_plan(vae, onnx_plan)
-        self.vae = vae
+        if copy_models and precision != "fp32":
+            vae = copy.deepcopy(vae)
+        elif copy_models and backend == "onnx":  # the caller's module keeps its own rollout
+            vae = copy.copy(vae)  # shares the weights
+        self.vae = accelerate(vae, precision, backend)
         # The decoder's transposed convolutions have no dynamic-int8 kernels. With int8 they run
         # in bfloat16 where it is native (3x faster at batch 32 with AMX, ~0.5% relative error),
         # else in float32 (bf16 took 4.6x fp32's time there).
@@ -290,13 +281,15 @@ class TextToMotion:
                 "bfloat16 (a bf16 decoder took 4.6x fp32's time on an AVX2 CPU)",
                 device_description(self.device),
             )
-        if self.decoder_dtype != torch.float32:
-            decoder = (copy.deepcopy(decoder) if copy_models else decoder).to(self.decoder_dtype)
-        self.decoder = decoder
-        self.encoder = encoder.to(self.device).eval() if encoder is not None else None
+        if self.decoder_dtype != torch.float32 and copy_models:
+            decoder = copy.deepcopy(decoder)
+        self.decoder = accelerate(decoder, "bf16" if bf16_decoder else "fp32")
+        self.encoder = accelerate(encoder.to(self.device).eval()) if encoder is not None else None
         self.encoder_input_size = self.spec.feature_dim - CONTACT_DIMS
         self.initial_code = initial_code.to(self.device, self.dtype)
-        self.length_model = length_model.to(self.device).eval() if length_model else None
+        self.length_model = (
+            accelerate(length_model.to(self.device).eval()) if length_model else None
+        )
         self.length_vectorizer = length_vectorizer or vectorizer
         if not self.length_vectorizer.compatible(vectorizer):
             raise ValueError(

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from t2m.evaluate.protocol import EvalConfig, deviations
+from t2m.models.temporal_vae import StepRollout
 from t2m.pipeline import PLANS, TextToMotion
 
 TWO = "a person walks forward, then jumps up and down"
@@ -160,7 +161,7 @@ def test_clause_codes_chain_the_clauses(pipe):
                     torch.tensor([count]),
                     noise=noise[b : b + 1, start : start + count],
                     state=vae.initial_state(sentence, previous),
-                    fast=False,
+                    rollout=StepRollout(vae),
                 )
             made.append(out[0])
             previous, start = out[0, -1], start + count

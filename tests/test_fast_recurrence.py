@@ -1,5 +1,5 @@
 """The generator stage's fast paths against the plain modules: the oneDNN Linear
-(``t2m.models.fast_recurrence.linear``), the fine-tuned decoder (``t2m.train.generator.decode``),
+(``t2m.accel.recurrence.linear``), the fine-tuned decoder (``t2m.train.generator.decode``),
 and the training loop's autograd node without gradients (validation) and with outputs the loss
 does not read. Tolerances: float32 sums in another order, so the fast path and the plain one are
 compared through their distances to a float64 evaluation of the same weights
@@ -11,11 +11,11 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from t2m.accel.recurrence import linear
 from t2m.config import AutoencoderConfig
 from t2m.models.autoencoder import MovementDecoder
-from t2m.models.fast_recurrence import linear
 from t2m.train.generator import decode
-from tests.test_temporal_vae import CODE, LATENT, make_vae, randn, text
+from tests.test_temporal_vae import CODE, LATENT, make_vae, randn, text, training
 from tests.tolerances import as_float64, assert_same_rounding
 
 
@@ -88,13 +88,8 @@ def test_outputs_the_loss_does_not_read_get_no_gradient_through_the_loop():
     for model, fast in ((vae, True), (vae, False), (as_float64(vae), False)):
         parameters = dict(model.named_parameters())
         dtype = next(model.parameters()).dtype
-        outputs = model(
-            *text(model),
-            codes.to(dtype),
-            torch.zeros(CODE, dtype=dtype),
-            False,
-            noise.to(dtype),
-            fast=fast,
+        outputs = training(model, fast)(
+            *text(model), codes.to(dtype), torch.zeros(CODE, dtype=dtype), False, noise.to(dtype)
         )
         found = torch.autograd.grad(
             outputs["codes"].square().sum(), list(parameters.values()), allow_unused=True
@@ -127,10 +122,10 @@ def test_the_loop_trains_under_bf16_autocast(teacher_forcing):
     codes, noise = randn(3, 6, CODE, seed=1), randn(3, 6, LATENT, seed=3)
 
     def gradients(fast: bool, bf16: bool) -> dict[str, torch.Tensor | None]:
-        vae = make_vae()
+        vae = training(make_vae(), fast)
         parameters = dict(vae.named_parameters())
         with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            outputs = vae(*text(vae), codes, torch.zeros(CODE), teacher_forcing, noise, fast=fast)
+            outputs = vae(*text(vae), codes, torch.zeros(CODE), teacher_forcing, noise)
             loss = sum(value.float().square().mean() for value in outputs.values())
         found = torch.autograd.grad(loss, list(parameters.values()), allow_unused=True)
         return dict(zip(parameters, found, strict=True))

@@ -33,14 +33,14 @@ import torch
 pytest.importorskip("onnx", reason="the onnx backend's optional packages are not installed")
 pytest.importorskip("onnxruntime", reason="the onnx backend's optional packages are not installed")
 
-from t2m.onnx_backend import (  # noqa: E402
+from t2m.accel.int8 import int8_linear  # noqa: E402
+from t2m.accel.onnx import (  # noqa: E402
     DYNAMIC_WEIGHT_LEVELS,
     INT8_BLOCK,
     product_model,
     session,
     step_weights,
 )
-from t2m.quantize import int8_linear  # noqa: E402
 
 INPUTS, OUTPUTS = 256, 6
 INT16_MAX = 32767
@@ -96,10 +96,10 @@ def blockwise_steps(values: np.ndarray, levels: float) -> np.ndarray:
 
 def test_batched_int8_weights_cannot_saturate_u8_s8_pair_sums():
     """The batched session's weights, as generation makes them, leave room for 255 x w pairs."""
+    from t2m.accel.onnx import RowBlocks
+    from t2m.accel.plans import GenerationPlan
     from t2m.config import TemporalVAEConfig, TextEncoderConfig
-    from t2m.models.fast_recurrence import GenerationPlan
     from t2m.models.temporal_vae import TemporalVAE
-    from t2m.onnx_backend import RowBlocks
 
     torch.manual_seed(0)
     config = TemporalVAEConfig(

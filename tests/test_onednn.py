@@ -1,4 +1,4 @@
-"""The fused oneDNN GRU and Linear (t2m/models/onednn.py) against torch's own layers.
+"""The fused oneDNN GRU and Linear (t2m/accel/onednn.py) against torch's own layers.
 
 Tolerances: the fused layers and torch's sum the same products in another order, so each is
 compared with torch's float32 layer through both sides' distances to a float64 evaluation of the
@@ -14,8 +14,8 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
-from t2m.models import onednn
-from t2m.models.onednn import (
+from t2m.accel import onednn
+from t2m.accel.onednn import (
     FastConv1d,
     FastLinear,
     bidirectional_gru,
@@ -148,7 +148,7 @@ def test_fast_linear_equals_linear_and_quantises():
     view = plain_linear(fast)
     assert type(view) is nn.Linear and view.weight is fast.weight
 
-    from t2m.quantize import quantize_int8
+    from t2m.accel.int8 import quantize_int8
 
     model = nn.Sequential(FastLinear(7, 5))
     quantized = quantize_int8(model)

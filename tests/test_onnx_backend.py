@@ -26,18 +26,19 @@ import torch.nn.functional as F
 pytest.importorskip("onnx", reason="the onnx backend's optional packages are not installed")
 pytest.importorskip("onnxruntime", reason="the onnx backend's optional packages are not installed")
 
-from t2m.config import TemporalVAEConfig, TextEncoderConfig  # noqa: E402
-from t2m.models.fast_recurrence import generation_plan, set_generation_plan  # noqa: E402
-from t2m.models.temporal_vae import TemporalVAE  # noqa: E402
-from t2m.onnx_backend import (  # noqa: E402
+from t2m.accel import accelerate  # noqa: E402
+from t2m.accel.int8 import quantize_int8  # noqa: E402
+from t2m.accel.onnx import (  # noqa: E402
     BATCHED_FROM,
     OnnxGenerationPlan,
     session,
     step_model,
     step_weights,
 )
+from t2m.accel.plans import generation_plan  # noqa: E402
+from t2m.config import TemporalVAEConfig, TextEncoderConfig  # noqa: E402
+from t2m.models.temporal_vae import TemporalVAE  # noqa: E402
 from t2m.pipeline import TextToMotion  # noqa: E402
-from t2m.quantize import quantize_int8  # noqa: E402
 
 WORD_DIM, L, CODE, LATENT = 12, 9, 16, 6
 CONFIG = TemporalVAEConfig(
@@ -49,7 +50,7 @@ def case(seed: int, batch: int, steps: int):
     """A random model (torch seed ``seed``) -> (model, encode_text of random words, per-item
     snippet counts (steps, steps - 3, ...), noise, initial code)."""
     torch.manual_seed(seed)
-    vae = TemporalVAE(WORD_DIM, CODE, CONFIG).eval()
+    vae = accelerate(TemporalVAE(WORD_DIM, CODE, CONFIG)).eval()
     generator = torch.Generator().manual_seed(0)
     words = torch.randn(batch, L, WORD_DIM, generator=generator)
     pos = F.one_hot(torch.randint(0, 15, (batch, L), generator=generator), 15).float()
@@ -67,7 +68,7 @@ def onnx_copy(vae: TemporalVAE, precision: str) -> TemporalVAE:
     plan = OnnxGenerationPlan(copied, precision)
     if precision == "int8":
         copied = quantize_int8(copied, inplace=True, plan=False)
-    set_generation_plan(copied, plan)
+    copied.set_rollout(plan)
     return copied
 
 
@@ -113,7 +114,7 @@ def test_pipeline_backend_onnx_stays_close_to_torch(tiny_run, precision):
     torch_pipe = TextToMotion.from_checkpoints(tiny_run, precision=precision)
     onnx_pipe = TextToMotion.from_checkpoints(tiny_run, precision=precision, backend="onnx")
     assert onnx_pipe.backend == "onnx"
-    assert isinstance(generation_plan(onnx_pipe.vae), OnnxGenerationPlan)
+    assert isinstance(onnx_pipe.vae.generation_rollout, OnnxGenerationPlan)
     kwargs = dict(num_samples=2, lengths=48, seed=5)
     reference = torch_pipe.generate(["a person walks forward"], **kwargs)[0]
     result = onnx_pipe.generate(["a person walks forward"], **kwargs)[0]
@@ -136,9 +137,9 @@ def test_fp32_pipeline_leaves_the_callers_model_on_torch(tiny_run):
         backend="onnx",
     )
     assert onnx_pipe.vae is not pipe.vae
-    assert not isinstance(generation_plan(pipe.vae), OnnxGenerationPlan)
+    assert not isinstance(pipe.vae.generation_rollout, OnnxGenerationPlan)
     int8 = onnx_pipe.with_precision("int8")  # from the float plan under the ONNX one
-    assert int8.backend == "onnx" and isinstance(generation_plan(int8.vae), OnnxGenerationPlan)
+    assert int8.backend == "onnx" and isinstance(int8.vae.generation_rollout, OnnxGenerationPlan)
 
 
 def test_onnx_backend_refuses_what_it_cannot_run(tiny_run):
@@ -168,7 +169,7 @@ def test_blockwise_int8_is_what_onnx_runtimes_quantiser_makes():
     from onnx import TensorProto, helper, numpy_helper
     from onnxruntime.quantization.matmul_nbits_quantizer import MatMulNBitsQuantizer
 
-    from t2m.onnx_backend import INT8_BLOCK, blockwise_int8
+    from t2m.accel.onnx import INT8_BLOCK, blockwise_int8
 
     weight = np.random.default_rng(0).standard_normal((300, 7)).astype(np.float32)  # (I, O)
     weight[:, 3] = 0.0  # an all-zero column
@@ -208,7 +209,7 @@ def test_int8_plan_keeps_nothing_of_the_float_model():
             parameter.fill_(float("nan"))
     quantized = quantize_int8(vae, plan=False)
     assert generation_plan(quantized) is None  # no torch int8 plan: nothing would read it
-    set_generation_plan(quantized, plan)
+    quantized.set_rollout(plan)
     with torch.inference_mode():
         expected = vae.generate(*text, snippets, initial, noise=noise)
         codes = quantized.generate(*text, snippets, initial, noise=noise)

@@ -26,10 +26,18 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from t2m.accel import accelerate
+from t2m.accel.int8 import PartwiseLinear, quantize_int8
+from t2m.accel.plans import PackedLinear, generation_plan
+from t2m.accel.recurrence import fast_forward
 from t2m.config import TemporalVAEConfig, TextEncoderConfig
-from t2m.models.fast_recurrence import PackedLinear, generation_plan
-from t2m.models.temporal_vae import TemporalVAE, gaussian_kl, sinusoidal_table, temporal_vae_loss
-from t2m.quantize import PartwiseLinear, quantize_int8
+from t2m.models.temporal_vae import (
+    StepRollout,
+    TemporalVAE,
+    gaussian_kl,
+    sinusoidal_table,
+    temporal_vae_loss,
+)
 from tests.tolerances import U, as_float64, assert_same_rounding, gamma, max_diff, sin_cos_bound
 
 WORD_DIM, L, CODE, LATENT = 12, 9, 16, 6
@@ -43,8 +51,16 @@ CLOCK = dataclasses.replace(PROGRESS, count_clock=True)
 
 
 def make_vae(seed: int = 0, config: TemporalVAEConfig = CONFIG) -> TemporalVAE:
+    """A random model, accelerated (:func:`t2m.accel.accelerate`): it trains through the fused
+    pass and generates through its plan, as the commands' models do."""
     torch.manual_seed(seed)
-    return TemporalVAE(WORD_DIM, CODE, config)
+    return accelerate(TemporalVAE(WORD_DIM, CODE, config))
+
+
+def training(vae: TemporalVAE, fast: bool) -> TemporalVAE:
+    """``vae`` training through the fused pass (``fast``) or its own :meth:`rollout`."""
+    vae.set_training_pass(fast_forward if fast else None)
+    return vae
 
 
 def text(vae: TemporalVAE, batch: int = 3, seed: int = 0):
@@ -80,7 +96,9 @@ def test_fast_forward_equals_the_plain_step(teacher_forcing, config):
         parameters = dict(model.named_parameters())
         dtype = next(model.parameters()).dtype
         inputs = [x.to(dtype) for x in (codes, initial, noise)]
-        outputs = model(*text(model), inputs[0], inputs[1], teacher_forcing, inputs[2], fast=fast)
+        outputs = training(model, fast)(
+            *text(model), inputs[0], inputs[1], teacher_forcing, inputs[2]
+        )
         grads = torch.autograd.grad(
             loss_of(outputs, inputs[0]), list(parameters.values()), allow_unused=True
         )
@@ -102,7 +120,7 @@ def test_fast_forward_equals_the_plain_step(teacher_forcing, config):
 def test_prior_learns_from_the_kl_only(fast):
     vae = make_vae()
     codes, noise = randn(2, 5, CODE, seed=1), randn(2, 5, LATENT, seed=2)
-    outputs = vae(*text(vae, 2), codes, torch.zeros(CODE), False, noise, fast=fast)
+    outputs = training(vae, fast)(*text(vae, 2), codes, torch.zeros(CODE), False, noise)
     prior = [p for name, p in vae.named_parameters() if name.startswith("prior")]
     grads = torch.autograd.grad(
         outputs["codes"].square().sum(), prior, allow_unused=True, retain_graph=True
@@ -143,7 +161,9 @@ def test_generate_is_the_step_by_step_rollout_with_explicit_or_drawn_noise(confi
     with torch.no_grad():
         manual = manual_rollout(vae, features, sentence, mask, num_snippets, initial, noise)
     valid = torch.arange(10)[None, :, None] < num_snippets[:, None, None]
-    plain = vae.generate(features, sentence, mask, num_snippets, initial, noise=noise, fast=False)
+    plain = vae.generate(
+        features, sentence, mask, num_snippets, initial, noise=noise, rollout=StepRollout(vae)
+    )
     assert torch.equal(plain, manual * valid)
     # the generation plan: the same sums in another order
     vae64 = as_float64(vae)
@@ -332,8 +352,9 @@ def test_training_reads_the_counts_and_the_crop(fast):
         torch.tensor([4, 0, 2]),
         torch.rand(3, 7, generator=torch.Generator().manual_seed(4)),
     )
-    given = vae(*text(vae), codes, initial, True, noise, fast=fast, counts=counts, done=done)
-    plain = vae(*text(vae), codes, initial, True, noise, fast=fast)
+    training(vae, fast)
+    given = vae(*text(vae), codes, initial, True, noise, counts=counts, done=done)
+    plain = vae(*text(vae), codes, initial, True, noise)
     # the same pass, teacher-forced step by step with those time codes
     features, sentence, mask = text(vae)
     time_codes = vae.time_codes(torch.full((3,), 7), 7, counts=counts, done=done)
@@ -349,7 +370,7 @@ def test_training_reads_the_counts_and_the_crop(fast):
     # order, each within 16x the other's distance to the float64 pass
     vae64 = as_float64(vae)
     features64, sentence64, mask64 = text(vae64)
-    given64 = vae64(
+    given64 = training(vae64, fast)(
         features64,
         sentence64,
         mask64,
@@ -357,7 +378,6 @@ def test_training_reads_the_counts_and_the_crop(fast):
         initial.double(),
         True,
         noise.double(),
-        fast=fast,
         counts=counts,
         done=done.double(),
     )
@@ -407,9 +427,10 @@ def test_bf16_autocast_is_close_to_float32(fast):
     vae = make_vae().eval()
     features, sentence, mask = text(vae, 2)
     codes, noise = randn(2, 5, CODE, seed=1), randn(2, 5, LATENT, seed=2)
-    reference = vae(features, sentence, mask, codes, torch.zeros(CODE), False, noise, fast=fast)
+    training(vae, fast)
+    reference = vae(features, sentence, mask, codes, torch.zeros(CODE), False, noise)
     with torch.autocast("cpu", dtype=torch.bfloat16):
-        low = vae(features, sentence, mask, codes, torch.zeros(CODE), False, noise, fast=fast)
+        low = vae(features, sentence, mask, codes, torch.zeros(CODE), False, noise)
         generated = vae.generate(
             features, sentence, mask, torch.tensor([5, 4]), torch.zeros(CODE), noise=noise
         )
@@ -453,7 +474,9 @@ def test_int8_copy_is_close_to_float32():
     # its plan was quantised with it; a copy of the quantised model, planless, runs the rollout
     assert generation_plan(int8) is not None
     assert "quantized" in type(generation_plan(int8).prior_gates).__module__
-    plain = int8.generate(features, sentence, mask, num_snippets, initial, noise=noise, fast=False)
+    plain = int8.generate(
+        features, sentence, mask, num_snippets, initial, noise=noise, rollout=StepRollout(int8)
+    )
     # the plan quantises its stacked activations over other ranges than the rollout's: two int8
     # errors of the size above, each 2.2% of the largest code (observed), independent, so about
     # sqrt(2) x 2.2% = 3.1% apart. Observed 2.72%; 5% leaves 1.8x (the same 5% bound as each
@@ -481,14 +504,14 @@ def test_generation_plan_follows_the_weights_and_bfloat16():
     vae64 = as_float64(vae)
     args64 = (*text(vae64), args[3], args[4].double())
     exact = vae64.generate(*args64, noise=noise.double())
-    assert_same_rounding(after, vae.generate(*args, noise=noise, fast=False), exact)
+    assert_same_rounding(after, vae.generate(*args, noise=noise, rollout=StepRollout(vae)), exact)
     assert (after - before)[:, :3].abs().min() > 0.5
     copied = copy.deepcopy(vae)  # the plan is not part of the model
     assert torch.equal(copied.generate(*args, noise=noise), after)
     low = copy.deepcopy(vae).to(torch.bfloat16)
     low_args = (features.bfloat16(), sentence.bfloat16(), *args[2:4], args[4].bfloat16())
     planned = low.generate(*low_args, noise=noise.bfloat16()).float()
-    plain = low.generate(*low_args, noise=noise.bfloat16(), fast=False).float()
+    plain = low.generate(*low_args, noise=noise.bfloat16(), rollout=StepRollout(low)).float()
     # a bfloat16 model, the plan's stacked products against the step's: each rounds its outputs
     # to 8 bits (2^-9 relative) at other points, about 0.6% of the largest code from float32
     # (observed); observed 0.41% apart, 3% leaves 7x (a plan left on float32 weights fails
@@ -564,7 +587,7 @@ def test_float_plan_shares_the_model_weights_and_training_goes_on():
     vae.eval()
     after = vae.generate(*args, noise=noise)
     assert (after - before).abs().max() > 1e-3
-    plain = vae.generate(*args, noise=noise, fast=False)
+    plain = vae.generate(*args, noise=noise, rollout=StepRollout(vae))
     # the plan, through the views, against the step: the same sums in another order (a plan
     # still on the old weights would be more than 1e-3 off: above)
     vae64 = as_float64(vae)
@@ -577,7 +600,7 @@ def test_int8_linear_of_blocks_is_quantize_dynamic_of_the_stack():
 
     from torch.ao.quantization import quantize_dynamic
 
-    from t2m.quantize import int8_linear
+    from t2m.accel.int8 import int8_linear
 
     blocks = [randn(300, 16, seed=0), randn(7, 16, seed=1) * 3, randn(40, 16, seed=2)[:, :16]]
     biases = [randn(300, seed=3), randn(7, seed=4), randn(40, seed=5)]

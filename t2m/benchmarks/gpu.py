@@ -127,7 +127,7 @@ def generation(device: torch.device, repeats: int) -> dict:
 
 def cuda_graph(device: torch.device, repeats: int) -> dict:
     """The 49-step recurrent loop (generation plan, batch 1, fp32) eagerly and as a CUDA graph."""
-    from t2m.models.fast_recurrence import generation_plan
+    from t2m.accel.plans import generation_plan
 
     pipe = _paper_pipeline(device, "fp32")
     vae = pipe.vae
@@ -171,6 +171,7 @@ def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
     """One process of :func:`ddp`: the generator stage's objective in DDP, as training wraps it."""
     import torch.distributed as dist
 
+    from t2m.accel import accelerate
     from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder
     from t2m.models.temporal_vae import TemporalVAE
@@ -182,9 +183,9 @@ def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
     torch.cuda.set_device(device)
     config = paper()
     torch.manual_seed(0)
-    autoencoder = MovementAutoencoder(263, config.autoencoder.model)
+    autoencoder = accelerate(MovementAutoencoder(263, config.autoencoder.model))
     code_size = config.autoencoder.model.code_size
-    vae = TemporalVAE(300, code_size, config.generator.model)
+    vae = accelerate(TemporalVAE(300, code_size, config.generator.model))
     objective = GeneratorObjective(
         vae, autoencoder.encoder, autoencoder.decoder, torch.zeros(code_size), config
     ).to(device)

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from dataset_tools import humanml3d
-from t2m import onnx_backend
+from t2m.accel import onnx as onnx_backend
 from t2m.config import paper
 from t2m.data.normalization import Normalizer
 from t2m.data.words import BUILTIN_GLOVE, load_vectorizer

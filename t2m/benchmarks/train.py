@@ -25,6 +25,7 @@ from collections.abc import Callable
 import torch
 import torch.nn.functional as F
 
+from t2m.accel import accelerate
 from t2m.config import preset as preset_config
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.models.evaluator import Evaluator, contrastive_loss
@@ -87,7 +88,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0, preset: str
     }
 
     # -- stage 1: autoencoder, batch 128 windows of 24 frames
-    ae = MovementAutoencoder(FEATURE_DIM, config.autoencoder.model).to(device_)
+    ae = accelerate(MovementAutoencoder(FEATURE_DIM, config.autoencoder.model).to(device_))
     ae_opt = adam(ae.parameters(), lr=config.autoencoder.lr)
     windows = torch.randn(
         config.autoencoder.batch_size,
@@ -110,7 +111,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0, preset: str
     )
 
     # -- stage 2: text2length, batch 64
-    estimator = LengthEstimator(word_dim, config.length.model).to(device_)
+    estimator = accelerate(LengthEstimator(word_dim, config.length.model).to(device_))
     len_opt = adam(estimator.parameters(), lr=config.length.lr)
     words, pos, lengths = _text(config.length.batch_size, generator, device_, word_dim)
     classes = torch.randint(10, 50, (config.length.batch_size,), generator=generator).to(device_)
@@ -131,7 +132,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0, preset: str
     # -- stage 3: temporal VAE, batch 32, 49 snippets (196 frames)
     batch, snippets = config.generator.batch_size, config.generator.end_snippets
     code_size = config.autoencoder.model.code_size
-    vae = TemporalVAE(word_dim, code_size, config.generator.model).to(device_)
+    vae = accelerate(TemporalVAE(word_dim, code_size, config.generator.model).to(device_))
     t2m_opt = adam(
         [
             {"params": vae.parameters(), "lr": config.generator.lr},
@@ -198,6 +199,7 @@ def run(quick: bool = False, device: str = "auto", threads: int = 0, preset: str
     evaluator = Evaluator(
         word_dim, FEATURE_DIM, config.autoencoder.model, config.evaluator.model
     ).to(device_)
+    accelerate(evaluator)
     eval_trainable = [p for p in evaluator.parameters() if p.requires_grad]
     eval_opt = adam(eval_trainable, lr=config.evaluator.lr)
     motion_lengths = torch.randint(10, 50, (batch,), generator=generator).to(device_) * 4

@@ -157,7 +157,7 @@ def features_row(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
 
 def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[], object]]:
     from dataset_tools.texts import tag_prompts
-    from t2m import onnx_backend
+    from t2m.accel import onnx as onnx_backend
     from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.models.autoencoder import MovementDecoder
@@ -218,6 +218,7 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
 
 
 def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
+    from t2m.accel import accelerate
     from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder
     from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
@@ -229,9 +230,9 @@ def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
     motion = torch.randn(batch, FRAMES, FEATURES, generator=generator)
     # ours
     torch.manual_seed(0)
-    ae = MovementAutoencoder(FEATURES, config.autoencoder.model)
+    ae = accelerate(MovementAutoencoder(FEATURES, config.autoencoder.model))
     ae.encoder.eval().requires_grad_(False)
-    vae = TemporalVAE(WORD_DIM, 512, config.generator.model)
+    vae = accelerate(TemporalVAE(WORD_DIM, 512, config.generator.model))
     optimizer = adam(
         [{"params": vae.parameters()}, {"params": ae.decoder.parameters(), "lr": 2e-5}], lr=2e-4
     )
@@ -297,6 +298,7 @@ def _sides(ours: Callable[[bool], None], original: Callable[[], None]) -> dict:
 
 
 def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], object]]]:
+    from t2m.accel import accelerate
     from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
     from t2m.models.evaluator import Evaluator, contrastive_loss
@@ -310,7 +312,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
 
     # autoencoder, batch 128 x 24 frames
     windows = torch.randn(128, 24, FEATURES, generator=generator)
-    ae = MovementAutoencoder(FEATURES, config.autoencoder.model).train()
+    ae = accelerate(MovementAutoencoder(FEATURES, config.autoencoder.model)).train()
     ae_opt = adam(ae.parameters(), lr=1e-4)
 
     def ours_ae(bf16: bool) -> None:
@@ -337,7 +339,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     # length estimator, batch 64
     text64 = random_text(64, generator)
     classes = torch.randint(10, 50, (64,), generator=generator)
-    estimator = LengthEstimator(WORD_DIM, config.length.model).train()
+    estimator = accelerate(LengthEstimator(WORD_DIM, config.length.model)).train()
     length_opt = adam(estimator.parameters(), lr=1e-4)
 
     def ours_length(bf16: bool) -> None:
@@ -367,7 +369,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
     motion = torch.randn(32, FRAMES, FEATURES, generator=generator)
     motion_lengths = torch.randint(10, 50, (32,), generator=generator) * 4
     evaluator = Evaluator(WORD_DIM, FEATURES, config.autoencoder.model, config.evaluator.model)
-    evaluator.train()
+    accelerate(evaluator).train()
     trainable = [p for p in evaluator.parameters() if p.requires_grad]
     eval_opt = adam(trainable, lr=1e-4)
 
@@ -454,7 +456,7 @@ def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[],
 
 def memory_sides() -> tuple[str, ...]:
     """Ours: the precisions, and the ONNX Runtime backend's when it is installed."""
-    from t2m import onnx_backend
+    from t2m.accel import onnx as onnx_backend
 
     onnx = onnx_backend.ONNX_PRECISIONS if onnx_backend.available() else ()
     torch_sides = ("fp32", "bf16", "int8") if _BF16["run"] else ("fp32", "int8")

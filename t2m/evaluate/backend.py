@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from dataset_tools.skeleton import DatasetSpec
+from dataset_tools.spec import DatasetSpec
 from t2m.data.dataset import Caption
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors
@@ -92,12 +92,13 @@ class Embedder:
     def from_release(cls, release: Any) -> Embedder:
         """The original T2M release's evaluator (:class:`~t2m.release.ReleaseEvaluator`), fed
         as the release feeds it: its generator's ``meta/`` statistics as stored, its GloVe
-        subset."""
+        subset; accelerated (:func:`t2m.accel.accelerate`) as a run's evaluator stage is."""
+        from t2m.accel import accelerate
         from t2m.release import find_release
 
         meta = find_release(release.path.parents[1]).meta_dir
         return cls(
-            evaluator=release.evaluator,
+            evaluator=accelerate(release.evaluator),
             normalizer=release.normalizer,
             vectorizer=release.vectorizer,
             spec=release.spec,

@@ -16,7 +16,6 @@ import torch.nn.functional as F
 from torch import nn
 
 from t2m.config import AutoencoderConfig
-from t2m.models.onednn import FastConv1d, FastLinear, frame_major
 
 CONTACT_DIMS = 4
 SNIPPET_FRAMES = 4
@@ -40,19 +39,17 @@ class MovementEncoder(nn.Module):
     def __init__(self, input_size: int, config: AutoencoderConfig):
         super().__init__()
         self.net = nn.Sequential(
-            FastConv1d(input_size, config.hidden_size, 4, 2, 1),
+            nn.Conv1d(input_size, config.hidden_size, 4, 2, 1),
             nn.Dropout(config.dropout),
             nn.LeakyReLU(0.2),
-            FastConv1d(config.hidden_size, config.code_size, 4, 2, 1),
+            nn.Conv1d(config.hidden_size, config.code_size, 4, 2, 1),
             nn.Dropout(config.dropout),
             nn.LeakyReLU(0.2),
         )
-        self.out = FastLinear(config.code_size, config.code_size)
+        self.out = nn.Linear(config.code_size, config.code_size)
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        hidden = frame_major(self.net, features, SNIPPET_FRAMES)
-        if hidden is None:
-            hidden = self.net(features.transpose(1, 2)).transpose(1, 2)  # (B, T/4, C)
+        hidden = self.net(features.transpose(1, 2)).transpose(1, 2)  # (B, T/4, C)
         return self.out(hidden)
 
 
@@ -67,7 +64,7 @@ class MovementDecoder(nn.Module):
             nn.ConvTranspose1d(config.hidden_size, output_size, 4, 2, 1),
             nn.LeakyReLU(0.2),
         )
-        self.out = FastLinear(output_size, output_size)
+        self.out = nn.Linear(output_size, output_size)
 
     def forward(self, codes: torch.Tensor) -> torch.Tensor:
         hidden = self.net(codes.transpose(1, 2)).transpose(1, 2)  # (B, 4S, D)

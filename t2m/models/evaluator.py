@@ -15,8 +15,7 @@ from torch import nn
 
 from t2m.config import AutoencoderConfig, EvaluatorConfig
 from t2m.models.autoencoder import CONTACT_DIMS, SNIPPET_FRAMES, MovementEncoder
-from t2m.models.onednn import FastLinear, bidirectional_gru
-from t2m.models.text_encoder import ProjectedTextEncoder
+from t2m.models.text_encoder import ProjectedTextEncoder, bidirectional_gru
 
 
 class MotionEmbedder(nn.Module):
@@ -25,14 +24,14 @@ class MotionEmbedder(nn.Module):
     def __init__(self, code_size: int, hidden_size: int, embedding_size: int):
         super().__init__()
         self.hidden_size = hidden_size
-        self.input_projection = FastLinear(code_size, hidden_size)
+        self.input_projection = nn.Linear(code_size, hidden_size)
         self.gru = nn.GRU(hidden_size, hidden_size, batch_first=True, bidirectional=True)
         self.initial_hidden = nn.Parameter(torch.randn(2, 1, hidden_size) * 0.01)
         self.head = nn.Sequential(
-            FastLinear(2 * hidden_size, hidden_size),
+            nn.Linear(2 * hidden_size, hidden_size),
             nn.LayerNorm(hidden_size),
             nn.LeakyReLU(0.2),
-            FastLinear(hidden_size, embedding_size),
+            nn.Linear(hidden_size, embedding_size),
         )
 
     def forward(self, codes: torch.Tensor, num_snippets: torch.Tensor) -> torch.Tensor:

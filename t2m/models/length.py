@@ -12,9 +12,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from dataset_tools.skeleton import HUMANML3D
+from dataset_tools.spec import HUMANML3D
 from t2m.config import LengthModelConfig
-from t2m.models.onednn import FastLinear
 from t2m.models.text_encoder import TextEncoder
 
 
@@ -28,9 +27,9 @@ class LengthEstimator(nn.Module):
         layers: list[nn.Module] = []
         size = self.text_encoder.output_size + PLAN_INPUTS * config.plan_inputs
         for width in config.mlp_sizes:
-            layers += [FastLinear(size, width), nn.LayerNorm(width), nn.LeakyReLU(0.2)]
+            layers += [nn.Linear(size, width), nn.LayerNorm(width), nn.LeakyReLU(0.2)]
             size = width
-        layers.append(FastLinear(size, config.num_classes))
+        layers.append(nn.Linear(size, config.num_classes))
         self.head = nn.Sequential(*layers)
 
     def forward(

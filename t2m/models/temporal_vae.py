@@ -19,25 +19,25 @@ the autoencoder's code of the mean pose (zero normalised features), passed in by
 
 :meth:`TemporalVAE.step` is the model: one snippet, as written above. :meth:`TemporalVAE.rollout`
 runs it over a sequence: the training pass (teacher-forced or free-running, :meth:`forward`),
-generation (:meth:`generate`) and reading a known prefix (:meth:`prefix_state`). :meth:`forward`
-runs :func:`t2m.models.fast_recurrence.fast_forward` unless ``fast=False``: the same arithmetic
-rearranged (10-20% faster per training step at paper size on a CPU thread, even at demo size),
-tested equal to this file; :meth:`generate` runs its
-:class:`~t2m.models.fast_recurrence.GenerationPlan` unless ``fast=False``, the step's sums
-stacked and folded for sampling, also tested equal to :meth:`rollout`.
+generation (:meth:`generate`) and reading a known prefix (:meth:`prefix_state`).
+
+Faster implementations of the same arithmetic live in :mod:`t2m.accel`, which this module never
+imports: :func:`t2m.accel.accelerate` hands a model its training pass
+(:meth:`TemporalVAE.set_training_pass`) and its generation :class:`Rollout`
+(:meth:`TemporalVAE.set_rollout`); a model without them runs the loops written here.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, Protocol
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from t2m.config import TemporalVAEConfig
-from t2m.models.fast_recurrence import fast_forward, generation_plan
 from t2m.models.text_encoder import TextEncoder
 
 
@@ -84,6 +84,60 @@ class WordContext(NamedTuple):
     keys: torch.Tensor
     values: torch.Tensor
     mask_bias: torch.Tensor
+
+
+class Rollout(Protocol):
+    """What :meth:`TemporalVAE.generate` runs: :meth:`TemporalVAE.step` from the prior over S
+    snippets, as :class:`StepRollout` runs it, by any means (a generation backend).
+
+    Called with the state to start from, the :class:`WordContext`, the time codes (B, S, H), the
+    latent draws (B, S, Z) and optionally ``lengths`` (B,): each item's state stops changing
+    after its last step. Returns the state after the last step (``posterior`` None) and the
+    codes (B, S, C).
+
+    ``tolerance``: the largest difference from :class:`StepRollout`'s codes on the float32
+    model the backend promises, as a share of the largest code (0: the same arithmetic in the
+    same order); ``tests/test_rollouts.py`` holds every backend to it.
+    """
+
+    tolerance: float
+
+    def __call__(
+        self,
+        state: RecurrentState,
+        context: WordContext,
+        time_codes: torch.Tensor,
+        noise: torch.Tensor,
+        lengths: torch.Tensor | None = None,
+    ) -> tuple[RecurrentState, torch.Tensor]: ...
+
+
+class StepRollout:
+    """The plain :class:`Rollout`: :meth:`TemporalVAE.rollout` from the prior, step by step
+    (what :meth:`TemporalVAE.generate` runs when no other rollout is set)."""
+
+    tolerance = 0.0
+
+    def __init__(self, vae: TemporalVAE):
+        self.vae = vae
+
+    def __call__(
+        self,
+        state: RecurrentState,
+        context: WordContext,
+        time_codes: torch.Tensor,
+        noise: torch.Tensor,
+        lengths: torch.Tensor | None = None,
+    ) -> tuple[RecurrentState, torch.Tensor]:
+        final, outputs = self.vae.rollout(state, context, time_codes, noise, lengths=lengths)
+        return final, outputs.code
+
+
+TrainingPass = Callable[..., dict[str, torch.Tensor]]
+"""A replacement for :meth:`TemporalVAE.forward`'s loop: called with the model, word features,
+sentence, word mask, target codes, initial code, teacher forcing, noise and time codes (the
+arguments of :meth:`~TemporalVAE.forward` after its defaults are filled in), it returns what
+:meth:`~TemporalVAE.forward` returns."""
 
 
 class RecurrentBlock(nn.Module):
@@ -149,6 +203,18 @@ class TemporalVAE(nn.Module):
         self.register_buffer(
             "time_table", sinusoidal_table(config.max_snippets, hidden), persistent=False
         )
+        # set by t2m.accel.accelerate; None: the loops of this file
+        self.training_pass: TrainingPass | None = None
+        self.generation_rollout: Rollout | None = None
+
+    def set_training_pass(self, training_pass: TrainingPass | None) -> None:
+        """Run :meth:`forward`'s loop with ``training_pass`` (None: :meth:`rollout`)."""
+        self.__dict__["training_pass"] = training_pass
+
+    def set_rollout(self, rollout: Rollout | None) -> None:
+        """Generate with ``rollout`` (None: :class:`StepRollout`). Held as a plain attribute,
+        not a submodule: the state dict stays the model's own."""
+        self.__dict__["generation_rollout"] = rollout
 
     # -- per sequence ------------------------------------------------------------------------
 
@@ -366,7 +432,6 @@ class TemporalVAE(nn.Module):
         initial_code: torch.Tensor,
         teacher_forcing: bool,
         noise: torch.Tensor | None = None,
-        fast: bool = True,
         counts: torch.Tensor | None = None,
         done: torch.Tensor | None = None,
         clause_snippets: torch.Tensor | None = None,
@@ -379,8 +444,6 @@ class TemporalVAE(nn.Module):
             initial_code: (C,) or (B, C), the mean-pose code fed before step 1.
             teacher_forcing: feed the target previous code (else the model's own, detached).
             noise: (B, S, Z) standard normal draws; drawn from the global generator if None.
-            fast: run :func:`t2m.models.fast_recurrence.fast_forward` (same arithmetic, faster);
-                False: :meth:`rollout`.
             counts, done, clause_snippets: the repetitions named (B,) or (B, S), the share of
                 each step's motion (or clause) done (B, S) and its length (B, S), for
                 :meth:`time_codes`; None: no counts, the codes end their motion.
@@ -398,8 +461,8 @@ class TemporalVAE(nn.Module):
         time_codes = self.time_codes(
             snippets_left, steps, counts=counts, done=done, clause_snippets=clause_snippets
         )
-        if fast:
-            return fast_forward(
+        if self.training_pass is not None:  # the same loop, faster (t2m.accel)
+            return self.training_pass(
                 self,
                 word_features,
                 sentence,
@@ -445,7 +508,7 @@ class TemporalVAE(nn.Module):
         motion_snippets: torch.Tensor | None = None,
         counts: torch.Tensor | None = None,
         return_state: bool = False,
-        fast: bool = True,
+        rollout: Rollout | None = None,
     ) -> torch.Tensor | tuple[torch.Tensor, RecurrentState]:
         """Sample codes from the prior, each item for its own number of snippets.
 
@@ -467,8 +530,8 @@ class TemporalVAE(nn.Module):
             counts: (B,) the repetitions each caption names, for a model with
                 ``config.count_clock`` (:attr:`t2m.data.words.EncodedText.count`); None: none.
             return_state: also return each item's state after its last step.
-            fast: run the model's :class:`~t2m.models.fast_recurrence.GenerationPlan` (the same
-                sums rearranged, tested equal); False: :meth:`rollout`.
+            rollout: what runs the steps; None: the rollout set by :meth:`set_rollout`
+                (:func:`t2m.accel.accelerate`), else :class:`StepRollout`.
 
         Returns: codes (B, max(num_snippets), C), rows past an item's length zero; with
         ``return_state``, (codes, state).
@@ -508,8 +571,7 @@ class TemporalVAE(nn.Module):
             if initial_code is None:
                 raise ValueError("generate needs an initial_code or a state to start from")
             state = self.initial_state(sentence, initial_code)
-        plan = generation_plan(self) if fast else None
-        rollout = self._prior_rollout if plan is None else plan
+        rollout = rollout or self.generation_rollout or StepRollout(self)
         final, codes = rollout(
             state,
             self.word_context(word_features, word_mask),
@@ -520,18 +582,6 @@ class TemporalVAE(nn.Module):
         valid = torch.arange(steps, device=device)[None, :] < num_snippets[:, None]
         codes = codes * valid[..., None]  # (B, S, C)
         return (codes, final) if return_state else codes
-
-    def _prior_rollout(
-        self,
-        state: RecurrentState,
-        context: WordContext,
-        time_codes: torch.Tensor,
-        noise: torch.Tensor,
-        lengths: torch.Tensor | None = None,
-    ) -> tuple[RecurrentState, torch.Tensor]:
-        """:meth:`rollout` from the prior -> (state, codes (B, S, C))."""
-        final, outputs = self.rollout(state, context, time_codes, noise, lengths=lengths)
-        return final, outputs.code
 
     def prefix_state(
         self,

@@ -14,10 +14,21 @@ from __future__ import annotations
 
 import torch
 from torch import nn
+from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
 
 from t2m.config import TextEncoderConfig
 from t2m.data.words import NUM_POS
-from t2m.models.onednn import FastLinear, bidirectional_gru
+
+
+def bidirectional_gru(
+    gru: nn.GRU, inputs: torch.Tensor, lengths: torch.Tensor, h0: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``gru`` (bidirectional, batch first) over ``inputs`` (B, L, I) of ``lengths`` (B,) from
+    ``h0`` (2, B, H) -> (outputs (B, L, 2H), zero past each length; last states (2, B, H))."""
+    packed = pack_padded_sequence(inputs, lengths.cpu(), batch_first=True, enforce_sorted=False)
+    outputs, last = gru(packed, h0)
+    outputs, _ = pad_packed_sequence(outputs, batch_first=True, total_length=inputs.shape[1])
+    return outputs, last
 
 
 class TextEncoder(nn.Module):
@@ -35,8 +46,8 @@ class TextEncoder(nn.Module):
         self.hidden_size = config.hidden_size
         self.flip_backward_words = config.flip_backward_words
         self.embedding = nn.Embedding(vocab_size, word_dim) if vocab_size > 0 else None
-        self.pos_embedding = FastLinear(NUM_POS, word_dim)
-        self.input_projection = FastLinear(word_dim, config.hidden_size)
+        self.pos_embedding = nn.Linear(NUM_POS, word_dim)
+        self.input_projection = nn.Linear(word_dim, config.hidden_size)
         self.gru = nn.GRU(
             config.hidden_size, config.hidden_size, batch_first=True, bidirectional=True
         )
@@ -57,8 +68,8 @@ class TextEncoder(nn.Module):
         return self.input_projection(words + self.pos_embedding(pos))
 
     def _run(self, words: torch.Tensor, pos: torch.Tensor, lengths: torch.Tensor):
-        """The GRU over each caption's tokens (:func:`t2m.models.onednn.bidirectional_gru`):
-        (outputs (B, L, 2H), zero past each length; last states (2, B, H))."""
+        """The GRU over each caption's tokens: (outputs (B, L, 2H), zero past each length; last
+        states (2, B, H))."""
         inputs = self.embed(words, pos)
         hidden = self.initial_hidden.expand(2, inputs.shape[0], self.hidden_size).contiguous()
         return bidirectional_gru(self.gru, inputs, lengths, hidden)
@@ -99,10 +110,10 @@ class ProjectedTextEncoder(nn.Module):
         self.encoder = TextEncoder(word_dim, config, vocab_size)
         hidden = config.hidden_size
         self.head = nn.Sequential(
-            FastLinear(2 * hidden, hidden),
+            nn.Linear(2 * hidden, hidden),
             nn.LayerNorm(hidden),
             nn.LeakyReLU(0.2),
-            FastLinear(hidden, output_size),
+            nn.Linear(hidden, output_size),
         )
 
     def forward(

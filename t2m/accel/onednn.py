@@ -1,22 +1,23 @@
 """Float32 products through oneDNN on the CPU, gradients included: a one-layer bidirectional GRU
-over captions of different lengths as one autograd node (:func:`bidirectional_gru`), a Linear
-(:class:`FastLinear`) and the autoencoder's halving convolution (:class:`FastConv1d`), each
-tested equal to the torch layer it stands for (``tests/test_onednn.py``) and holding the same
-parameters (checkpoints do not change).
+over captions of different lengths as one autograd node (:class:`FusedGRU`), a Linear
+(:class:`FastLinear`) and the autoencoder's halving convolution (:class:`FastConv1d`), each a
+subclass of the torch layer it stands for, tested equal to it (``tests/test_onednn.py``) and
+holding the same parameters (checkpoints do not change). :func:`t2m.accel.accelerate` puts them
+in place of the plain layers of the models (``__class__`` swapped, parameters untouched).
 
 Why: torch's float32 matrix products on the CPU go to MKL, which runs its AVX2 code on AMD
 processors; oneDNN's products use AVX-512 there and took 0.41-0.52x of ``F.linear``'s time on the
 development machine (AMD EPYC, Zen 5, one thread, 32-6,000 rows; README "oneDNN products"). A
-packed ``nn.GRU`` also records about fifteen autograd nodes per step; :func:`bidirectional_gru`
-is one node:
+packed ``nn.GRU`` also records about fifteen autograd nodes per step; :class:`FusedGRU` is one
+node:
 
 * the input products of every step are one product over all (item, step) rows before the loop;
 * each step reads its hidden state through a weight packed once per call for oneDNN;
 * the backward runs the steps in reverse with the GRU's gradients written out, and each weight's
   gradient is one (3H, N) x (N, I) product over all rows instead of one thin product per step.
 
-Rows are kept time-major and sorted by length, as a ``PackedSequence`` keeps them: the items
-alive at step t are a prefix of the batch, so no step computes padding.
+It reads the rows of the ``PackedSequence`` the model packs: time-major and sorted by length, so
+the items alive at step t are a prefix of the batch and no step computes padding.
 
 Every layer here takes its fused path for float32 CPU tensors outside autocast with oneDNN
 available (:func:`fused_path`) and is the torch layer otherwise (CUDA, bfloat16 autocast,
@@ -28,7 +29,10 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.nn.utils.rnn import pack_padded_sequence, pad_packed_sequence
+from torch.nn.utils.rnn import PackedSequence, pack_padded_sequence, pad_packed_sequence
+
+from t2m.models.autoencoder import SNIPPET_FRAMES, MovementEncoder
+from t2m.models.temporal_vae import TemporalVAE
 
 _ONEDNN = torch.backends.mkldnn.is_available()
 
@@ -83,23 +87,34 @@ def fused_path(inputs: torch.Tensor) -> bool:
 
 
 class _Layout:
-    """Time-major packed rows: step t holds the ``sizes[t]`` longest items (in ``order``), at
-    rows ``offsets[t] : offsets[t] + sizes[t]``; ``index`` maps each row to its (item, step) in a
-    flattened (B * L) padded batch."""
+    """Time-major rows sorted by length, as a ``PackedSequence`` holds them: step t holds the
+    ``sizes[t]`` longest items (in ``order``) at rows ``offsets[t] : offsets[t] + sizes[t]``.
+    Items of equal length keep their batch order (a stable sort), so that the sums over rows of
+    the backward do not depend on how ``pack_padded_sequence`` broke the ties: ``gather`` (None
+    where its order is already this one) takes the packed rows to these."""
 
-    def __init__(self, lengths: torch.Tensor, max_len: int):
-        lengths = lengths.cpu().long()
+    def __init__(self, packed: PackedSequence):
+        self.sizes = packed.batch_sizes.tolist()
+        batch = self.sizes[0]
+        packed_order = (
+            torch.arange(batch) if packed.sorted_indices is None else packed.sorted_indices.cpu()
+        )
+        steps = packed.batch_sizes[None, :] > torch.arange(batch)[:, None]
+        lengths = torch.empty(batch, dtype=torch.long)
+        lengths[packed_order] = steps.sum(1)
         self.order = torch.argsort(-lengths, stable=True)  # longest first
-        sorted_lengths = lengths[self.order]
-        steps = torch.arange(max_len)
-        self.sizes = (sorted_lengths[None, :] > steps[:, None]).sum(1).tolist()  # per step
+        self.restore = torch.argsort(self.order)
         self.offsets = [0]
         for size in self.sizes:
             self.offsets.append(self.offsets[-1] + size)
-        self.index = torch.cat(
-            [self.order[:size] * max_len + t for t, size in enumerate(self.sizes)]
-        )
         self.rows = self.offsets[-1]
+        self.gather = self.scatter = None
+        if not torch.equal(self.order, packed_order):
+            rank = torch.argsort(packed_order)  # item -> its place in the packed rows of a step
+            self.gather = torch.cat(
+                [start + rank[self.order[:size]] for start, size in zip(self.offsets, self.sizes)]
+            )
+            self.scatter = torch.argsort(self.gather)
 
 
 def _gates(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor, hidden: int):
@@ -112,29 +127,29 @@ def _gates(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor, hidden: int):
 
 
 class _BiGRU(torch.autograd.Function):
-    """(inputs (B, L, I), initial states (2, B, H), the two directions' weights) ->
-    (outputs (B, L, 2H), zero past each length; last states (2, B, H))."""
+    """(packed rows (N, I), initial states (2, B, H), the two directions' weights) ->
+    (packed outputs (N, 2H), last states (2, B, H))."""
 
     @staticmethod
-    def forward(ctx, layout: _Layout, inputs, h0, *weights):
-        batch, max_len, _ = inputs.shape
+    def forward(ctx, layout: _Layout, rows, h0, *weights):
         hidden = h0.shape[-1]
-        rows = inputs.reshape(batch * max_len, -1)[layout.index]  # (N, I)
         keep = any(ctx.needs_input_grad[1:])  # the forward itself runs without grad
-        outputs = inputs.new_zeros(batch * max_len, 2 * hidden)
+        outputs = rows.new_empty(layout.rows, 2 * hidden)
         lasts, saved = [], []
         for direction in range(2):
             w_ih, w_hh, b_ih, b_hh = weights[4 * direction : 4 * direction + 4]
             gi_all = _linear(rows, w_ih, b_ih)  # (N, 3H)
             # packing costs about five products of 64 rows: not worth it for a few captions
-            packed = torch.ops.mkldnn._reorder_linear_weight(w_hh) if batch >= 4 else w_hh
+            packed = (
+                torch.ops.mkldnn._reorder_linear_weight(w_hh) if len(layout.order) >= 4 else w_hh
+            )
             h = h0[direction][layout.order].clone()  # (B, H), longest first
-            states = inputs.new_empty(layout.rows, hidden)  # each row's state after its step
+            states = outputs[:, direction * hidden : (direction + 1) * hidden]
             if keep:
-                previous = inputs.new_empty(layout.rows, hidden)
-                gates = inputs.new_empty(layout.rows, 4 * hidden)  # r, z, candidate, W_hn h + b
-            steps = range(max_len) if direction == 0 else range(max_len - 1, -1, -1)
-            for t in steps:
+                previous = rows.new_empty(layout.rows, hidden)
+                gates = rows.new_empty(layout.rows, 4 * hidden)  # r, z, candidate, W_hn h + b
+            steps = range(len(layout.sizes))
+            for t in steps if direction == 0 else reversed(steps):
                 size, start = layout.sizes[t], layout.offsets[t]
                 end = start + size
                 h_t = h[:size]
@@ -145,37 +160,35 @@ class _BiGRU(torch.autograd.Function):
                     gates[start:end] = torch.cat([r, z, candidate, gh[:, 2 * hidden :]], 1)
                 states[start:end] = new
                 h[:size] = new
-            outputs[layout.index, direction * hidden : (direction + 1) * hidden] = states
-            lasts.append(h[torch.argsort(layout.order)])
+            lasts.append(h[layout.restore])
             if keep:
                 saved += [previous, gates]
         if keep:
-            ctx.layout, ctx.shape = layout, (batch, max_len, hidden)
-            ctx.save_for_backward(rows, *saved, *weights)
-        return outputs.view(batch, max_len, 2 * hidden), torch.stack(lasts)
+            ctx.layout = layout
+            ctx.save_for_backward(rows, h0, *saved, *weights)
+        return outputs, torch.stack(lasts)
 
     @staticmethod
     def backward(ctx, grad_outputs, grad_last):
         layout = ctx.layout
-        batch, max_len, hidden = ctx.shape
-        rows, prev_f, gates_f, prev_b, gates_b, *weights = ctx.saved_tensors
+        rows, h0, prev_f, gates_f, prev_b, gates_b, *weights = ctx.saved_tensors
+        hidden = h0.shape[-1]
         if grad_outputs is None:
-            grad_outputs = rows.new_zeros(batch, max_len, 2 * hidden)
+            grad_outputs = rows.new_zeros(layout.rows, 2 * hidden)
         if grad_last is None:
-            grad_last = rows.new_zeros(2, batch, hidden)
-        grad_rows = grad_outputs.reshape(batch * max_len, 2 * hidden)[layout.index]  # (N, 2H)
-        grad_inputs = rows.new_zeros(layout.rows, rows.shape[1])
+            grad_last = torch.zeros_like(h0)
+        grad_rows = rows.new_zeros(layout.rows, rows.shape[1])
         grad_h0, grad_weights = [], []
         for direction, (previous, gates) in enumerate(((prev_f, gates_f), (prev_b, gates_b))):
             w_ih, w_hh, b_ih, b_hh = weights[4 * direction : 4 * direction + 4]
             packed_t = torch.ops.mkldnn._reorder_linear_weight(w_hh.t().contiguous())  # (H, 3H)
-            grad_in = grad_rows[:, direction * hidden : (direction + 1) * hidden]
+            grad_in = grad_outputs[:, direction * hidden : (direction + 1) * hidden]
             grad_gi = rows.new_empty(layout.rows, 3 * hidden)
             grad_gh = rows.new_empty(layout.rows, 3 * hidden)
             dh = grad_last[direction][layout.order].clone()  # (B, H)
             # the reverse of the forward's order of steps
-            steps = range(max_len - 1, -1, -1) if direction == 0 else range(max_len)
-            for t in steps:
+            steps = range(len(layout.sizes))
+            for t in reversed(steps) if direction == 0 else steps:
                 size, start = layout.sizes[t], layout.offsets[t]
                 end = start + size
                 d = dh[:size] + grad_in[start:end]
@@ -187,31 +200,57 @@ class _BiGRU(torch.autograd.Function):
                 grad_gi[start:end] = torch.cat([d_r, d_z, d_candidate], 1)
                 grad_gh[start:end] = torch.cat([d_r, d_z, d_candidate * r], 1)
                 dh[:size] = d * z + _linear(grad_gh[start:end], packed_t)
-            grad_h0.append(dh[torch.argsort(layout.order)])
-            grad_inputs += _matmul(grad_gi, w_ih)
+            grad_h0.append(dh[layout.restore])
+            grad_rows += _matmul(grad_gi, w_ih)
             grad_weights += [
                 _matmul(grad_gi.t(), rows),
                 _matmul(grad_gh.t(), previous),
                 grad_gi.sum(0),
                 grad_gh.sum(0),
             ]
-        grad_padded = rows.new_zeros(batch * max_len, rows.shape[1])
-        grad_padded[layout.index] = grad_inputs
-        return (
-            None,
-            grad_padded.view(batch, max_len, -1),
-            torch.stack(grad_h0),
-            *grad_weights,
-        )
+        return None, grad_rows, torch.stack(grad_h0), *grad_weights
 
 
 def fused_gru(gru: nn.Module, inputs: torch.Tensor) -> bool:
-    """Whether :func:`bidirectional_gru` runs ``gru`` over ``inputs`` fused: a float32
-    ``nn.GRU`` of hidden size 256 or more (:data:`MIN_WEIGHT`) on the fused path."""
-    if type(gru) is not nn.GRU or not fused_path(inputs):
+    """Whether :class:`FusedGRU` runs ``gru`` over ``inputs`` fused: a float32 one-layer
+    bidirectional ``nn.GRU`` of hidden size 256 or more (:data:`MIN_WEIGHT`) on the fused
+    path."""
+    if not isinstance(gru, nn.GRU) or not fused_path(inputs):
+        return False
+    if not (gru.bidirectional and gru.num_layers == 1):
         return False
     weight = gru.weight_hh_l0
     return weight.dtype == torch.float32 and weight.numel() >= 6 * MIN_WEIGHT
+
+
+def _packed_bigru(gru: nn.GRU, packed: PackedSequence, h0: torch.Tensor):
+    """:class:`_BiGRU` over ``packed`` -> (packed outputs, last states (2, B, H))."""
+    weights = [
+        getattr(gru, f"{name}_l0{suffix}")
+        for suffix in ("", "_reverse")
+        for name in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")
+    ]
+    layout = _Layout(packed)
+    rows = (
+        packed.data if layout.gather is None else packed.data[layout.gather.to(packed.data.device)]
+    )
+    outputs, last = _BiGRU.apply(layout, rows, h0, *weights)
+    if layout.scatter is not None:
+        outputs = outputs[layout.scatter.to(outputs.device)]
+    return PackedSequence(
+        outputs, packed.batch_sizes, packed.sorted_indices, packed.unsorted_indices
+    ), last
+
+
+class FusedGRU(nn.GRU):
+    """``nn.GRU`` (same parameters and state dict) that runs a float32 one-layer bidirectional
+    GRU over a ``PackedSequence`` as one autograd node (:func:`fused_gru` says where);
+    elsewhere ``nn.GRU``."""
+
+    def forward(self, inputs, hx=None):
+        if isinstance(inputs, PackedSequence) and hx is not None and fused_gru(self, inputs.data):
+            return _packed_bigru(self, inputs, hx)
+        return super().forward(inputs, hx)
 
 
 def bidirectional_gru(
@@ -220,21 +259,15 @@ def bidirectional_gru(
     """``gru`` (one layer, bidirectional, batch first) over ``inputs`` (B, L, I) of ``lengths``
     (B,) from ``h0`` (2, B, H) -> (outputs (B, L, 2H), zero past each length; last states
     (2, B, H)): what ``gru`` gives over ``pack_padded_sequence(inputs, lengths,
-    enforce_sorted=False)`` padded back to L."""
+    enforce_sorted=False)`` padded back to L, fused where :func:`fused_gru` allows."""
     if not (gru.bidirectional and gru.num_layers == 1 and gru.batch_first):
         raise ValueError("bidirectional_gru needs a one-layer bidirectional batch-first GRU")
-    if fused_gru(gru, inputs):
-        weights = [
-            getattr(gru, f"{name}_l0{suffix}")
-            for suffix in ("", "_reverse")
-            for name in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")
-        ]
-        layout = _Layout(lengths, inputs.shape[1])
-        return _BiGRU.apply(layout, inputs, h0, *weights)
-    max_len = inputs.shape[1]
     packed = pack_padded_sequence(inputs, lengths.cpu(), batch_first=True, enforce_sorted=False)
-    outputs, last = gru(packed, h0)
-    outputs, _ = pad_packed_sequence(outputs, batch_first=True, total_length=max_len)
+    if fused_gru(gru, inputs):
+        outputs, last = _packed_bigru(gru, packed, h0)
+    else:
+        outputs, last = gru(packed, h0)
+    outputs, _ = pad_packed_sequence(outputs, batch_first=True, total_length=inputs.shape[1])
     return outputs, last
 
 
@@ -347,3 +380,50 @@ def frame_major(net: nn.Sequential, inputs: torch.Tensor, factor: int) -> torch.
     for layer in net:
         hidden = layer.frames(hidden) if hasattr(layer, "frames") else layer(hidden)
     return hidden
+
+
+class FastMovementEncoder(MovementEncoder):
+    """:class:`~t2m.models.autoencoder.MovementEncoder` whose convolutions run frame-major
+    (:func:`frame_major`: no transposes between its :class:`FastConv1d` layers) where they can."""
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        hidden = frame_major(self.net, features, SNIPPET_FRAMES)
+        if hidden is None:
+            return super().forward(features)
+        return self.out(hidden)
+
+
+ACCELERATED = {
+    nn.Linear: FastLinear,
+    nn.Conv1d: FastConv1d,
+    nn.GRU: FusedGRU,
+    MovementEncoder: FastMovementEncoder,
+}
+"""Each plain layer and the oneDNN subclass :func:`use_onednn` puts in its place."""
+
+
+def use_onednn(module: nn.Module) -> None:
+    """Swap the layers of ``module`` whose exact type :data:`ACCELERATED` names for their
+    oneDNN subclass, in place (the same parameters, buffers and state dict keys). A temporal
+    VAE's own layers stay as they are (its loops run in :mod:`t2m.accel.recurrence` and
+    :mod:`t2m.accel.plans`): only its text encoder's are swapped."""
+    if isinstance(module, TemporalVAE):
+        use_onednn(module.text_encoder)
+        return
+    fast = ACCELERATED.get(type(module))
+    if fast is not None:
+        module.__class__ = fast
+    for child in module.children():
+        use_onednn(child)
+
+
+def plain_layer(layer: nn.Module) -> nn.Module:
+    """``layer`` as the torch layer it stands for, for code that maps exact types (torch's
+    dynamic quantisation): a :class:`FastLinear` as a new ``nn.Linear`` holding its parameters;
+    any other layer of :data:`ACCELERATED` turned back in place; anything else as it is."""
+    if isinstance(layer, FastLinear):
+        return plain_linear(layer)
+    for plain, fast in ACCELERATED.items():
+        if type(layer) is fast:
+            layer.__class__ = plain
+    return layer

@@ -1,5 +1,5 @@
 """Generation through ONNX Runtime (CPU): the prior / generator step of a
-:class:`~t2m.models.fast_recurrence.GenerationPlan` as one ONNX graph, one session call per snippet.
+:class:`~t2m.accel.plans.GenerationPlan` as one ONNX graph, one session call per snippet.
 
 The graph is written here from the plan's weights (``onnx.helper``, no tracing): the same sums as
 :meth:`GenerationPlan.forward` (stacked products, attention through the per-sequence tables,
@@ -31,6 +31,7 @@ Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Ne
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 import warnings
 from collections.abc import Callable, Sequence
@@ -41,13 +42,19 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 import torch
 
-from t2m.models.fast_recurrence import GenerationPlan, generation_plan
+from t2m.accel.plans import (
+    FLOAT32_TOLERANCE,
+    INT8_TOLERANCE,
+    GenerationPlan,
+    TorchPlanRollout,
+    float_plan,
+)
 
 if TYPE_CHECKING:
     from t2m.models.temporal_vae import RecurrentState, TemporalVAE, WordContext
 
 BACKENDS = ("torch", "onnx")
-"""Generation backends of :class:`t2m.pipeline.TextToMotion`."""
+"""Generation backends: what :func:`t2m.accel.accelerate` runs the generation step with."""
 
 ONNX_PRECISIONS = ("fp32", "int8")
 """What the ONNX Runtime backend runs (bfloat16 has no fast CPU kernels there)."""
@@ -132,7 +139,7 @@ class RowBlocks(NamedTuple):
 
     @staticmethod
     def of(weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor] | None) -> RowBlocks:
-        """A :data:`~t2m.models.fast_recurrence.LinearFactory` that keeps the blocks as they
+        """A :data:`~t2m.accel.plans.LinearFactory` that keeps the blocks as they
         are (``GenerationPlan(vae, RowBlocks.of)`` copies no weight)."""
         detached = [w.detach() for w in weights]
         return RowBlocks(detached, None if biases is None else [b.detach() for b in biases])
@@ -319,7 +326,7 @@ class _Graph:
         )
 
     def gru(self, input_gates: str, hidden_gates: str, hidden: str, size: int) -> str:
-        """:func:`~t2m.models.fast_recurrence.gru_update` (gates (B, 3H) as r, z, n)."""
+        """:func:`~t2m.accel.plans.gru_update` (gates (B, 3H) as r, z, n)."""
         input_rz, input_n = self.split(input_gates, [2 * size, size])
         hidden_rz, hidden_n = self.split(hidden_gates, [2 * size, size])
         reset, update = self.split(
@@ -527,13 +534,13 @@ class WordTables(torch.nn.Module):
 
 class OnnxGenerationPlan:
     """A :class:`GenerationPlan`'s rollout with the step in ONNX Runtime; call it as the plan
-    (:func:`~t2m.models.fast_recurrence.set_generation_plan` makes ``TemporalVAE.generate``
-    use it).
+    (:meth:`TemporalVAE.set_rollout` makes ``TemporalVAE.generate`` use it: a
+    :class:`~t2m.models.temporal_vae.Rollout`).
 
     Made from a float32 model: fp32 holds its generation plan (the tables in torch, the
     session's weights); int8 holds the blockwise int8 weights and the tables as torch int8
     Linears, no float32 weights, so the model may be quantised in place afterwards
-    (:func:`t2m.quantize.quantize_int8` with ``plan=False``: nothing else reads torch's int8
+    (:func:`t2m.accel.int8.quantize_int8` with ``plan=False``: nothing else reads torch's int8
     plan).
 
     The sessions are made on first use, each for the batch sizes it runs (an int8 plan that
@@ -551,18 +558,22 @@ class OnnxGenerationPlan:
 
     def __init__(self, vae: TemporalVAE, precision: str = "fp32", threads: int | None = None):
         require()
-        from t2m.quantize import int8_linear
+        self.vae = vae
+        from t2m.accel.int8 import int8_linear
 
         if precision not in ONNX_PRECISIONS:
             raise ValueError(
                 f"the onnx backend runs {' and '.join(ONNX_PRECISIONS)}, not {precision!r}"
             )
         self.precision = precision
+        self.tolerance = FLOAT32_TOLERANCE if precision == "fp32" else INT8_TOLERANCE
         self.threads = threads or torch.get_num_threads()
         if precision == "fp32":
-            plan = generation_plan(vae)
-            if isinstance(plan, OnnxGenerationPlan):  # a float32 pipeline's model
-                plan = plan.tables
+            rollout = vae.generation_rollout
+            if isinstance(rollout, OnnxGenerationPlan):  # a float32 pipeline's model
+                plan = rollout.tables
+            else:
+                plan = float_plan(vae)
             if plan is None or not isinstance(plan.output_last, torch.nn.Linear):
                 raise ValueError("the onnx backend is made from a float32 model")
             weights = step_weights(plan, "fp32")
@@ -581,6 +592,10 @@ class OnnxGenerationPlan:
         if precision == "int8":
             self._weights[BATCHED_FROM] = None  # from the blockwise ones
         self.sessions = {}  # batch size from which each session runs -> the session
+
+    def __deepcopy__(self, memo: dict):
+        """A copy of the model generates in torch (sessions are not copied)."""
+        return TorchPlanRollout(copy.deepcopy(self.vae, memo))
 
     def _session(self, batch: int):
         """The session for ``batch`` sequences, made on first use."""

@@ -11,8 +11,8 @@ its precision (25% more output error at paper size). So z gets a Linear of its o
 (:class:`PartwiseLinear`, W [x_1, x_2] + b = W_1 x_1 + W_2 x_2 + b) before quantising; giving
 every part its own gained 2% more and cost two more products per step.
 
-A :class:`TemporalVAE` also gets its :class:`~t2m.models.fast_recurrence.GenerationPlan` (what
-``generate`` runs), built from the float weights and quantised Linear by Linear before the model
+A :class:`TemporalVAE` also gets its :class:`~t2m.accel.plans.GenerationPlan` (what
+``generate`` runs, :meth:`~TemporalVAE.set_rollout`), built from the float weights and quantised Linear by Linear before the model
 itself is; the model's own quantised layers serve ``rollout`` and ``prefix_state``.
 
 The error against float32 is tested in ``tests/test_temporal_vae.py`` and measured in
@@ -28,8 +28,8 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from t2m.models.fast_recurrence import GenerationPlan, set_generation_plan
-from t2m.models.onednn import FastLinear, plain_linear
+from t2m.accel.onednn import plain_layer
+from t2m.accel.plans import INT8_TOLERANCE, FixedPlanRollout, GenerationPlan
 from t2m.models.temporal_vae import TemporalVAE
 
 
@@ -61,7 +61,7 @@ def int8_linear(
     weights: Sequence[torch.Tensor], biases: Sequence[torch.Tensor] | None
 ) -> nn.Module:
     """The dynamically quantised Linear of the row blocks ``weights`` stacked (a
-    :data:`~t2m.models.fast_recurrence.LinearFactory`), as ``quantize_dynamic`` makes it from
+    :data:`~t2m.accel.plans.LinearFactory`), as ``quantize_dynamic`` makes it from
     the stacked float weight (the same observer, so the same scale and int8 values), but
     quantised a few rows at a time into the int8 weight: no float copy of the stack, and no
     temporaries as large as the weight (those fragmented the heap: +35 MB resident at paper
@@ -107,8 +107,7 @@ def _convert(module: nn.Module, types: dict[type, type]) -> nn.Module:
     paper-size generation process's peak)."""
     from torch.ao.quantization import default_dynamic_qconfig
 
-    if isinstance(module, FastLinear):
-        module = plain_linear(module)
+    module = plain_layer(module)
     quantized = types.get(type(module))
     if quantized is not None:
         module.qconfig = default_dynamic_qconfig
@@ -143,7 +142,8 @@ def quantize_int8(module: nn.Module, inplace: bool = False, plan: bool = True) -
         for vae in module.modules():
             if isinstance(vae, TemporalVAE):
                 if plan:
-                    set_generation_plan(vae, GenerationPlan(vae, int8_linear))
+                    int8_plan = GenerationPlan(vae, int8_linear)
+                    vae.set_rollout(FixedPlanRollout(vae, int8_plan, INT8_TOLERANCE))
                 latent = vae.config.latent_size
                 block = vae.generator
                 block.input = PartwiseLinear(
