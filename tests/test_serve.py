@@ -26,7 +26,7 @@ from dataset_tools.sources.bvh import BvhOptions, load_bvh_motion
 from t2m.pipeline import TextToMotion
 from t2m.serve import api
 from t2m.serve.results import Expired, ResultStore
-from t2m.serve.server import is_loopback, make_server
+from t2m.serve.server import ROUTES, find_route, is_loopback, make_server
 from t2m.serve.worker import GenerationJob, GenerationWorker, generate_jobs
 
 REPO = Path(__file__).resolve().parents[1]
@@ -79,6 +79,46 @@ def test_the_page_and_its_files_are_served(server):
     for name in ("app.js", "viewer.js", "style.css"):
         status, _, _ = call(server, "GET", f"/static/{name}")
         assert status == 200, name
+
+
+def test_the_page_is_es_modules_served_as_javascript(server):
+    """index.html loads one entry module; every module it reaches is served with a JavaScript
+    type (browsers refuse modules otherwise) under the same policy, and none writes a global."""
+    _, page, _ = call(server, "GET", "/")
+    entries = re.findall(rb'<script type="module" src="/static/([\w.]+)"></script>', page)
+    assert entries == [b"app.js"] and b"<script src" not in page
+    seen, todo = set(), ["app.js"]
+    while todo:
+        name = todo.pop()
+        status, source, response = call(server, "GET", f"/static/{name}")
+        assert status == 200, name
+        assert response.getheader("Content-Type") == "text/javascript; charset=utf-8", name
+        assert "default-src 'self'" in response.getheader("Content-Security-Policy")
+        text = source.decode()
+        assert not re.search(r"\bwindow\.\w+\s*=", text), f"{name} writes a global"
+        seen.add(name)
+        todo += [m for m in re.findall(r'from "\./([\w.]+)"', text) if m not in seen]
+    assert seen == {"app.js", "api.js", "dom.js", "edit.js", "player.js", "viewer.js"}
+    status, answer, response = call(server, "HEAD", "/static/viewer.js")
+    assert status == 200 and answer == b"" and response.getheader("Content-Length") != "0"
+
+
+def test_the_route_table():
+    route, params = find_route("GET", "/api/files/abc/results.json")
+    assert route.handler.__name__ == "get_download"
+    assert params == {"request_id": "abc", "name": "results.json"}
+    assert find_route("HEAD", "/")[0].handler.__name__ == "get_page"
+    assert find_route("POST", "/api/edit")[0].handler.__name__ == "post_edit"
+    for method, path in [
+        ("GET", "/api/edit"),
+        ("POST", "/api/info"),
+        ("GET", "/static/"),
+        ("GET", "/static/a/b.js"),
+        ("GET", "/api/results/"),
+        ("GET", "/api/files/abc"),
+    ]:
+        assert find_route(method, path) == (None, {}), (method, path)
+    assert {(r.method, r.path) for r in ROUTES} >= {("GET", "/api/info"), ("POST", "/api/generate")}
 
 
 def test_generate_returns_joints_and_links_that_match_the_library(server, pipe):
@@ -194,7 +234,11 @@ def test_bad_bodies_routes_and_hosts(server):
     status, answer, _ = call(server, "POST", generate, raw=b" " * (64 * 1024 + 1))
     assert status == 400 and "at most 65536" in answer["error"]
     assert call(server, "GET", generate)[0] == 405
+    status, answer, _ = call(server, "GET", "/api/edit")
+    assert (status, answer["error"]) == (405, "/api/edit takes POST")
     assert call(server, "GET", "/api/nothing")[0] == 404
+    status, answer, _ = call(server, "POST", "/api/info", raw=b"{}")
+    assert (status, answer["error"]) == (404, "no such page or file: /api/info")
     status, answer, _ = call(server, "GET", "/api/info", headers={"Host": "evil.example:80"})
     assert status == 403 and "localhost" in answer["error"]
     assert call(server, "GET", "/api/info", headers={"Host": "localhost:1"})[0] == 200

@@ -5,15 +5,20 @@ its one heavy part (the models) runs on one worker thread either way, so a frame
 an install and an event loop and remove almost nothing from this file. Each connection gets a
 thread; generate requests wait on the :class:`t2m.serve.worker.GenerationWorker` queue.
 
-Routes (the README documents them):
+Routes (the table :data:`ROUTES` below the request handler; docs/webapp.md documents them):
 
-    GET  /                          the page (static/index.html)
-    GET  /static/<file>             the page's script and style (a fixed list of files)
+    GET  /  and  /index.html        the page (static/index.html)
+    GET  /favicon.ico               204: the page has no icon
+    GET  /static/<name>             the page's ES modules and style (the fixed list STATIC_FILES)
     GET  /api/info                  the model, skeleton, limits, precisions, editing support
     POST /api/generate              prompts -> motions (joints) and download links
+    POST /api/edit                  edit an uploaded or generated motion (t2m.serve.editing)
     GET  /api/results/<id>          a request's answer again (the page's history)
     GET  /api/files/<id>/<name>     a download: sampleNN_repRR.npy|bvh|glb|mp4|gif, results.npy|json
-    POST /api/edit                  edit an uploaded motion (t2m.serve.editing)
+
+HEAD is GET without the body. A path that only takes POST answers other methods with 405; any
+other unmatched request is 404. Errors are JSON ``{"error": sentence}``: 400 for bad input, 404
+for no such request or file, 410 for removed files, 503 when busy, 500 with the reason.
 
 Requests whose Host header is not this machine's loopback name are refused while the server is
 bound to a loopback address (a web page elsewhere cannot reach it through DNS rebinding).
@@ -25,11 +30,13 @@ import ipaddress
 import json
 import logging
 import queue
+import re
 import secrets
 import shutil
 import threading
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -47,13 +54,25 @@ from t2m.serve.worker import GenerationJob, GenerationWorker
 logger = logging.getLogger("t2m.serve")
 
 STATIC = Path(__file__).resolve().parent / "static"
-STATIC_FILES = {
-    "index.html": "text/html; charset=utf-8",
-    "style.css": "text/css; charset=utf-8",
-    "app.js": "text/javascript; charset=utf-8",
-    "viewer.js": "text/javascript; charset=utf-8",
-    "edit.js": "text/javascript; charset=utf-8",
+STATIC_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",  # ES modules load only with a JavaScript type
 }
+STATIC_FILES = {
+    name: STATIC_TYPES[Path(name).suffix]
+    for name in (
+        "index.html",
+        "style.css",
+        "app.js",  # the page's entry module; it imports the others
+        "api.js",
+        "dom.js",
+        "edit.js",
+        "player.js",
+        "viewer.js",
+    )
+}
+"""the files served under /static/ and their content types; nothing else in the folder is"""
 LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
 SECURITY_HEADERS = {
     "X-Content-Type-Options": "nosniff",
@@ -247,30 +266,12 @@ class Handler(BaseHTTPRequestHandler):
             self._error(HTTPStatus.FORBIDDEN, "this server answers requests to localhost only")
             return
         path = urlsplit(self.path).path
-        parts = path.strip("/").split("/")
         try:
-            if method == "GET" and path in ("/", "/index.html"):
-                self._static("index.html")
-            elif method == "GET" and path == "/favicon.ico":  # none: say so without an error
-                self._send(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
-            elif method == "GET" and len(parts) == 2 and parts[0] == "static":
-                self._static(parts[1])
-            elif method == "GET" and path == "/api/info":
-                self._json(HTTPStatus.OK, self.app.info())
-            elif method == "POST" and path == "/api/generate":
-                self._json(HTTPStatus.OK, self.app.generate(self._read_json()))
-            elif method == "POST" and path == "/api/edit":
-                limit = self.app.limits.max_edit_body_bytes
-                self._json(HTTPStatus.OK, edit(self.app, self._read_json(limit)))
-            elif method == "GET" and len(parts) == 3 and parts[:2] == ["api", "results"]:
-                self._json(HTTPStatus.OK, self.app.answer(parts[2]))
-            elif method == "GET" and len(parts) == 4 and parts[:2] == ["api", "files"]:
-                path = self.app.store.file(parts[2], parts[3])
-                self._file(path, CONTENT_TYPES[path.suffix], download_name=path.name)
-            elif path in ("/api/generate", "/api/edit"):
-                self._error(HTTPStatus.METHOD_NOT_ALLOWED, f"{path} takes POST")
+            route, params = find_route(method, path)
+            if route is None:
+                self._unrouted(path)
             else:
-                self._error(HTTPStatus.NOT_FOUND, f"no such page or file: {path[:100]}")
+                route.handler(self, **params)
         except UsageError as error:
             self._error(HTTPStatus.BAD_REQUEST, str(error))
         except Expired:
@@ -288,10 +289,42 @@ class Handler(BaseHTTPRequestHandler):
             logger.exception("request %s %s failed", method, path)
             self._error(HTTPStatus.INTERNAL_SERVER_ERROR, f"the server failed: {error}")
 
-    def _static(self, name: str) -> None:
+    def _unrouted(self, path: str) -> None:
+        methods = {route.method for route in ROUTES if route.pattern.fullmatch(path)}
+        if methods == {"POST"}:
+            self._error(HTTPStatus.METHOD_NOT_ALLOWED, f"{path} takes POST")
+        else:
+            self._error(HTTPStatus.NOT_FOUND, f"no such page or file: {path[:100]}")
+
+    # -- the routes' handlers (the table ROUTES below says which answers what) ----------------
+
+    def get_page(self) -> None:
+        self.get_static("index.html")
+
+    def get_no_icon(self) -> None:
+        self._send(HTTPStatus.NO_CONTENT, b"", "image/x-icon")
+
+    def get_static(self, name: str) -> None:
         if name not in STATIC_FILES:
             raise KeyError(name)
         self._file(STATIC / name, STATIC_FILES[name])
+
+    def get_info(self) -> None:
+        self._json(HTTPStatus.OK, self.app.info())
+
+    def post_generate(self) -> None:
+        self._json(HTTPStatus.OK, self.app.generate(self._read_json()))
+
+    def post_edit(self) -> None:
+        payload = self._read_json(self.app.limits.max_edit_body_bytes)
+        self._json(HTTPStatus.OK, edit(self.app, payload))
+
+    def get_result(self, request_id: str) -> None:
+        self._json(HTTPStatus.OK, self.app.answer(request_id))
+
+    def get_download(self, request_id: str, name: str) -> None:
+        path = self.app.store.file(request_id, name)
+        self._file(path, CONTENT_TYPES[path.suffix], download_name=path.name)
 
     def _read_json(self, limit: int | None = None) -> object:
         limit = limit or self.app.limits.max_body_bytes
@@ -313,10 +346,55 @@ class Handler(BaseHTTPRequestHandler):
         self._route("GET")
 
     def do_HEAD(self) -> None:  # noqa: N802
-        self._route("GET")
+        self._route("HEAD")
 
     def do_POST(self) -> None:  # noqa: N802
         self._route("POST")
+
+
+@dataclass(frozen=True)
+class Route:
+    """One row of the route table: ``method`` on ``path`` is answered by ``handler``; a
+    ``<name>`` in the path matches one non-empty segment and reaches the handler as ``name``."""
+
+    method: str
+    path: str
+    handler: Callable[..., None]
+    pattern: re.Pattern = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        parts = re.split(r"<(\w+)>", self.path)  # literal, name, literal, name, ..., literal
+        regex = "".join(
+            re.escape(part) if index % 2 == 0 else f"(?P<{part}>[^/]+)"
+            for index, part in enumerate(parts)
+        )
+        object.__setattr__(self, "pattern", re.compile(regex))
+
+
+ROUTES: tuple[Route, ...] = (
+    Route("GET", "/", Handler.get_page),
+    Route("GET", "/index.html", Handler.get_page),
+    Route("GET", "/favicon.ico", Handler.get_no_icon),
+    Route("GET", "/static/<name>", Handler.get_static),
+    Route("GET", "/api/info", Handler.get_info),
+    Route("POST", "/api/generate", Handler.post_generate),
+    Route("POST", "/api/edit", Handler.post_edit),
+    Route("GET", "/api/results/<request_id>", Handler.get_result),
+    Route("GET", "/api/files/<request_id>/<name>", Handler.get_download),
+)
+"""method + path -> handler, in the order they are tried"""
+
+
+def find_route(method: str, path: str) -> tuple[Route | None, dict[str, str]]:
+    """The route answering ``method`` (HEAD as GET) on ``path`` and its path parameters, or
+    ``(None, {})``."""
+    method = "GET" if method == "HEAD" else method
+    for route in ROUTES:
+        if route.method == method:
+            match = route.pattern.fullmatch(path)
+            if match:
+                return route, match.groupdict()
+    return None, {}
 
 
 class Server(ThreadingHTTPServer):

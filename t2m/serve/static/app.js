@@ -1,11 +1,23 @@
-// The page: the generate form, the player controls, downloads, history and the edit panel.
-// It talks to the server's JSON API only (/api/info, /api/generate, /api/results/<id>).
-"use strict";
+// The page's entry module (index.html loads it; it imports the rest): the generate form,
+// warnings and errors, downloads, the history of requests, and the wiring of the view
+// (viewer.js), its player row (player.js) and the edit panel (edit.js). It talks to the
+// server's JSON API only (/api/info, /api/generate, /api/results/<id>, /api/edit).
+//
+// Timings: every request leaves User Timing marks, "t2m:request" (the click), "t2m:answer"
+// (the answer arrived; its detail is the server's own "timing" from the answer) and
+// "t2m:first-frame" (its first frame drawn), and the measures
+// "t2m:request to answer" and "t2m:request to first frame" (the browser's performance tools
+// show them; the progress line reads the first).
 
-const $ = (id) => document.getElementById(id);
-const state = { info: null, current: null, viewer: null, history: [] };
-// Timings of the last generation, for the page's tests: click, answer, first drawn frame (ms).
-window.t2mTiming = null;
+import { callApi, postJson } from "./api.js";
+import { $ } from "./dom.js";
+import { setUpEditPanel } from "./edit.js";
+import { bindPlayer, playMotions } from "./player.js";
+import { StickViewer } from "./viewer.js";
+
+const HISTORY_KEY = "t2m-history";
+const viewer = new StickViewer($("view"));
+const state = { info: null, current: null, history: [], editPanel: null };
 
 function showError(message) {
   const box = $("error");
@@ -19,24 +31,22 @@ function showWarnings(lines) {
   box.hidden = lines.length === 0;
 }
 
-async function callApi(url, options) {
-  let response;
-  try {
-    response = await fetch(url, options);
-  } catch (error) {
-    throw new Error("the server cannot be reached (is python -m t2m.serve still running?)");
-  }
-  let data = null;
-  try { data = await response.json(); } catch (error) { data = null; }
-  if (!response.ok) {
-    throw new Error((data && data.error) || `the server answered ${response.status}`);
-  }
-  return data;
+function formSettings() {
+  return {
+    samples: Number($("samples").value),
+    seed: Number($("seed").value),
+    precision: $("precision").value,
+  };
 }
 
-async function loadInfo() {
-  const info = await callApi("/api/info");
-  state.info = info;
+function generateBody() {
+  const body = { prompts: $("prompts").value.split("\n"), ...formSettings() };
+  if ($("length-mode").value === "seconds") body.seconds = Number($("seconds").value);
+  return body;
+}
+
+// The form's limits from /api/info.
+function applyInfo(info) {
   const seconds = (f) => (f / info.fps).toFixed(1);
   $("model-info").textContent =
     `model: ${info.checkpoints} (${info.dataset}, ${info.fps} fps, ` +
@@ -53,27 +63,28 @@ async function loadInfo() {
     $("length-mode").options[0].disabled = true;
     $("seconds-label").hidden = false;
   }
-  setUpEditPanel(info.edit);
-  const saved = JSON.parse(sessionStorage.getItem("t2m-history") || "null");
+}
+
+async function loadInfo() {
+  const info = await callApi("/api/info");
+  state.info = info;
+  applyInfo(info);
+  state.editPanel = setUpEditPanel(info.edit, {
+    info,
+    current: () => state.current,
+    settings: formSettings,
+    run: (makeBody) => runRequest("/api/edit", makeBody, "editing"),
+  });
+  // the history survives a reload of the page, not a restart of the server
+  const saved = JSON.parse(sessionStorage.getItem(HISTORY_KEY) || "null");
   state.history = saved && saved.boot === info.boot ? saved.items : [];
   renderHistory();
 }
 
-function request() {
-  const body = {
-    prompts: $("prompts").value.split("\n"),
-    samples: Number($("samples").value),
-    seed: Number($("seed").value),
-    precision: $("precision").value,
-  };
-  if ($("length-mode").value === "seconds") body.seconds = Number($("seconds").value);
-  return body;
-}
-
-// Send a request whose answer is motions (generate, edit) and show them; the button shows
-// progress, errors are shown in words.
+// Send a request whose answer is motions (generate, edit) and show them; the progress line
+// counts the seconds, errors are shown in words.
 async function runRequest(url, makeBody, busyText) {
-  const clicked = performance.now();
+  const clicked = performance.mark("t2m:request").startTime;
   showError("");
   showWarnings([]);
   const progress = $("progress");
@@ -85,22 +96,18 @@ async function runRequest(url, makeBody, busyText) {
     progress.textContent = `${busyText}… ${((performance.now() - clicked) / 1000).toFixed(1)} s`;
   }, 100);
   try {
-    const body = await makeBody();
-    const answer = await callApi(url, {
-      method: "POST",
-      headers: { "Content-Type": "application/json" },
-      body: JSON.stringify(body),
-    });
-    const answered = performance.now();
-    window.t2mTiming = { clicked, answered, firstFrame: null, server: answer.timing };
-    state.viewer.onFirstFrame = () => {
-      window.t2mTiming.firstFrame = performance.now();
-      state.viewer.onFirstFrame = null;
+    const answer = await postJson(url, await makeBody());
+    performance.mark("t2m:answer", { detail: answer.timing || null });
+    const waited = performance.measure("t2m:request to answer", "t2m:request", "t2m:answer");
+    viewer.onFirstFrame = () => {
+      viewer.onFirstFrame = null;
+      performance.mark("t2m:first-frame");
+      performance.measure("t2m:request to first frame", "t2m:request", "t2m:first-frame");
     };
     show(answer);
     remember(answer);
     progress.textContent =
-      `${answer.motions.length} motions in ${((answered - clicked) / 1000).toFixed(2)} s`;
+      `${answer.motions.length} motions in ${(waited.duration / 1000).toFixed(2)} s`;
   } catch (error) {
     showError(error.message);
     progress.textContent = "";
@@ -111,35 +118,7 @@ async function runRequest(url, makeBody, busyText) {
   }
 }
 
-function generate(event) {
-  event.preventDefault();
-  return runRequest("/api/generate", async () => request(), "generating");
-}
-window.t2mRunRequest = runRequest;
-window.t2mFormSettings = () => {
-  const body = request();
-  return { samples: body.samples, seed: body.seed, precision: body.precision };
-};
-
-function show(answer) {
-  state.current = answer;
-  const info = state.info;
-  state.viewer.setMotions(answer.motions, answer.fps, info.skeleton);
-  state.viewer.highlightColor = info.edit.highlight_color || "#2ca02c";
-  state.viewer.playing = true;
-  const unknown = answer.prompts.filter((p) => p.unknown_words.length).map(
-    (p) => `"${p.text}": the model was not trained on ${p.unknown_words.join(", ")}.`);
-  const dropped = answer.prompts.filter((p) => p.dropped_words.length).map(
-    (p) => `"${p.text}": too long, ignoring ${p.dropped_words.join(" ")}.`);
-  showWarnings(unknown.concat(dropped));
-  // which motions to show
-  const layout = $("layout");
-  layout.innerHTML = "";
-  layout.add(new Option("all side by side", "-1"));
-  answer.motions.forEach((m, i) => layout.add(new Option(`${i + 1}: ${m.text.slice(0, 30)}`, String(i))));
-  layout.value = "-1";
-  state.viewer.show(-1);
-  // captions, player, downloads
+function showCaptions(answer) {
   const captions = $("captions");
   captions.innerHTML = "";
   answer.motions.forEach((m, i) => {
@@ -150,38 +129,50 @@ function show(answer) {
     item.append(label, ` ${m.text} — ${(m.frames / answer.fps).toFixed(1)} s (${m.frames} frames, sample ${m.sample + 1})`);
     captions.append(item);
   });
-  const scrub = $("scrub");
-  scrub.max = String(state.viewer.frameCount - 1);
-  scrub.disabled = false;
-  $("play").disabled = false;
-  $("play").textContent = "Pause";
+}
+
+function downloadLink(url, text, kind) {
+  const link = document.createElement("a");
+  link.href = url;
+  link.textContent = text;
+  link.setAttribute("download", "");
+  if (kind) link.dataset.kind = kind;
+  return link;
+}
+
+const KIND_NAMES = { npy: "joints .npy", glb: "glTF .glb" };
+
+function showDownloads(answer) {
   const list = $("downloads");
   list.innerHTML = "";
   answer.motions.forEach((m, i) => {
     const item = document.createElement("li");
     item.append(`${i + 1}. `);
     for (const [kind, url] of Object.entries(m.files)) {
-      const link = document.createElement("a");
-      link.href = url;
-      link.textContent = kind === "npy" ? "joints .npy" : kind === "glb" ? "glTF .glb" : kind.toUpperCase();
-      link.setAttribute("download", "");
-      link.dataset.kind = kind;
-      item.append(link);
+      item.append(downloadLink(url, KIND_NAMES[kind] || kind.toUpperCase(), kind));
     }
     list.append(item);
   });
   const whole = $("request-files");
   whole.innerHTML = "The whole request: ";
-  for (const [name, url] of Object.entries(answer.files)) {
-    const link = document.createElement("a");
-    link.href = url;
-    link.textContent = name;
-    link.setAttribute("download", "");
-    whole.append(link);
-  }
+  for (const [name, url] of Object.entries(answer.files)) whole.append(downloadLink(url, name));
   $("downloads-section").hidden = false;
+}
+
+// Show an answer (generate, edit, or one from the history): the view, words the model does not
+// know, captions, downloads.
+function show(answer) {
+  state.current = answer;
+  playMotions(viewer, answer, state.info);
+  const unknown = answer.prompts.filter((p) => p.unknown_words.length).map(
+    (p) => `"${p.text}": the model was not trained on ${p.unknown_words.join(", ")}.`);
+  const dropped = answer.prompts.filter((p) => p.dropped_words.length).map(
+    (p) => `"${p.text}": too long, ignoring ${p.dropped_words.join(" ")}.`);
+  showWarnings(unknown.concat(dropped));
+  showCaptions(answer);
+  showDownloads(answer);
   renderHistory();
-  document.dispatchEvent(new CustomEvent("t2m-shown", { detail: answer }));
+  state.editPanel.refresh(answer);
 }
 
 function remember(answer) {
@@ -192,8 +183,17 @@ function remember(answer) {
     seed: answer.seed,
     time: new Date().toLocaleTimeString(),
   });
-  sessionStorage.setItem("t2m-history", JSON.stringify({ boot: state.info.boot, items: state.history }));
+  sessionStorage.setItem(HISTORY_KEY, JSON.stringify({ boot: state.info.boot, items: state.history }));
   renderHistory();
+}
+
+async function showStored(id) {
+  showError("");
+  try {
+    show(await callApi(`/api/results/${encodeURIComponent(id)}`));
+  } catch (error) {
+    showError(error.message);
+  }
 }
 
 function renderHistory() {
@@ -212,75 +212,27 @@ function renderHistory() {
     const button = document.createElement("button");
     button.type = "button";
     button.textContent = `${entry.time}: ${entry.texts.join(" / ")} (${entry.samples}×, seed ${entry.seed})`;
-    button.addEventListener("click", async () => {
-      showError("");
-      try {
-        show(await callApi(`/api/results/${encodeURIComponent(entry.id)}`));
-      } catch (error) {
-        showError(error.message);
-      }
-    });
+    button.addEventListener("click", () => showStored(entry.id));
     item.append(button);
     list.append(item);
   }
 }
 
-function setUpEditPanel(edit) {
-  $("edit-status").textContent = edit.available
-    ? "Pick a motion (uploaded, or one in the view), what to keep and what to change, and describe the change."
-    : `Not available: ${edit.reason}.`;
-  $("edit-fields").disabled = !edit.available;
-  if (window.t2mEditPanel && edit.available) window.t2mEditPanel(edit, state);
-}
-
-function bindPlayer() {
-  const viewer = state.viewer;
-  viewer.onFrame = (frame) => {
-    $("scrub").value = String(frame);
-    $("clock").textContent = `${(frame / viewer.fps).toFixed(2)} s`;
-    $("play").textContent = viewer.playing ? "Pause" : "Play";
-  };
-  $("play").addEventListener("click", () => {
-    if (!viewer.playing && viewer.frame >= viewer.frameCount - 1) viewer.seek(0);
-    viewer.playing = !viewer.playing;
-    viewer._dirty = true;
-  });
-  $("scrub").addEventListener("input", (e) => {
-    viewer.playing = false;
-    viewer.seek(Number(e.target.value));
-  });
-  $("speed").addEventListener("change", (e) => { viewer.speed = Number(e.target.value); });
-  $("loop").addEventListener("change", (e) => { viewer.loop = e.target.checked; });
-  $("follow").addEventListener("change", (e) => { viewer.follow = e.target.checked; viewer._dirty = true; });
-  $("layout").addEventListener("change", (e) => viewer.show(Number(e.target.value)));
-  $("reset-camera").addEventListener("click", () => viewer.resetCamera());
-  // keys on the view: space plays / pauses, the arrows step one frame
-  $("view").addEventListener("keydown", (e) => {
-    if (e.key === " ") $("play").click();
-    else if (e.key === "ArrowLeft" || e.key === "ArrowRight") {
-      viewer.playing = false;
-      const step = e.key === "ArrowLeft" ? -1 : 1;
-      viewer.seek(Math.max(0, Math.min(viewer.frameCount - 1, viewer.frame + step)));
-    } else return;
-    e.preventDefault();
-  });
-}
-
-window.addEventListener("DOMContentLoaded", async () => {
-  state.viewer = new StickViewer($("view"));
-  window.t2mViewerFrame = () => state.viewer.framesDrawn;  // for the page's tests
-  bindPlayer();
-  $("generate-form").addEventListener("submit", generate);
-  $("length-mode").addEventListener("change", (e) => {
-    $("seconds-label").hidden = e.target.value !== "seconds";
-  });
-  $("new-seed").addEventListener("click", () => {
-    $("seed").value = String(Math.floor(Math.random() * 1e6));
-  });
-  try {
-    await loadInfo();
-    document.body.dataset.ready = "true";
-  } catch (error) {
-    showError(error.message);
-  }
+bindPlayer(viewer);
+$("generate-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  return runRequest("/api/generate", async () => generateBody(), "generating");
 });
+$("length-mode").addEventListener("change", (e) => {
+  $("seconds-label").hidden = e.target.value !== "seconds";
+});
+$("new-seed").addEventListener("click", () => {
+  $("seed").value = String(Math.floor(Math.random() * 1e6));
+});
+try {
+  await loadInfo();
+  $("generate").disabled = false;
+  document.body.dataset.ready = "true";
+} catch (error) {
+  showError(error.message);
+}

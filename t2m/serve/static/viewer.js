@@ -5,9 +5,16 @@
 // projected with a pinhole model and the bones are drawn far to near, so nearer limbs cover
 // farther ones. Left limbs, right limbs and the spine take the colours of the project's
 // renderings; the floor grid and each motion's root trajectory lie at the lowest foot height.
-"use strict";
+//
+// The viewer owns its canvas only: the page drives it through the methods and properties below
+// (setMotions, show, seek, playing, speed, loop, follow, resetCamera) and hears back through
+// onFrame(frame) after every drawn frame and onFirstFrame() once new motions are on screen.
 
-class StickViewer {
+export class StickViewer {
+  #dirty = true;  // something changed since the last drawn frame
+  #playing = true;
+  #follow = true;
+
   constructor(canvas) {
     this.canvas = canvas;
     this.context = canvas.getContext("2d");
@@ -15,10 +22,8 @@ class StickViewer {
     this.skeleton = null;       // {parents, chains, sides, colors}
     this.fps = 20;
     this.time = 0;              // seconds into the motions
-    this.playing = true;
     this.speed = 1;
     this.loop = true;
-    this.follow = true;
     this.visible = -1;          // -1: all side by side; else one motion's index
     this.spacing = 0.6;         // metres between the X ranges of side-by-side motions
     this.floor = 0;
@@ -26,9 +31,7 @@ class StickViewer {
     this.resetCamera();
     this.onFrame = null;        // callback(frame) after every drawn frame
     this.onFirstFrame = null;   // callback() after the first frame of new motions is drawn
-    this.framesDrawn = 0;
     this._last = null;
-    this._dirty = true;
     this._bindMouse();
     requestAnimationFrame((now) => this._tick(now));
   }
@@ -38,7 +41,7 @@ class StickViewer {
     this.pitch = 0.32;    // radians above the floor
     this.distance = 4.2;  // metres from the target
     this.target = [0, 0.9, 0];
-    this._dirty = true;
+    this.#dirty = true;
   }
 
   setMotions(motions, fps, skeleton) {
@@ -63,16 +66,34 @@ class StickViewer {
     this._layOut();
     this.distance = Math.max(4.2, 1.1 * this.rowWidth);
     this.time = 0;
-    this.framesDrawn = 0;
     this._firstPending = true;
-    this._dirty = true;
+    this.#dirty = true;
   }
 
   // Show every motion side by side (index -1) or one; the camera backs off to fit the row.
   show(index) {
     this.visible = index;
     this.distance = index < 0 ? Math.max(4.2, 1.1 * this.rowWidth) : 4.2;
-    this._dirty = true;
+    this.#dirty = true;
+  }
+
+  get playing() {
+    return this.#playing;
+  }
+
+  set playing(value) {
+    this.#playing = value;
+    this.#dirty = true;
+  }
+
+  // follow: the camera aims at the shown motions' roots as they move
+  get follow() {
+    return this.#follow;
+  }
+
+  set follow(value) {
+    this.#follow = value;
+    this.#dirty = true;
   }
 
   get frameCount() {
@@ -85,7 +106,7 @@ class StickViewer {
 
   seek(frame) {
     this.time = (frame + 0.5) / this.fps;  // the middle of the frame: no rounding down
-    this._dirty = true;
+    this.#dirty = true;
   }
 
   _shown() {
@@ -127,19 +148,19 @@ class StickViewer {
   }
 
   _tick(now) {
-    if (this._last !== null && this.playing && this.motions.length) {
+    if (this._last !== null && this.#playing && this.motions.length) {
       const total = this.frameCount / this.fps;
       this.time += ((now - this._last) / 1000) * this.speed;
       if (this.time >= total) {
         if (this.loop) this.time %= total;
-        else { this.time = Math.max(total - 1e-6, 0); this.playing = false; }
+        else { this.time = Math.max(total - 1e-6, 0); this.#playing = false; }
       }
-      this._dirty = true;
+      this.#dirty = true;
     }
     this._last = now;
-    if (this._dirty) {
+    if (this.#dirty) {
       this.draw();
-      this._dirty = false;
+      this.#dirty = false;
     }
     requestAnimationFrame((t) => this._tick(t));
   }
@@ -258,7 +279,6 @@ class StickViewer {
       const p = this._project(camera, [head[0], head[1] + 0.25, head[2]]);
       if (p) c.fillText(String(m.index + 1), p[0], p[1]);
     });
-    this.framesDrawn += 1;
     if (this.onFrame) this.onFrame(frame);
     if (this._firstPending && this.motions.length) {
       this._firstPending = false;
@@ -277,13 +297,13 @@ class StickViewer {
       this.yaw -= (e.clientX - dragging[0]) * 0.008;
       this.pitch = Math.max(0.02, Math.min(1.45, this.pitch + (e.clientY - dragging[1]) * 0.006));
       dragging = [e.clientX, e.clientY];
-      this._dirty = true;
+      this.#dirty = true;
     });
     this.canvas.addEventListener("pointerup", () => { dragging = null; });
     this.canvas.addEventListener("wheel", (e) => {
       e.preventDefault();
       this.distance = Math.max(1.2, Math.min(20, this.distance * Math.exp(e.deltaY * 0.001)));
-      this._dirty = true;
+      this.#dirty = true;
     }, { passive: false });
   }
 }
@@ -297,5 +317,3 @@ function normalize(a) {
   const n = Math.hypot(a[0], a[1], a[2]) || 1;
   return [a[0] / n, a[1] / n, a[2] / n];
 }
-
-window.StickViewer = StickViewer;
