@@ -11,6 +11,9 @@ from dataset_tools import humanml3d, segment, texts
 from dataset_tools.humanml3d import Caption
 from dataset_tools.representation import FeatureLayout
 from dataset_tools.stats import FeatureStats, mean_and_pooled_std, pool_std
+from tests.tolerances import float64_bound
+
+MARGIN = 10  # over the float64 rounding counts written beside each bound
 
 REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference" / "humanml3d"
 needs_reference = pytest.mark.skipif(
@@ -36,13 +39,16 @@ def test_resample_any_rate_is_exact_on_linear_motion(src_fps):
     velocity = np.array([0.3, -0.1, 1.2])
     frames = times[:, None, None] * velocity + np.zeros((1, 2, 3))
     out = segment.resample(frames, src_fps, 20.0)
+    # resample's own rule, not a tolerance: a last frame a hair (1e-6 frames) past the end is
+    # kept. The quotient rounds by ~1e-13 here, and the true fractions (100.1, 200.2) are far.
     expected_frames = int(np.floor((num_frames - 1) / src_fps * 20 + 1e-6)) + 1
     assert out.shape == (expected_frames, 2, 3)
-    np.testing.assert_allclose(
-        out,
-        (np.arange(expected_frames) / 20.0)[:, None, None] * velocity + np.zeros((1, 2, 3)),
-        atol=1e-9,
-    )
+    expected = (np.arange(expected_frames) / 20.0)[:, None, None] * velocity + np.zeros((1, 2, 3))
+    # float64 at |x| <= 29 m: the source's times and positions (2), the output's fractional
+    # frame k * ratio (2, moving the value by as much relative), 1 - w, two products and the sum
+    # (4), and the expected's 2: 10 roundings (observed 2.7 at most).
+    bound = MARGIN * float64_bound(10, np.abs(expected).max())
+    np.testing.assert_allclose(out, expected, rtol=0, atol=bound)
 
 
 def test_resample_rejects_bad_rates():
@@ -220,11 +226,26 @@ def test_stats_match_numpy_and_pool_by_group():
     for clip in clips:
         stats.add(clip)
     data = np.concatenate(clips)
-    np.testing.assert_allclose(stats.mean(), data.mean(axis=0), atol=1e-12)
-    np.testing.assert_allclose(stats.std(), data.std(axis=0), rtol=1e-9)
+    frames = len(data)  # 38
+    # Sums of the frames in any order on both sides (the stream adds a clip's sum to its total),
+    # and a division: 2 (frames + 1) + 2 roundings of the mean of |x| per feature.
+    mean_bound = MARGIN * float64_bound(2 * (frames + 1) + 2, np.abs(data).mean(axis=0))
+    np.testing.assert_array_less(np.abs(stats.mean() - data.mean(axis=0)), mean_bound)
+    # E[x^2] - mean^2 (frames + 1 roundings of E[x^2], and the mean's, twice, through |mean|
+    # <= E|x|), which the difference cancels down to the variance, against numpy's two passes
+    # (frames + 2 of the variance <= E[x^2]): 3 (frames + 1) + 4 roundings of E[x^2], and the
+    # root turns an error e of the variance into e / (2 std).
+    square = np.square(data).mean(axis=0)
+    reference = data.std(axis=0)
+    std_bound = MARGIN * float64_bound(3 * (frames + 1) + 4, square) / (2 * reference)
+    np.testing.assert_array_less(np.abs(stats.std() - reference), std_bound)
     mean, std, constant = mean_and_pooled_std(stats, layout.groups())
     assert mean.dtype == np.float32 and std.shape == (263,) and constant == []
-    np.testing.assert_allclose(std[layout.ric], data.std(axis=0)[layout.ric].mean(), rtol=1e-6)
+    # The pooled std is cast to float32: one rounding of 2^-24, exactly, over the float64 std
+    # bound and the group mean's 63 roundings (relative: positive terms).
+    pooled = reference[layout.ric].mean()
+    relative = (std_bound[layout.ric].max() + float64_bound(64, pooled)) / pooled
+    np.testing.assert_allclose(std[layout.ric], pooled, rtol=2.0**-24 + relative, atol=0)
     with pytest.raises(ValueError, match="NaN"):
         stats.add(np.full((2, layout.dim), np.nan))
 
@@ -243,8 +264,10 @@ def test_constant_group_gets_unit_std():
 def test_reference_std_is_pooled_per_group():
     std = np.load(REFERENCE / "Std.npy")
     layout = FeatureLayout(22)
+    # The original assigns each group one float32 value: exactly equal.
     for name, group in layout.groups():
-        assert np.allclose(std[group], std[group][0], rtol=1e-6), name
-    # Pooling the (already pooled) reference is the identity.
-    np.testing.assert_allclose(pool_std(std, layout.groups()), std, rtol=1e-6)
+        np.testing.assert_array_equal(std[group], std[group][0], err_msg=name)
+    # Pooling the (already pooled) reference is the identity, exactly: <= 126 equal float32
+    # values sum exactly in float64 (24 + 7 bits), and dividing by their count gives one back.
+    np.testing.assert_array_equal(pool_std(std, layout.groups()), std)
     assert len({round(float(std[group][0]), 6) for _, group in layout.groups()}) == 7

@@ -2,8 +2,8 @@
 
 Ratios are counts over 20 frames or steps, divided once on both sides (k / 20, the same float64
 quotient), so they compare exactly: the constructed speeds and heights clear their thresholds by
-2 cm/s and 1 cm or more, far beyond any rounding. Sums of float64 values have bounds from their rounding
-counts (``tests.tolerances.float64_bound``) times ``MARGIN`` = 10.
+2 cm/s and 1 cm or more, far beyond any rounding. Sums of float64 values have bounds from their
+rounding counts (``tests.tolerances.float64_bound``) times ``MARGIN`` = 10.
 """
 
 from __future__ import annotations
