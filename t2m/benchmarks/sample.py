@@ -26,38 +26,12 @@ import torch
 
 from dataset_tools import humanml3d
 from t2m.accel import onnx as onnx_backend
-from t2m.config import paper
-from t2m.data.normalization import Normalizer
-from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
-from t2m.models.autoencoder import MovementDecoder
-from t2m.models.temporal_vae import TemporalVAE
-from t2m.pipeline import PRECISIONS, TextToMotion
+from t2m.evaluate.paper_sized import paper_sized_pipeline
+from t2m.pipeline import PRECISIONS
 
 PROMPT = "a person walks forward and waves with the right hand"
 FRAMES = 196
 BATCH = 32
-
-
-def _paper_pipeline(
-    precision: str, modules: tuple | None = None, backend: str = "torch"
-) -> tuple[TextToMotion, tuple]:
-    """A pipeline of paper-sized random-weight models (the same weights for every precision)."""
-    config = paper()
-    vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)
-    if modules is None:
-        torch.manual_seed(0)
-        vae = TemporalVAE(
-            vectorizer.dim, config.autoencoder.model.code_size, config.generator.model
-        )
-        decoder = MovementDecoder(263, config.autoencoder.model)
-        initial_code = torch.zeros(config.autoencoder.model.code_size)
-        modules = (vae, decoder, initial_code)
-    vae, decoder, initial_code = modules
-    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
-    pipe = TextToMotion(
-        vae, decoder, normalizer, vectorizer, initial_code, precision=precision, backend=backend
-    )
-    return pipe, modules
 
 
 def _best_of(repeats: int, function) -> tuple[float, object]:
@@ -90,7 +64,7 @@ def run(quick: bool = False) -> dict:
         results = _measure(quick)
         if default_threads != 1:
             torch.set_num_threads(default_threads)
-            pipe, _ = _paper_pipeline("int8")
+            pipe, _ = paper_sized_pipeline("int8")
             pipe.generate(PROMPT, lengths=FRAMES, clean=False, seed=0)
             seconds, _ = _best_of(
                 3, lambda: pipe.generate(PROMPT, lengths=FRAMES, clean=False, seed=1)
@@ -124,7 +98,7 @@ def _measure(quick: bool) -> dict:
     if onnx_backend.available():  # the optional ONNX Runtime backend: keys onnx_fp32, onnx_int8
         sides += [(precision, "onnx") for precision in onnx_backend.ONNX_PRECISIONS]
     for precision, backend in sides:
-        pipe, modules = _paper_pipeline(precision, modules, backend)
+        pipe, modules = paper_sized_pipeline(precision, modules, backend)
         if backend != "torch":
             precision = f"{backend}_{precision}"
         pipe.generate(
