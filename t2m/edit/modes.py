@@ -19,7 +19,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from dataset_tools.command import UsageError
-from dataset_tools.skeleton import DatasetSpec
+from dataset_tools.spec import DatasetSpec
 from t2m.edit.core import EditPlan
 from t2m.edit.source import PreparedSource
 

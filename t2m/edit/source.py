@@ -19,7 +19,7 @@ import numpy as np
 
 from dataset_tools.command import UsageError
 from dataset_tools.representation import process_motion
-from dataset_tools.skeleton import HUMANML3D, DatasetSpec
+from dataset_tools.spec import HUMANML3D, DatasetSpec
 
 logger = logging.getLogger(__name__)
 
