@@ -19,7 +19,15 @@ Each field becomes ``--field-name`` (required when the field has no default); it
 string literal written under the field (its attribute docstring). Field types: ``int``,
 ``float``, ``str``, ``Path``, ``bool`` (``--x`` / ``--no-x``), ``Literal[...]`` (choices),
 ``tuple[X, ...]`` (zero or more values), each optionally ``| None``. :func:`option` in a field's
-metadata renames the option, makes it positional or adds a metavar.
+metadata renames the option, makes it positional or adds a metavar. A union such as
+``Path | np.ndarray`` (a file, or an array from Python or JSON) is the option of its first member
+the command line can spell.
+
+The same type table reads a JSON object into the dataclass (:func:`config_from_dict`,
+:func:`fields_from_dict`), so a request declared once is also its ``--batch`` file's and its web
+API's schema; a bad value is one line naming the field: ``edit.mode must be one of continue,
+inbetween, ...; got 'x'``. ``add_config_options(..., unset=True)`` with :func:`given_fields` gives
+the fields the user typed, for a command that takes a request either from options or from a file.
 
 What the user got wrong is a :class:`UsageError` (raised by the parser too): the :func:`command`
 wrapper prints it as one line ``error: ...`` and exits with status 2. Everything else keeps its
@@ -34,6 +42,7 @@ import dataclasses
 import functools
 import inspect
 import logging
+import math
 import os
 import sys
 import textwrap
@@ -42,6 +51,8 @@ import typing
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal, TypeVar
+
+import numpy as np
 
 Config = TypeVar("Config")
 
@@ -165,14 +176,30 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def _without_none(hint: Any) -> Any:
-    """X for ``X | None`` / ``Optional[X]``, ``hint`` otherwise (None is every option's "unset")."""
+def _members(hint: Any) -> list[Any]:
+    """The types of a union without None (``[hint]`` for a plain type)."""
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        members = [arg for arg in typing.get_args(hint) if arg is not type(None)]
-        if len(members) != 1:
-            raise TypeError(f"unsupported option type {hint!r} (one type, optionally | None)")
+        return [arg for arg in typing.get_args(hint) if arg is not type(None)]
+    return [hint]
+
+
+def _spellable(hint: Any) -> bool:
+    """Whether a command-line value can spell ``hint`` (an array, say, cannot)."""
+    origin = typing.get_origin(hint)
+    return hint in (bool, int, float, str, Path) or origin in (Literal, tuple)
+
+
+def _without_none(hint: Any) -> Any:
+    """X for ``X | None`` / ``Optional[X]``, ``hint`` otherwise (None is every option's "unset").
+    Of a union such as ``Path | np.ndarray`` (a file, or an array from Python or JSON), the
+    command line takes the first member it can spell."""
+    members = _members(hint)
+    if len(members) == 1:
         return members[0]
-    return hint
+    for member in members:
+        if _spellable(member):
+            return member
+    raise TypeError(f"unsupported option type {hint!r} (one type, optionally | None)")
 
 
 def _default_of(field: dataclasses.Field) -> Any:
@@ -232,12 +259,17 @@ def _value_keywords(hint: Any, required: bool) -> dict:
 
 
 def add_config_options(
-    parser: argparse.ArgumentParser, cls: type, defaults: dict[str, Any] | None = None
+    parser: argparse.ArgumentParser,
+    cls: type,
+    defaults: dict[str, Any] | None = None,
+    unset: bool = False,
 ) -> None:
     """Add one option per field of the dataclass ``cls`` to ``parser`` (see the module docstring).
 
     ``defaults`` overrides the dataclass default of some fields for this command only (say so in
     the field's docstring). The option's ``dest`` is the field name, for :func:`config_from_args`.
+    ``unset``: every option is optional and None when not given (``--help`` still shows the
+    dataclass default), for a config made later from the options given (:func:`given_fields`).
     Raises TypeError for a field type it cannot turn into an option (a programming error).
     """
     defaults = defaults or {}
@@ -247,10 +279,11 @@ def add_config_options(
         spec: _Option = field.metadata.get(_METADATA_KEY, _Option())
         default = defaults.get(field.name, _default_of(field))
         required = default is dataclasses.MISSING
+        value = None if required or unset else default  # what argparse gives when not given
         hint = _without_none(hints[field.name])
         help_text = docs.get(field.name, "")
         if hint is bool:
-            _bool_option(parser, field.name, spec, help_text, None if required else default)
+            _bool_option(parser, field.name, spec, help_text, value)
             continue
         keywords = _value_keywords(hint, required)
         if spec.choices is not None:
@@ -264,17 +297,15 @@ def add_config_options(
         if spec.positional:
             if not required:
                 keywords.setdefault("nargs", "?")
-            parser.add_argument(
-                field.name, help=help_text, default=None if required else default, **keywords
-            )
+            parser.add_argument(field.name, help=help_text, default=value, **keywords)
             continue
         flags = spec.flags or ("--" + field.name.replace("_", "-"),)
         parser.add_argument(
             *flags,
             dest=field.name,
-            required=required,
+            required=required and not unset,
             help=help_text,
-            default=None if required else default,
+            default=value,
             **keywords,
         )
 
@@ -287,6 +318,130 @@ def config_from_args(cls: type[Config], namespace: argparse.Namespace) -> Config
         value = getattr(namespace, field.name)
         values[field.name] = tuple(value) if isinstance(value, list) else value
     return cls(**values)
+
+
+def given_fields(cls: type, namespace: argparse.Namespace) -> dict[str, Any]:
+    """The fields of ``cls`` the user gave, from options added with ``unset=True`` (lists become
+    tuples)."""
+    values = {}
+    for field in dataclasses.fields(cls):
+        value = getattr(namespace, field.name, None)
+        if value is not None:
+            values[field.name] = tuple(value) if isinstance(value, list) else value
+    return values
+
+
+# ----------------------------------------------------------------------------- JSON objects
+
+
+def _describe(hint: Any) -> str:
+    """How a JSON value of type ``hint`` is described in a message."""
+    if typing.get_origin(hint) is Literal:
+        return "one of " + ", ".join(map(str, typing.get_args(hint)))
+    if typing.get_origin(hint) is tuple:
+        return f"a list of {_describe(typing.get_args(hint)[0]).removeprefix('a ')}s"
+    names = {bool: "true or false", int: "a whole number", float: "a number", str: "a text",
+             Path: "a file name", np.ndarray: "an array of numbers"}  # fmt: skip
+    return names.get(hint, getattr(hint, "__name__", str(hint)))
+
+
+def _json_scalar(hint: Any, value: Any, files: Path | None) -> Any:
+    """``value`` as a ``hint`` (one member of a field's type); ValueError when it is not one."""
+    if typing.get_origin(hint) is Literal:
+        if isinstance(value, bool) or value not in typing.get_args(hint):
+            raise ValueError
+        return value
+    if hint is bool or hint is str:
+        if not isinstance(value, hint):
+            raise ValueError
+        return value
+    if isinstance(value, bool):  # a JSON true is no number
+        raise ValueError
+    if hint is int and isinstance(value, int):
+        return value
+    if hint is float and isinstance(value, (int, float)) and math.isfinite(value):
+        return float(value)
+    if hint is Path and isinstance(value, str) and files is not None:
+        return files / value
+    if hint is np.ndarray and isinstance(value, (list, np.ndarray)):
+        array = np.asarray(value, dtype=np.float64)  # ragged rows or text: ValueError
+        return array
+    raise ValueError
+
+
+def _json_value(hint: Any, value: Any, files: Path | None) -> Any:
+    """``value`` as the first member of ``hint`` it fits; ValueError when it fits none."""
+    for member in _members(hint):
+        try:
+            if typing.get_origin(member) is not tuple:
+                return _json_scalar(member, value, files)
+            if isinstance(value, list):
+                item = typing.get_args(member)[0]
+                return tuple(_json_scalar(item, one, files) for one in value)
+        except (ValueError, TypeError):
+            continue
+    raise ValueError
+
+
+def fields_from_dict(
+    cls: type,
+    data: object,
+    where: str,
+    files: Path | None = None,
+    exclude: Sequence[str] = (),
+) -> dict[str, Any]:
+    """The fields of the dataclass ``cls`` from a JSON object ``data``, each checked against its
+    type (the same table the options come from; an array type takes nested lists of numbers).
+
+    ``where`` names the object in messages: ``edit.mode must be one of ...; got 'x'``.
+    ``files``: the folder a relative file name is read from; None refuses file names (a web
+    request never names a file of the server). ``exclude``: fields this reader does not take.
+    A missing field keeps its default; a missing required one, an unknown key or a value of
+    the wrong type is a one-line :class:`UsageError`. Returns ``{field: value}`` of the keys
+    given, for ``cls(**values)`` (whose ``__post_init__`` checks the rest).
+    """
+    if not isinstance(data, dict):
+        raise UsageError(f"{where} must be a JSON object, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in exclude}
+    unknown = sorted(set(data) - set(fields), key=str)
+    if unknown:
+        raise UsageError(f"{where}: unknown field {unknown[0]!r}; use {', '.join(fields)}")
+    values = {}
+    for name, field in fields.items():
+        if name not in data:
+            if _default_of(field) is dataclasses.MISSING:
+                raise UsageError(f"{where}.{name} is required")
+            continue
+        hint, value = hints[name], data[name]
+        if value is None and type(None) in typing.get_args(hint):
+            values[name] = None
+            continue
+        try:
+            values[name] = _json_value(hint, value, files)
+        except ValueError:
+            kinds = " or ".join(
+                _describe(m) for m in _members(hint) if files is not None or m is not Path
+            )
+            shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
+            raise UsageError(f"{where}.{name} must be {kinds}; got {shown}") from None
+    return values
+
+
+def config_from_dict(
+    cls: type[Config],
+    data: object,
+    where: str,
+    files: Path | None = None,
+    exclude: Sequence[str] = (),
+) -> Config:
+    """The dataclass ``cls`` from a JSON object (see :func:`fields_from_dict`); its own checks
+    (``__post_init__``) raise :class:`UsageError`, prefixed with ``where``."""
+    values = fields_from_dict(cls, data, where, files, exclude)
+    try:
+        return cls(**values)
+    except UsageError as error:
+        raise UsageError(f"{where}: {error}") from None
 
 
 # ----------------------------------------------------------------------------- output paths

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import pytest
 
 from dataset_tools.command import (
@@ -236,3 +237,70 @@ def test_parse_config_is_options_parsing_and_checks_in_one_call():
         parse_config(CommandParser(prog="greet"), Greet, ["--times", "0"])
     with pytest.raises(UsageError, match="invalid int value"):
         parse_config(CommandParser(prog="greet"), Greet, ["--times", "x"])
+
+
+@dataclass
+class ToyRequest:
+    """A request read from JSON: the same type table as the options."""
+
+    mode: Literal["a", "b"]
+    """which mode"""
+    times: int = 1
+    """how often"""
+    scale: float | None = None
+    """optional scale"""
+    tags: tuple[str, ...] = ()
+    """zero or more tags"""
+    source: Path | np.ndarray | None = None
+    """a file, or an array"""
+
+
+def test_json_objects_are_read_by_the_same_type_table(tmp_path):
+    from dataset_tools.command import config_from_dict
+
+    request = config_from_dict(
+        ToyRequest,
+        {"mode": "b", "times": 3, "scale": 2, "tags": ["x", "y"], "source": "walk.npy"},
+        "toy",
+        files=tmp_path,
+    )
+    assert request.times == 3 and request.scale == 2.0 and isinstance(request.scale, float)
+    assert request.tags == ("x", "y") and request.source == tmp_path / "walk.npy"
+    inline = config_from_dict(ToyRequest, {"mode": "a", "source": [[1, 2, 3]]}, "toy")
+    np.testing.assert_array_equal(inline.source, [[1.0, 2.0, 3.0]])
+    assert config_from_dict(ToyRequest, {"mode": "a", "scale": None}, "toy").scale is None
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"mode": "x"}, "toy.mode must be one of a, b; got 'x'"),
+        ({}, "toy.mode is required"),
+        ({"mode": "a", "times": True}, "toy.times must be a whole number; got True"),
+        ({"mode": "a", "scale": "2"}, "toy.scale must be a number; got '2'"),
+        ({"mode": "a", "scale": float("nan")}, "toy.scale must be a number; got nan"),
+        ({"mode": "a", "tags": "x"}, "toy.tags must be a list of texts; got 'x'"),
+        (
+            {"mode": "a", "loud": 1},
+            "toy: unknown field 'loud'; use mode, times, scale, tags, source",
+        ),
+        ({"mode": "a", "source": "/etc/passwd"}, "toy.source must be an array of numbers"),
+        ([1], "toy must be a JSON object, got list"),
+    ],
+)
+def test_json_errors_name_the_field_in_one_line(data, message):
+    from dataset_tools.command import config_from_dict
+
+    with pytest.raises(UsageError) as error:
+        config_from_dict(ToyRequest, data, "toy")  # files=None: file names are refused
+    assert str(error.value).startswith(message) and "\n" not in str(error.value)
+
+
+def test_union_fields_become_the_option_of_their_first_spellable_type():
+    parser = CommandParser(prog="toy")
+    add_config_options(parser, ToyRequest, unset=True)
+    from dataset_tools.command import given_fields
+
+    given = given_fields(ToyRequest, parser.parse_args(["--mode", "a", "--source", "w.npy"]))
+    assert given == {"mode": "a", "source": Path("w.npy")}
+    assert given_fields(ToyRequest, parser.parse_args([])) == {}

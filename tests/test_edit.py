@@ -317,3 +317,23 @@ def test_the_original_release_edits_too(walk):
     motion = edit(pipe, "a person walks forward", "continue", walk, keep_seconds=1.0, seed=0,
                   settings=FAST)[0]  # fmt: skip
     np.testing.assert_allclose(motion.joints[:20], source.joints[:20], atol=1e-4)
+
+
+def test_batch_entries_are_read_by_the_request_schema(tmp_path, capsys):
+    from t2m.edit.__main__ import main
+
+    cases = [
+        ([{"mode": "continue", "text": "x", "keep_seconds": "two"}], "edits[0].keep_seconds"),
+        ([{"mode": "body", "text": "x", "source": "a.npy", "part": "head"}], "edits[0].part"),
+        ([{"text": "x"}], "edits[0].mode is required"),
+        ([{"mode": "path", "text": "x", "path": [[1, 0, 0]], "speed": 3}], "unknown field"),
+    ]
+    for edits, message in cases:
+        (tmp_path / "edits.json").write_text(json.dumps(edits))
+        assert main(["--batch", str(tmp_path / "edits.json"), "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
+    argv = ["--batch", str(tmp_path / "edits.json"), "--text", "x", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert "drop --text" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

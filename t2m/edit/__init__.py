@@ -25,7 +25,8 @@ settings=None)`` takes many :class:`EditRequest` and returns ``motions[request][
 included, or ``.bvh`` through the dataset importer; options ``mapping`` and ``source_fps``).
 :func:`load_source(path, spec=HUMANML3D, mapping=None, fps=None) -> (T, 22, 3) float32`.
 
-Modes and their options (:class:`EditRequest` fields; seconds):
+Modes and their options (:class:`EditRequest` fields, the one schema of an edit that the
+command line, ``--batch`` JSON and the web API are made from; seconds):
 
 * ``continue``: ``keep_seconds`` (default 2.0) of the source's start are kept, the rest is
   generated; ``seconds``: the result's length (default: the source's, at most 9.8 s).
@@ -69,19 +70,10 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from t2m.edit.core import EditPlan, PlanResult, SearchSettings, generate_plans
-from t2m.edit.modes import (
-    BODY_PARTS,
-    MODES,
-    plan_body,
-    plan_continue,
-    plan_inbetween,
-    plan_keys,
-    plan_path,
-    read_path,
-    read_timeline,
-)
-from t2m.edit.source import PreparedSource, half_yaw_of, load_source, prepare_source
-from t2m.pipeline import GeneratedMotion
+from t2m.edit.modes import BODY_PARTS, MODES, read_timeline
+from t2m.edit.request import EditRequest
+from t2m.edit.source import half_yaw_of, load_source, prepare_source
+from t2m.motion import GeneratedMotion
 
 logger = logging.getLogger(__name__)
 
@@ -105,75 +97,6 @@ class EditedMotion(GeneratedMotion):
     kept: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), bool))
     mode: str = ""
     constraint_error: float = float("nan")
-
-
-@dataclass(frozen=True)
-class EditRequest:
-    """One edit (see the module docstring for the modes and their options)."""
-
-    mode: str
-    text: str = ""
-    source: str | Path | np.ndarray | None = None
-    seconds: float | None = None
-    keep_seconds: float = 2.0
-    keep_start: float = 1.0
-    keep_end: float = 1.0
-    part: str = "lower"
-    path: str | Path | np.ndarray | None = None
-    keys: str | Path | np.ndarray | None = None
-    timeline: str | Path | Sequence[str] | None = None
-    mapping: str | None = None
-    source_fps: float | None = None
-
-    def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise UsageError(f"unknown mode {self.mode!r}; choose one of {', '.join(MODES)}")
-        needs_source = self.mode in ("continue", "inbetween", "body")
-        if needs_source and self.source is None:
-            raise UsageError(f"--mode {self.mode} needs a --source motion")
-        if self.mode in ("path", "keys", "compose") and self.source is not None:
-            raise UsageError(f"--mode {self.mode} takes no --source")
-        if self.mode == "compose":
-            if self.timeline is None:
-                raise UsageError("--mode compose needs a --timeline")
-        elif not self.text or not self.text.strip():
-            raise UsageError("empty --text: give a sentence describing the motion")
-        if self.mode == "path" and self.path is None:
-            raise UsageError("--mode path needs --path (rows 'seconds,x,z')")
-        if self.mode == "keys" and self.keys is None:
-            raise UsageError("--mode keys needs --keys (a (T, 22, 3) .npy with NaN for free)")
-        if self.mode == "body" and self.part not in BODY_PARTS:
-            raise UsageError(f"unknown --part {self.part!r}; choose one of {', '.join(BODY_PARTS)}")
-
-    def prepared_source(self, spec) -> PreparedSource:
-        joints = self.source
-        if isinstance(joints, (str, Path)):
-            joints = load_source(joints, spec, self.mapping, self.source_fps)
-        return prepare_source(np.asarray(joints), spec)
-
-    def plan(self, spec) -> EditPlan:
-        """This request as a plan (not for compose, which chains several)."""
-        mode = self.mode
-        if mode == "continue":
-            source = self.prepared_source(spec)
-            return plan_continue(self.text, source, spec, self.keep_seconds, self.seconds)
-        if mode == "inbetween":
-            source = self.prepared_source(spec)
-            return plan_inbetween(
-                self.text, source, spec, self.keep_start, self.keep_end, self.seconds
-            )
-        if mode == "body":
-            return plan_body(self.text, self.prepared_source(spec), spec, self.part)
-        if mode == "path":
-            return plan_path(self.text, read_path(self.path), spec, self.seconds)
-        if mode == "keys":
-            keys = self.keys
-            if isinstance(keys, (str, Path)):
-                from dataset_tools.io import load_npy
-
-                keys = load_npy(keys, finite=False)
-            return plan_keys(self.text, keys, spec)
-        raise ValueError(f"{mode} has no single plan")
 
 
 def edit(

@@ -23,10 +23,20 @@ import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
+from dataset_tools.command import (
+    CommandParser,
+    UsageError,
+    add_config_options,
+    command,
+    config_from_args,
+    config_from_dict,
+    configure_logging,
+    given_fields,
+    option,
+)
 from t2m.config import check_seed
 from t2m.edit.core import Method, SearchSettings
-from t2m.edit.modes import Mode, Part
+from t2m.edit.request import EditRequest
 from t2m.options import OutputOptions
 from t2m.outputs import write_motions
 
@@ -35,37 +45,12 @@ logger = logging.getLogger("t2m.edit")
 
 @dataclass
 class EditConfig(OutputOptions):
-    """``python -m t2m.edit``: which edit, from which checkpoints, into which folder."""
+    """``python -m t2m.edit``: how many results, how to search, from which checkpoints, into
+    which folder; the edit itself is a :class:`t2m.edit.EditRequest` (its fields are options)."""
 
-    mode: Mode | None = field(default=None, metadata=option(metavar="MODE"))
-    """continue | inbetween | body | path | keys | compose (or --batch)"""
     batch: Path | None = field(default=None, metadata=option(metavar="JSON"))
     """many edits: a JSON list of objects with the edit options (mode, text, source, keep_seconds,
     ..., timeline as a list; paths relative to the file); edit i writes sampleNN_repRR with NN = i"""
-    text: str | None = None
-    """what the generated part does, e.g. "a person waves both hands" (not for compose)"""
-    source: Path | None = field(default=None, metadata=option(metavar="FILE"))
-    """the motion to edit: joints .npy (T, 22, 3) (a sampleNN_repRR.npy too) or .bvh"""
-    mapping: str | None = field(default=None, metadata=option(metavar="NAME|FILE"))
-    """BVH joint mapping (bandai, cmu_cc, smpl or a JSON file; default: detected)"""
-    source_fps: float | None = field(default=None, metadata=option(metavar="F"))
-    """frame rate of a .npy source (default: the model's, 20)"""
-    seconds: float | None = field(default=None, metadata=option(metavar="S"))
-    """length of the result (default: the source's, or up to the last path point)"""
-    keep_seconds: float = field(default=2.0, metadata=option(metavar="S"))
-    """continue: seconds of the source's start that are kept"""
-    keep_start: float = field(default=1.0, metadata=option(metavar="S"))
-    """inbetween: seconds of the source's start kept at the result's start (0.05: one pose)"""
-    keep_end: float = field(default=1.0, metadata=option(metavar="S"))
-    """inbetween: seconds of the source's end kept at the result's end"""
-    part: Part = "lower"
-    """body: the part kept from the source (lower keeps the root path and the legs)"""
-    path: Path | None = field(default=None, metadata=option(metavar="FILE"))
-    """path: CSV or JSON of floor points 'seconds,x,z' (metres; start at 0,0 facing +z)"""
-    keys: Path | None = field(default=None, metadata=option(metavar="NPY"))
-    """keys: joint targets (T, 22, 3), NaN where free"""
-    timeline: tuple[str, ...] = field(default=(), metadata=option(metavar="LINE"))
-    """compose: lines 'text#start#end' (seconds) or 'text#seconds', or one file of them"""
     num_samples: int = field(default=1, metadata=option(metavar="N"))
     """different results of the edit"""
     seed: int = 0
@@ -88,45 +73,26 @@ class EditConfig(OutputOptions):
         check_seed(self.seed)
         super().__post_init__()
 
-    def requests(self) -> list:
-        """The :class:`t2m.edit.EditRequest` list (checked: missing or extra inputs per mode)."""
-        if (self.mode is None) == (self.batch is None):
+    def requests(self, given: dict) -> list[EditRequest]:
+        """The edits: one of the request options ``given`` (fields of :class:`EditRequest`), or
+        those of ``--batch`` (checked: missing or extra inputs per mode)."""
+        if ("mode" in given) == (self.batch is not None):
             raise UsageError("give one of --mode and --batch")
-        return [self.request()] if self.batch is None else read_batch(self.batch)
-
-    def request(self):
-        """The :class:`t2m.edit.EditRequest` of the options."""
-        from t2m.edit import EditRequest
-
-        timeline = self.timeline
-        if len(timeline) == 1 and "#" not in timeline[0]:
-            timeline = Path(timeline[0])
-        return EditRequest(
-            mode=self.mode,
-            text=self.text or "",
-            source=self.source,
-            seconds=self.seconds,
-            keep_seconds=self.keep_seconds,
-            keep_start=self.keep_start,
-            keep_end=self.keep_end,
-            part=self.part,
-            path=self.path,
-            keys=self.keys,
-            timeline=timeline or None,
-            mapping=self.mapping,
-            source_fps=self.source_fps,
-        )
+        if self.batch is not None:
+            if given:
+                options = ", ".join("--" + name.replace("_", "-") for name in given)
+                raise UsageError(f"--batch holds every edit's options; drop {options}")
+            return read_batch(self.batch)
+        timeline = given.get("timeline")
+        if timeline is not None and len(timeline) == 1 and "#" not in timeline[0]:
+            given = {**given, "timeline": Path(timeline[0])}  # one file of lines
+        return [EditRequest(**given)]
 
 
-BATCH_KEYS = ("mode", "text", "source", "seconds", "keep_seconds", "keep_start", "keep_end",
-              "part", "path", "keys", "timeline", "mapping", "source_fps")  # fmt: skip
-
-
-def read_batch(path: Path) -> list:
-    """Edits of a ``--batch`` JSON file (a list of objects with :data:`BATCH_KEYS`); relative
-    file paths are taken from the file's folder. UsageError (one line) for anything else."""
-    from t2m.edit import EditRequest
-
+def read_batch(path: Path) -> list[EditRequest]:
+    """Edits of a ``--batch`` JSON file: a list of objects with the fields of
+    :class:`EditRequest`, read by the schema's JSON reader; relative file names are taken from
+    the file's folder, arrays may be given inline. UsageError (one line) for anything else."""
     try:
         entries = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as error:
@@ -135,21 +101,10 @@ def read_batch(path: Path) -> list:
         raise UsageError(f"--batch {path}: give a non-empty JSON list of edits")
     requests = []
     for number, entry in enumerate(entries):
-        if not isinstance(entry, dict):
-            raise UsageError(f"--batch {path}: edit {number} is not an object")
-        unknown = sorted(set(entry) - set(BATCH_KEYS))
-        if unknown:
-            raise UsageError(f"--batch {path}: edit {number} has unknown keys {unknown}")
-        entry = dict(entry)
-        for key in ("source", "path", "keys"):
-            if isinstance(entry.get(key), str):
-                entry[key] = path.parent / entry[key]
         try:
-            requests.append(EditRequest(**entry))
+            requests.append(config_from_dict(EditRequest, entry, f"edits[{number}]", path.parent))
         except UsageError as error:
-            raise UsageError(f"--batch {path}: edit {number}: {error}") from None
-        except TypeError:
-            raise UsageError(f"--batch {path}: edit {number} needs a mode") from None
+            raise UsageError(f"--batch {path}: {error}") from None
     return requests
 
 
@@ -161,9 +116,13 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m t2m.edit",
         description="Edit a motion or compose several prompts with trained T2M checkpoints.",
     )
-    config = parse_config(parser, EditConfig, argv)
+    add_config_options(parser, EditConfig)
+    add_config_options(parser, EditRequest, unset=True)  # one edit's fields, or --batch
+    arguments = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    configure_logging()
+    config = config_from_args(EditConfig, arguments)
     # 1. everything the user gave, checked before any model is loaded
-    requests = config.requests()
+    requests = config.requests(given_fields(EditRequest, arguments))
     settings = SearchSettings(
         method=config.method, candidates=config.candidates, steps=config.steps
     )

@@ -134,19 +134,25 @@ def parse_generate(
             )
         checked.append(Prompt(prompt.text, frames))
     # 3. samples, seed, precision
-    samples = integer_field(payload, "samples", 1, 1, limits.max_samples)
+    samples, seed, precision = run_options(payload, limits, device_type)
     if len(checked) * samples > limits.max_motions:
         raise UsageError(
             f"{len(checked)} prompts x {samples} samples = {len(checked) * samples} motions; at "
             f"most {limits.max_motions} in one request"
         )
+    return GenerateRequest(tuple(checked), samples, seed, precision)
+
+
+def run_options(payload: dict, limits: Limits, device_type: str) -> tuple[int, int, str]:
+    """The ``samples``, ``seed`` and ``precision`` of a generate or edit request, checked."""
+    samples = integer_field(payload, "samples", 1, 1, limits.max_samples)
     seed = integer_field(payload, "seed", 0, 0, limits.max_seed)
     precision = payload.get("precision", "fp32")
     if precision not in PRECISIONS:
         raise UsageError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "int8" and device_type != "cpu":
         raise UsageError("int8 runs on the CPU only; this server runs on a GPU (use bf16)")
-    return GenerateRequest(tuple(checked), samples, seed, precision)
+    return samples, seed, precision
 
 
 def motion_json(motion: GeneratedMotion, links: dict[str, str], decimals: int = 4) -> dict:

@@ -8,6 +8,10 @@ as a file name): an upload is written to a private file under the server's work 
 by :func:`t2m.edit.load_source` (our BVH importer, the header-checked ``.npy`` reader) and
 removed.
 
+The request's fields are those of :class:`t2m.edit.EditRequest`, read by its schema's JSON reader
+(:func:`dataset_tools.command.fields_from_dict`, file names refused, ``mapping`` and
+``source_fps`` not taken); this module adds the uploads and its limits (sizes, counts, seconds).
+
 Request (JSON): ``mode``; ``text`` (not for compose); ``source``: ``{"upload": {"name":
 "walk.bvh", "base64": ...}}`` or ``{"result": id, "motion": index}`` (continue, inbetween,
 body); ``keep_seconds`` (continue), ``keep_start`` / ``keep_end`` (inbetween), ``seconds``
@@ -22,32 +26,21 @@ from __future__ import annotations
 import base64
 import binascii
 import importlib.util
-import math
 import queue
 import secrets
 from pathlib import Path
 
 import numpy as np
 
-from dataset_tools.command import UsageError
+from dataset_tools.command import UsageError, fields_from_dict
+from t2m.serve.api import check_text
 
 UNAVAILABLE = "editing needs t2m.edit (the editing modes), which this build does not have"
-EDIT_KEYS = {
-    "mode",
-    "text",
-    "source",
-    "keep_seconds",
-    "keep_start",
-    "keep_end",
-    "seconds",
-    "part",
-    "path",
-    "keys",
-    "timeline",
-    "samples",
-    "seed",
-    "precision",
-}
+RUN_KEYS = ("samples", "seed", "precision")
+"""The keys of an edit request that are not fields of :class:`t2m.edit.EditRequest`."""
+FILE_OPTIONS = ("mapping", "source_fps")
+"""EditRequest fields about reading a source file, which the web does not take."""
+SECONDS_FIELDS = ("seconds", "keep_seconds", "keep_start", "keep_end")
 MAX_UPLOAD_BYTES = 4 * 2**20
 """bytes of an uploaded file (a 10 s BVH at 120 fps is about 1.5 MB)"""
 MAX_PATH_POINTS = 100
@@ -87,17 +80,6 @@ def edit_info() -> dict:
             "max_timeline_seconds": MAX_TIMELINE_SECONDS,
         },
     }
-
-
-def _seconds(payload: dict, key: str, optional: bool = False) -> float | None:
-    value = payload.get(key)
-    if value is None and optional:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise UsageError(f"{key} must be a number of seconds, got {value!r}")
-    if not 0 <= value <= MAX_EDIT_SECONDS:
-        raise UsageError(f"{key} must be from 0 to {MAX_EDIT_SECONDS:g} seconds, got {value:g}")
-    return float(value)
 
 
 def _upload(value: object, what: str, suffixes: tuple[str, ...], folder: Path) -> tuple[Path, str]:
@@ -155,47 +137,31 @@ def _source(app, value: object, folder: Path) -> tuple[np.ndarray, str]:
         path.unlink(missing_ok=True)
 
 
-def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]:
-    """Check an edit request; returns (``t2m.edit.edit`` keyword arguments, samples, seed,
-    precision). Uploads are read (and their files removed) here."""
-    from dataset_tools.io import load_npy
-    from t2m.edit import BODY_PARTS, MODES
-    from t2m.pipeline import PRECISIONS
-    from t2m.serve.api import check_text, integer_field
+def parse_edit(app, payload: object, folder: Path) -> tuple:
+    """Check an edit request; returns (:class:`t2m.edit.EditRequest`, the source's name, samples,
+    seed, precision). The request's fields are read by the schema's JSON reader with file names
+    refused; uploads take the place of files (read, and their files removed, here); the web's
+    limits come on top."""
+    from t2m.edit import EditRequest
+    from t2m.serve.api import run_options
 
-    limits = app.limits
     if not isinstance(payload, dict):
         raise UsageError("the request must be a JSON object")
-    unknown = sorted(set(payload) - EDIT_KEYS)
-    if unknown:
-        raise UsageError(f"unknown field {unknown[0]!r}; use {', '.join(sorted(EDIT_KEYS))}")
-    mode = payload.get("mode")
-    if mode not in MODES:
-        raise UsageError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-    options: dict = {"mode": mode, "text": ""}
-    if mode != "compose":
-        options["text"] = check_text(payload.get("text"), "edit text", limits.max_prompt_chars)
-    if mode in ("continue", "inbetween", "body"):
-        if payload.get("source") is None:
-            raise UsageError(f"{mode} edits a motion: upload a BVH or .npy, or pick a motion")
-        options["source"], options["source_name"] = _source(app, payload["source"], folder)
-    elif payload.get("source") is not None:
-        raise UsageError(f"{mode} makes a new motion and takes no source")
-    if mode == "continue" and "keep_seconds" in payload:
-        options["keep_seconds"] = _seconds(payload, "keep_seconds")
-    if mode == "inbetween":
-        for key in ("keep_start", "keep_end"):
-            if key in payload:
-                options[key] = _seconds(payload, key)
-    if mode in ("continue", "inbetween", "path"):
-        options["seconds"] = _seconds(payload, "seconds", optional=True)
-    if mode == "body":
-        part = payload.get("part", "lower")
-        if part not in BODY_PARTS:
-            raise UsageError(f"part must be one of {', '.join(BODY_PARTS)}, got {part!r}")
-        options["part"] = part
-    if mode == "path":
-        points = payload.get("path")
+    fields = {key: value for key, value in payload.items() if key not in RUN_KEYS}
+    uploads = {key: fields.pop(key) for key in ("source", "keys") if key in fields}
+    values = fields_from_dict(EditRequest, _web_shapes(fields), "edit", exclude=FILE_OPTIONS)
+    source_name = _read_uploads(app, values, uploads, folder)
+    _check_limits(app, values)
+    samples, seed, precision = run_options(payload, app.limits, app.pipe.device.type)
+    return EditRequest(**values), source_name, samples, seed, precision
+
+
+def _web_shapes(fields: dict) -> dict:
+    """The web's counts on a path's rows and a timeline's lines (a timeline may be one text of
+    lines), checked before the schema reads them."""
+    mode = fields.get("mode")
+    if mode == "path" or "path" in fields:
+        points = fields.get("path")
         if not isinstance(points, list) or not 0 < len(points) <= MAX_PATH_POINTS:
             raise UsageError(f"path must be 1 to {MAX_PATH_POINTS} rows [seconds, x, z]")
         if not all(
@@ -205,19 +171,8 @@ def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]
             for row in points
         ):
             raise UsageError("path must be rows of three numbers [seconds, x, z]")
-        options["path"] = np.asarray(points, dtype=np.float64)
-    if mode == "keys":
-        path, name = _upload(payload.get("keys"), "keys", (".npy",), folder)
-        try:
-            options["keys"] = load_npy(path, finite=False)
-        except UsageError as error:
-            raise UsageError(_named(str(error), path, name)) from None
-        finally:
-            path.unlink(missing_ok=True)
-    if mode == "compose":
-        from t2m.edit.modes import read_timeline
-
-        lines = payload.get("timeline")
+    if mode == "compose" or "timeline" in fields:
+        lines = fields.get("timeline")
         if isinstance(lines, str):
             lines = lines.splitlines()
         if not isinstance(lines, list) or not all(isinstance(line, str) for line in lines):
@@ -225,38 +180,71 @@ def parse_edit(app, payload: object, folder: Path) -> tuple[dict, int, int, str]
         lines = [line for line in lines if line.strip()]
         if not 0 < len(lines) <= MAX_TIMELINE_LINES:
             raise UsageError(f"the timeline needs 1 to {MAX_TIMELINE_LINES} lines")
-        for number, line in enumerate(lines, start=1):
+        fields = {**fields, "timeline": lines}  # a list: never read as a file
+    return fields
+
+
+def _read_uploads(app, values: dict, uploads: dict, folder: Path) -> str | None:
+    """Put the uploaded source motion and key targets into ``values`` as arrays; returns how to
+    name the source (None without one)."""
+    from dataset_tools.io import load_npy
+    from t2m.edit.request import NEEDS_SOURCE
+
+    mode = values["mode"]
+    source_name = None
+    if mode in NEEDS_SOURCE:
+        if uploads.get("source") is None:
+            raise UsageError(f"{mode} edits a motion: upload a BVH or .npy, or pick a motion")
+        values["source"], source_name = _source(app, uploads["source"], folder)
+    elif uploads.get("source") is not None:
+        raise UsageError(f"{mode} makes a new motion and takes no source")
+    if mode == "keys":
+        path, name = _upload(uploads.get("keys"), "keys", (".npy",), folder)
+        try:
+            values["keys"] = load_npy(path, finite=False)
+        except UsageError as error:
+            raise UsageError(_named(str(error), path, name)) from None
+        finally:
+            path.unlink(missing_ok=True)
+    return source_name
+
+
+def _check_limits(app, values: dict) -> None:
+    """The web's limits on checked fields: the text's characters, lengths in seconds, the
+    timeline's lines and its whole length."""
+    limits = app.limits
+    if values["mode"] == "compose":
+        values["text"] = ""
+        for number, line in enumerate(values["timeline"], start=1):
             check_text(line, f"timeline line {number}", limits.max_prompt_chars)
-        segments = read_timeline(list(lines), app.pipe.spec)  # a list: never read as a file
+        from t2m.edit.modes import read_timeline
+
+        segments = read_timeline(values["timeline"], app.pipe.spec)
         if segments[-1].stop > MAX_TIMELINE_SECONDS * app.pipe.spec.fps:
             raise UsageError(f"the timeline is longer than {MAX_TIMELINE_SECONDS:g} s")
-        options["timeline"] = list(lines)
-    samples = integer_field(payload, "samples", 1, 1, limits.max_samples)
-    seed = integer_field(payload, "seed", 0, 0, limits.max_seed)
-    precision = payload.get("precision", "fp32")
-    if precision not in PRECISIONS:
-        raise UsageError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    if precision == "int8" and app.pipe.device.type != "cpu":
-        raise UsageError("int8 runs on the CPU only; this server runs on a GPU (use bf16)")
-    return options, samples, seed, precision
+    else:
+        values["text"] = check_text(values.get("text"), "edit text", limits.max_prompt_chars)
+    for key in SECONDS_FIELDS:
+        value = values.get(key)
+        if value is not None and not 0 <= value <= MAX_EDIT_SECONDS:
+            raise UsageError(f"{key} must be from 0 to {MAX_EDIT_SECONDS:g} seconds, got {value:g}")
 
 
 def edit(app, payload: object) -> dict:
     """POST /api/edit: check, run on the model thread, store, answer as generate does."""
     if not edit_available():
         raise UsageError(UNAVAILABLE)
-    from t2m.edit import edit as run_edit
+    from t2m.edit import edit_batch
     from t2m.serve.api import Busy, prompt_json
     from t2m.serve.worker import ModelCall
 
-    options, samples, seed, precision = parse_edit(app, payload, app.store.root)
-    source_name = options.pop("source_name", None)
-    mode, text = options.pop("mode"), options.pop("text")
+    request, source_name, samples, seed, precision = parse_edit(app, payload, app.store.root)
+    mode = request.mode
 
     def work(pipe) -> tuple[list, list]:
         # the words first: a prompt with no known word is refused, unknown ones are named
-        prepared = pipe.prepare([text]) if text else []
-        motions = run_edit(pipe, text, mode, num_samples=samples, seed=seed, **options)
+        prepared = pipe.prepare([request.text]) if request.text else []
+        motions = edit_batch(pipe, [request], num_samples=samples, seed=seed)[0]
         return motions, prepared
 
     call = ModelCall(work, precision)
