@@ -42,7 +42,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,6 +67,7 @@ from t2m.models.autoencoder import (
 )
 from t2m.models.length import LengthEstimator, sample_lengths
 from t2m.models.temporal_vae import TemporalVAE
+from t2m.motion import GeneratedMotion
 
 logger = logging.getLogger(__name__)
 
@@ -97,30 +98,6 @@ PLANS = ("clauses", "whole")
 
 
 @dataclass(frozen=True)
-class GeneratedMotion:
-    """One generated motion.
-
-    Attributes:
-        text: the prompt.
-        prompt_index: which prompt (0-based, in the order given).
-        repetition: which sample of that prompt (0-based).
-        joints: (T, J, 3) float32 positions in metres, y-up, at the dataset's fps (20 for
-            HumanML3D, 12.5 for KIT-ML; ``TextToMotion.spec.fps``).
-        features: (T, D) float32 de-normalised features (263-d for HumanML3D).
-    """
-
-    text: str
-    prompt_index: int
-    repetition: int
-    joints: np.ndarray
-    features: np.ndarray
-
-    @property
-    def num_frames(self) -> int:
-        return int(self.joints.shape[0])
-
-
-@dataclass(frozen=True)
 class PreparedText:
     """A prompt ready for the text encoders, and what the vocabulary made of it.
 
@@ -138,6 +115,34 @@ class PreparedText:
     unknown_words: tuple[str, ...]
     dropped_words: tuple[str, ...]
     clauses: tuple[EncodedText, ...] = ()
+
+
+@dataclass(frozen=True)
+class GenerationBatch:
+    """Everything a generation draws before its models run (:meth:`TextToMotion.plan`), in the
+    order it is drawn: the motions with their lengths, then their latent draws.
+
+    Attributes:
+        prepared: the prompts (:meth:`TextToMotion.prepare`), in the order given.
+        items: (prompt, sample) of each motion, longest first (ties keep prompt-major order):
+            the order the models run them in.
+        frames: each item's length in frames, in that order.
+        noise: the latent draws of each run of ``batch_size`` items in that order,
+            (items, their longest length in snippets, Z) each.
+        batch_size: motions generated together.
+    """
+
+    prepared: list[PreparedText]
+    items: list[tuple[int, int]]
+    frames: list[int]
+    noise: list[torch.Tensor]
+    batch_size: int
+
+    def batches(self) -> Iterator[tuple[list[tuple[int, int]], list[int], torch.Tensor]]:
+        """(items, frames, noise) of each run of the models."""
+        for index, start in enumerate(range(0, len(self.items), self.batch_size)):
+            end = start + self.batch_size
+            yield self.items[start:end], self.frames[start:end], self.noise[index]
 
 
 def frames_for(frames: float, spec: DatasetSpec = HUMANML3D) -> int:
@@ -589,6 +594,90 @@ class TextToMotion:
             logits.append(self.length_model(words, pos, lengths, counts, clause).float())
         return torch.cat(logits)
 
+    def plan(
+        self,
+        texts: str | Sequence[str],
+        num_samples: int = 1,
+        lengths: int | Sequence[int | None] | None = None,
+        generator: torch.Generator | None = None,
+        *,
+        batch_size: int = 32,
+        by_clause: bool = True,
+    ) -> GenerationBatch:
+        """Steps 1-3 of :meth:`generate` before the models run: the prompts' words, every
+        motion's length (given, or drawn from ``generator``) and the latent draws of each batch,
+        drawn in that order. Arguments as :meth:`generate`'s (``generator``: default seed 0;
+        ``by_clause``: draw a prompt's length clause by clause, :meth:`sample_lengths`)."""
+        return self.plan_prepared(
+            self.prepare(texts),
+            num_samples,
+            lengths,
+            generator,
+            batch_size=batch_size,
+            by_clause=by_clause,
+        )
+
+    def plan_prepared(
+        self,
+        prepared: Sequence[PreparedText],
+        num_samples: int = 1,
+        lengths: int | Sequence[int | None] | None = None,
+        generator: torch.Generator | None = None,
+        *,
+        batch_size: int = 32,
+        by_clause: bool = True,
+        length_batch: int | None = None,
+    ) -> GenerationBatch:
+        """:meth:`plan` of prompts already prepared (the evaluation's captions, encoded from
+        their dataset tokens). ``length_batch``: draw the lengths of this many prompts at a
+        time (the evaluation protocol's order of draws); None: all at once."""
+        prepared = list(prepared)
+        if generator is None:
+            generator = torch.Generator(self.device).manual_seed(0)
+        # 2. lengths, one per motion (prompt-major)
+        if lengths is None or isinstance(lengths, (int, np.integer)):
+            per_prompt: list[int | None] = [lengths] * len(prepared)  # type: ignore[list-item]
+        else:
+            per_prompt = list(lengths)
+            if len(per_prompt) != len(prepared):
+                raise ValueError(f"{len(per_prompt)} lengths for {len(prepared)} prompts")
+        fixed = [None if n is None else self._clamp(n) for n in per_prompt]
+        items = [(p, r) for p in range(len(prepared)) for r in range(num_samples)]
+        frames = {item: fixed[item[0]] for item in items}
+        unsized = [prepared[p] for p in range(len(prepared)) if fixed[p] is None]
+        step = length_batch or max(len(unsized), 1)
+        drawn = iter(
+            length
+            for start in range(0, len(unsized), step)
+            for length in self.sample_lengths(
+                unsized[start : start + step],
+                generator,
+                repeats=num_samples,
+                batch_size=batch_size,
+                by_clause=by_clause,
+            )
+        )
+        for item in items:
+            if frames[item] is None:
+                frames[item] = next(drawn)
+        # 3. the motions longest first (stable: ties keep prompt-major order), then the latent
+        # draws of each batch of them
+        order = sorted(items, key=lambda item: -frames[item])
+        ordered = [frames[item] for item in order]
+        unit, latent = self.spec.snippet_length, self.vae.config.latent_size
+        noise = [
+            torch.randn(
+                len(chunk),
+                max(chunk) // unit,
+                latent,
+                generator=generator,
+                device=self.device,
+                dtype=self.dtype,
+            )
+            for chunk in (ordered[s : s + batch_size] for s in range(0, len(ordered), batch_size))
+        ]
+        return GenerationBatch(prepared, order, ordered, noise, batch_size)
+
     @torch.inference_mode()
     def generate_features(
         self,
@@ -742,43 +831,26 @@ class TextToMotion:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         if plan not in PLANS:
             raise ValueError(f"unknown plan {plan!r}; use one of {', '.join(PLANS)}")
-        # 1. words
-        prepared = self.prepare(texts)
-        # 2. lengths, one per motion (prompt-major)
-        if lengths is None or isinstance(lengths, (int, np.integer)):
-            per_prompt: list[int | None] = [lengths] * len(texts)  # type: ignore[list-item]
-        else:
-            per_prompt = list(lengths)
-            if len(per_prompt) != len(texts):
-                raise ValueError(f"{len(per_prompt)} lengths for {len(texts)} prompts")
-        fixed = [None if n is None else self._clamp(n) for n in per_prompt]
+        # 1.-3. words, lengths and latent draws
         generator = torch.Generator(self.device).manual_seed(seed)
-        items = [(p, r) for p in range(len(texts)) for r in range(num_samples)]
-        frames = {item: fixed[item[0]] for item in items}
-        unsized = [p for p in range(len(texts)) if fixed[p] is None]
-        if unsized:
-            drawn = iter(
-                self.sample_lengths(
-                    [prepared[p] for p in unsized],
-                    generator,
-                    repeats=num_samples,
-                    batch_size=batch_size,
-                    by_clause=plan == "clauses",
-                )
-            )
-            for p in unsized:
-                for r in range(num_samples):
-                    frames[(p, r)] = next(drawn)
-        # 3.-4. batches of similar lengths (stable order: ties keep prompt-major order)
-        order = sorted(items, key=lambda item: -frames[item])
+        planned = self.plan(
+            texts,
+            num_samples,
+            lengths,
+            generator,
+            batch_size=batch_size,
+            by_clause=plan == "clauses",
+        )
+        prepared = planned.prepared
+        # 3.-4. the models, batch by batch
         results: dict[tuple[int, int], GeneratedMotion] = {}
-        bar = tqdm(total=len(order), desc="generating", unit="motion", disable=not progress)
-        for start in range(0, len(order), batch_size):
-            batch = order[start : start + batch_size]
+        bar = tqdm(total=len(planned.items), desc="generating", unit="motion", disable=not progress)
+        for batch, frames, noise in planned.batches():
             features = self.generate_features(
                 [prepared[p].encoded for p, _ in batch],
-                [frames[i] for i in batch],
+                frames,
                 generator,
+                noise=noise,
                 clauses=[prepared[p].clauses for p, _ in batch] if plan == "clauses" else None,
             )
             for (p, r), feats in zip(batch, features):

@@ -279,39 +279,41 @@ class CheckpointBackend:
     def generate(
         self, captions: Sequence[Caption], lengths: np.ndarray | None, seed: int
     ) -> list[np.ndarray]:
+        """Features (frames, D) of one motion per caption: the pipeline's plan
+        (:meth:`~t2m.pipeline.TextToMotion.plan_prepared`: lengths drawn ``batch_size``
+        captions at a time where not given, then the latent draws of each batch of
+        :func:`generation_batches`) and its models."""
         from t2m.pipeline import PreparedText
 
         pipeline = self.pipeline
         generator = torch.Generator(pipeline.device).manual_seed(seed)
         encoded = self._encode(pipeline.vectorizer, captions)
-        if lengths is None:
-            # the clause plan draws a caption of several clauses clause by clause (as
-            # t2m.sample does); the paper's plan draws whole captions
-            parts = [self._clauses(pipeline, c) if self.plan == "clauses" else () for c in captions]
-            prepared = [
-                PreparedText(c.text, e, (), (), p)
-                for c, e, p in zip(captions, encoded, parts, strict=True)
-            ]
-            frames = np.concatenate(
-                [
-                    pipeline.sample_lengths(prepared[chunk], generator)
-                    for chunk in _chunks(len(prepared), self.batch_size)
-                ]
-            ).astype(np.int64)
-        else:
-            frames = np.asarray(lengths, dtype=np.int64)
-            if len(frames) != len(captions):
-                raise ValueError(f"{len(frames)} lengths for {len(captions)} captions")
-        clauses = None
-        if self.plan == "clauses":
-            clauses = [self._clauses(pipeline, c) for c in captions]
+        # the clause plan draws and generates a caption of several clauses clause by clause (as
+        # t2m.sample does); the paper's plan whole captions
+        parts = [self._clauses(pipeline, c) if self.plan == "clauses" else () for c in captions]
+        prepared = [
+            PreparedText(c.text, e, (), (), p)
+            for c, e, p in zip(captions, encoded, parts, strict=True)
+        ]
+        if lengths is not None:
+            lengths = [int(n) for n in lengths]
+        planned = pipeline.plan_prepared(
+            prepared,
+            1,
+            lengths,
+            generator,
+            batch_size=self.batch_size,
+            length_batch=self.batch_size,
+        )
         out: list[np.ndarray | None] = [None] * len(captions)
-        for index in generation_batches(frames, self.batch_size):
+        for items, frames, noise in planned.batches():
+            index = [p for p, _ in items]
             features = pipeline.generate_features(
                 [encoded[i] for i in index],
-                [int(frames[i]) for i in index],
+                frames,
                 generator,
-                clauses=None if clauses is None else [clauses[i] for i in index],
+                noise=noise,
+                clauses=None if self.plan != "clauses" else [parts[i] for i in index],
             )
             for item, feats in zip(index, features, strict=True):
                 out[item] = feats

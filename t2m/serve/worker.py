@@ -2,10 +2,11 @@
 requests waiting together are generated in one batch.
 
 Batching keeps every request's motions what it would get alone: each request has its own
-``torch.Generator`` seeded by its seed, which draws its lengths (text2length) and then its latent
-noise exactly as :meth:`t2m.pipeline.TextToMotion.generate` draws them for a request of at most
-``batch_size`` motions; the rows of several requests are then stacked (noise padded with zeros
-past each row's end, which the recurrence never reads) and generated in one pass. So a seed gives
+``torch.Generator`` seeded by its seed, from which :meth:`t2m.pipeline.TextToMotion.plan` draws
+its lengths (text2length) and then its latent noise, as :meth:`~t2m.pipeline.TextToMotion.generate`
+does for a request of at most ``batch_size`` motions; the rows of several requests are then
+stacked (noise padded with zeros past each row's end, which the recurrence never reads) and
+generated in one pass. So a seed gives
 the motions ``python -m t2m.sample --seed`` gives for the same prompts and lengths, up to float
 rounding of the batched matrix products.
 """
@@ -22,7 +23,8 @@ from dataclasses import dataclass, field
 
 import torch
 
-from t2m.pipeline import GeneratedMotion, PreparedText, TextToMotion, frames_for
+from t2m.motion import GeneratedMotion
+from t2m.pipeline import PreparedText, TextToMotion
 
 logger = logging.getLogger(__name__)
 
@@ -72,30 +74,23 @@ class _Rows:
     noise: torch.Tensor  # (len(items), max snippets of the job, Z)
 
 
+LENGTH_BATCH = 256
+"""Prompts whose lengths the text2length model reads at a time (at least)."""
+
+
 def _prepare_job(pipe: TextToMotion, job: GenerationJob) -> _Rows:
-    """Words, lengths and noise of one job, drawn from its own generator in the order
-    :meth:`TextToMotion.generate` draws them (lengths first, then one noise tensor)."""
-    prepared = pipe.prepare(job.texts)
+    """Words, lengths and noise of one job (:meth:`TextToMotion.plan`), drawn from its own
+    generator, the noise as one tensor for all its motions."""
     generator = torch.Generator(pipe.device).manual_seed(job.seed)
-    items = [(p, r) for p in range(len(job.texts)) for r in range(job.num_samples)]
-    fixed = [None if n is None else frames_for(n, pipe.spec) for n in job.frames]
-    frames = {item: fixed[item[0]] for item in items}
-    unsized = [p for p in range(len(job.texts)) if fixed[p] is None]
-    if unsized:
-        drawn = iter(
-            pipe.sample_lengths([prepared[p] for p in unsized], generator, repeats=job.num_samples)
-        )
-        for p in unsized:
-            for r in range(job.num_samples):
-                frames[(p, r)] = next(drawn)
-    order = sorted(items, key=lambda item: -frames[item])
-    unit = pipe.spec.snippet_length
-    steps = max(frames[item] for item in order) // unit
-    latent = pipe.vae.config.latent_size
-    noise = torch.randn(
-        len(order), steps, latent, generator=generator, device=pipe.device, dtype=pipe.dtype
+    planned = pipe.plan(
+        job.texts,
+        job.num_samples,
+        job.frames,
+        generator,
+        batch_size=max(LENGTH_BATCH, job.num_motions),
     )
-    return _Rows(job, prepared, order, [frames[item] for item in order], noise)
+    (noise,) = planned.noise
+    return _Rows(job, planned.prepared, planned.items, planned.frames, noise)
 
 
 def generate_jobs(pipe: TextToMotion, jobs: list[GenerationJob]) -> None:
