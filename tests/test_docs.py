@@ -43,7 +43,7 @@ def test_every_command_page_has_its_tables():
     }
     assert {
         "t2m.sample:SampleConfig",
-        "t2m.edit.__main__:EditConfig",
+        "t2m.edit.__main__:EditConfig t2m.edit.request:EditRequest,unset",
         "t2m.serve.__main__:ServeConfig",
         "t2m.train.__main__:parser",
         "t2m.evaluate.__main__:parser",
@@ -60,8 +60,8 @@ def test_a_table_is_regenerated_from_its_dataclass():
     assert docs_options.render(fresh) == fresh
 
 
-def test_unset_shows_a_field_without_its_dataclass_default():
-    table = docs_options.options_table("dataset_tools.build:BuildConfig unset=workers")
+def test_nodefault_shows_a_field_without_its_dataclass_default():
+    table = docs_options.options_table("dataset_tools.build:BuildConfig,nodefault=workers")
     row = next(line for line in table.splitlines() if line.startswith("| `--workers"))
     assert "(default:" not in row
     assert "| `--max-seconds MAX_SECONDS` |" in table and "(default: 10.0)" in table
@@ -160,3 +160,46 @@ def test_readme_layout_names_every_module():
             and (entry.is_dir() or entry.suffix == ".py")
         }
         assert named[package] == present, (package, named[package] ^ present)
+
+
+# Each table's marker and the command whose --help it mirrors.
+COMMANDS = {
+    "dataset_tools.build:BuildConfig,nodefault=workers": "dataset_tools.build",
+    "dataset_tools.synth.cli:SynthConfig": "dataset_tools.synth.cli",
+    "t2m.train.__main__:parser": "t2m.train.__main__",
+    "t2m.demo:DemoConfig": "t2m.demo",
+    "t2m.sample:SampleConfig": "t2m.sample",
+    "t2m.edit.__main__:EditConfig t2m.edit.request:EditRequest,unset": "t2m.edit.__main__",
+    "t2m.serve.__main__:ServeConfig": "t2m.serve.__main__",
+    "t2m.evaluate.__main__:parser": "t2m.evaluate.__main__",
+}
+
+
+def _option_flags(text: str) -> set[str]:
+    """The option flags in ``text`` but the negative --no-x, help and the commands' -v."""
+    flags = set(re.findall(r"(?<![\w-])(--?[a-z][\w-]*)", text))
+    return {flag for flag in flags if not flag.startswith("--no-")} - {
+        "-h",
+        "-m",
+        "-v",
+        "--verbose",
+    }
+
+
+@pytest.mark.parametrize("spec", COMMANDS)
+def test_a_table_lists_the_options_of_its_command(spec, capsys, monkeypatch):
+    """The marker mirrors how the command assembles its parser: the same options (a dataclass
+    added to the command, or a hand-made option, shows up here)."""
+    monkeypatch.setenv("COLUMNS", "1000")
+    main = importlib.import_module(COMMANDS[spec]).main
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    cells = re.findall(r"^\| `([^`]*)`", docs_options.options_table(spec), re.MULTILINE)
+    usage = capsys.readouterr().out.split("\n\n")[0]
+    assert _option_flags(usage) == _option_flags(" ".join(cells))
+    specs = {
+        match["spec"]
+        for path in DOCS.glob("*.md")
+        for match in docs_options.BLOCK.finditer(path.read_text())
+    }
+    assert spec in specs

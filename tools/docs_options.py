@@ -10,12 +10,15 @@ A table sits between two marker comments in a page::
 
     <!-- /options -->
 
-The opening marker names what the command builds its options from: a config dataclass
-(``module:Class``, its options added by ``dataset_tools.command.add_config_options`` as the
-command adds them) or a function that returns the command's parser (``module:function``).
-``unset=a,b`` after a dataclass shows those fields without a default, for a command that sets
-its own (its docstring says which). Each row is what ``--help`` prints for one option: its
-flags and placeholder, its help text with the default.
+The opening marker names what the command builds its options from, in the command's order: one
+or more config dataclasses (``module:Class``, each added by
+``dataset_tools.command.add_config_options`` as the command adds it), or a function that
+returns the command's parser (``module:function``). A dataclass may carry flags after a comma:
+``,unset`` as the command's ``add_config_options(..., unset=True)``; ``,nodefault=FIELD`` (one
+per field) shows that field without a default, for a command that sets its own (its docstring
+says which).
+Each row is what ``--help`` prints for one option: its flags and placeholder, its help text
+with the default.
 
     python tools/docs_options.py            # names the stale pages, exit status 1 if any
     python tools/docs_options.py --write    # rewrites the tables in place
@@ -43,24 +46,29 @@ BLOCK = re.compile(
 )
 
 
-def _target(spec: str) -> argparse.ArgumentParser:
-    """The parser a marker's ``module:name [unset=a,b]`` describes."""
-    words = spec.split()
-    module_name, _, name = words[0].partition(":")
-    unset = [
-        field for word in words[1:] if word.startswith("unset=") for field in word[6:].split(",")
-    ]
+def _resolve(name: str, spec: str):
+    module_name, _, attribute = name.partition(":")
     try:
-        target = getattr(importlib.import_module(module_name), name)
-    except (ImportError, AttributeError) as error:
+        return getattr(importlib.import_module(module_name), attribute)
+    except (ImportError, AttributeError, ValueError) as error:
         raise LookupError(f"marker '{spec}' names nothing importable: {error}") from None
-    if dataclasses.is_dataclass(target):
-        parser = CommandParser(prog=module_name)
-        add_config_options(parser, target, dict.fromkeys(unset))
-        return parser
-    parser = target()
-    if not isinstance(parser, argparse.ArgumentParser):
-        raise LookupError(f"marker '{spec}': {name}() returned no ArgumentParser")
+
+
+def _target(spec: str) -> argparse.ArgumentParser:
+    """The parser a marker's ``module:name[,flags] ...`` describes."""
+    parser = CommandParser(prog="docs")
+    for item in spec.split():
+        name, *flags = item.split(",")
+        target = _resolve(name, spec)
+        if not dataclasses.is_dataclass(target):
+            if len(spec.split()) > 1 or flags:
+                raise LookupError(f"marker '{spec}': a parser function stands alone")
+            parser = target()
+            if not isinstance(parser, argparse.ArgumentParser):
+                raise LookupError(f"marker '{spec}': {name}() returned no ArgumentParser")
+            return parser
+        nodefault = [flag.partition("=")[2] for flag in flags if flag.startswith("nodefault=")]
+        add_config_options(parser, target, dict.fromkeys(nodefault), unset="unset" in flags)
     return parser
 
 
