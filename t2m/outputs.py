@@ -37,11 +37,11 @@ import numpy as np
 
 from dataset_tools.command import UsageError
 from dataset_tools.io import atomic_write, check_output_folder, write_json_atomic
+from t2m.motion import GeneratedMotion
 from t2m.prompts import Prompt
 
 if TYPE_CHECKING:
     from dataset_tools.spec import DatasetSpec
-    from t2m.pipeline import GeneratedMotion
 
 logger = logging.getLogger(__name__)
 

@@ -14,7 +14,8 @@ import numpy as np
 
 from dataset_tools.command import UsageError
 from dataset_tools.spec import DatasetSpec
-from t2m.pipeline import PRECISIONS, GeneratedMotion, PreparedText, frames_for
+from t2m.motion import GeneratedMotion
+from t2m.pipeline import PRECISIONS, PreparedText, frames_for
 from t2m.prompts import Prompt, parse_prompt_line
 
 GENERATE_KEYS = {"prompts", "seconds", "samples", "seed", "precision"}

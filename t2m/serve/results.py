@@ -25,8 +25,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from t2m.motion import GeneratedMotion
 from t2m.outputs import motion_file_name, write_motion_file, write_summaries
-from t2m.pipeline import GeneratedMotion
 
 logger = logging.getLogger(__name__)
 
