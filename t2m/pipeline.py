@@ -32,14 +32,15 @@ Precision: ``fp32`` (reference), ``bf16`` (weights and activations in bfloat16) 
 in bfloat16 where the hardware computes it natively, else in float32). At batch 1 the prior /
 generator step reads every weight once per 4 frames, so smaller weights are faster, but only
 where bfloat16 is native (:func:`t2m.hardware.native_bf16`: a GPU, or a CPU with AVX512_BF16 or
-AMX). Elsewhere bf16 is slower than fp32 (:data:`BF16_EMULATED_COST`): it still runs when asked
-for, with a warning. ``backend="onnx"`` runs that step in ONNX Runtime instead of torch (fp32 and
-int8, :mod:`t2m.accel.onnx`). The models run through :func:`t2m.accel.accelerate`.
+AMX). Elsewhere bf16 is slower than fp32
+(:data:`t2m.inference.conversion.BF16_EMULATED_COST`): it still runs when asked for, with a
+warning. ``backend="onnx"`` runs that step in ONNX Runtime instead of torch (fp32 and int8,
+:mod:`t2m.accel.onnx`). Loading is :mod:`t2m.inference.loading`, conversion (device, precision,
+backend, :func:`t2m.accel.accelerate`) :func:`t2m.inference.conversion.convert`.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 from collections.abc import Collection, Iterator, Sequence
@@ -53,12 +54,14 @@ from dataset_tools.cleanup import clean_features
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from dataset_tools.spec import HUMANML3D, DatasetSpec, spec_for_dim
-from t2m.accel import BACKENDS, ONNX_PRECISIONS, PRECISIONS, accelerate
-from t2m.accel.onnx import require as require_onnx
+from t2m.accel import PRECISIONS as PRECISIONS
 from t2m.clauses import clause_captions, clause_targets, share_snippets
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
-from t2m.hardware import device_description, native_bf16
+from t2m.inference.conversion import BF16_EMULATED_COST as BF16_EMULATED_COST
+from t2m.inference.conversion import convert
+from t2m.inference.conversion import offered_precisions as offered_precisions
+from t2m.inference.loading import load_models
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
     MovementDecoder,
@@ -70,28 +73,6 @@ from t2m.models.temporal_vae import TemporalVAE
 from t2m.motion import GeneratedMotion
 
 logger = logging.getLogger(__name__)
-
-BF16_EMULATED_COST = (
-    "it took 1.1x fp32's CPU time at batch 1 and 4.9x at batch 32 (the decoder alone 4.6x) on "
-    "an AMD EPYC Zen 3 with AVX2 only (paper-size models, one thread)"
-)
-"""What bf16 costs where bfloat16 is not native (measured with the models and prompts of
-:mod:`t2m.benchmarks.sample`); against the original T2M it took 0.80x of its time at batch 1 (0.27x
-on an AVX-512 CPU) and 2.79x at batch 32."""
-
-
-def offered_precisions(device: str | torch.device) -> list[str]:
-    """The precisions worth offering on ``device`` (the web app's choices): fp32; bf16 where
-    bfloat16 is native (elsewhere it is slower than fp32, though it still runs when asked for);
-    int8 on the CPU."""
-    device = torch.device(device)
-    return [
-        precision
-        for precision in PRECISIONS
-        if (precision != "bf16" or native_bf16(device))
-        and (precision != "int8" or device.type == "cpu")
-    ]
-
 
 PLANS = ("clauses", "whole")
 """How a prompt is generated: clause by clause (:mod:`t2m.clauses`) or in one pass (the paper)."""
@@ -223,40 +204,19 @@ class TextToMotion:
         copy_models: bool = True,
         backend: str = "torch",
     ) -> None:
-        if backend not in BACKENDS:
-            raise ValueError(f"unknown backend {backend!r}; use one of {', '.join(BACKENDS)}")
-        if backend == "onnx" and (
-            precision not in ONNX_PRECISIONS or torch.device(device).type != "cpu"
-        ):
-            raise ValueError(f"the onnx backend runs {' and '.join(ONNX_PRECISIONS)} on the CPU")
-        if backend == "onnx":
-            require_onnx()
-        self.backend = backend
-        if precision not in PRECISIONS:
-            raise ValueError(f"unknown precision {precision!r}; use one of {', '.join(PRECISIONS)}")
-        self.device = torch.device(device)
-        if precision == "int8" and self.device.type != "cpu":
-            raise ValueError("int8 inference runs on the CPU only; use --precision bf16 on a GPU")
-        self.precision = precision
-        self.dtype = torch.bfloat16 if precision == "bf16" else torch.float32
-        native = native_bf16(self.device)
-        if precision == "bf16" and not native:
-            logger.warning(
-                "bf16 runs slower than fp32 on %s, which has no native bfloat16: %s; "
-                "fp32 or int8 is faster here",
-                device_description(self.device),
-                BF16_EMULATED_COST,
-            )
-        self.spec = spec or spec_for_dim(normalizer.dim)
-        if self.spec.feature_dim != normalizer.dim:
+        # what the models read: checked before anything is converted
+        spec = spec or spec_for_dim(normalizer.dim)
+        if spec.feature_dim != normalizer.dim:
             raise ValueError(
-                f"{self.spec.name} has {self.spec.feature_dim}-d features, the "
-                f"statistics {normalizer.dim}"
+                f"{spec.name} has {spec.feature_dim}-d features, the statistics {normalizer.dim}"
             )
-        check_snippet_length(self.spec.snippet_length)
-        self.normalizer = normalizer
-        self.vectorizer = vectorizer
-        self.spacy_pos = spacy_pos
+        check_snippet_length(spec.snippet_length)
+        length_vectorizer = length_vectorizer or vectorizer
+        if not length_vectorizer.compatible(vectorizer):
+            raise ValueError(
+                "the text2length model and the text-to-motion model use different "
+                "word vectors (retrain with `make train-len` on the same dataset)"
+            )
         if training_words is None:
             logger.debug(
                 "no training words stored with the model (an older checkpoint): prompts are "
@@ -264,43 +224,29 @@ class TextToMotion:
                 vectorizer.size,
             )
             training_words = set(vectorizer.words) - {"sos", "eos", "unk"}
-        self.training_words = frozenset(training_words)
-        vae = vae.to(self.device).eval()
-        decoder = decoder.to(self.device).eval()
-        if not copy_models and encoder is None:
-            # nothing here reads the posterior without an encoder (it reads an edit's kept start)
-            vae.release_posterior()
-        if copy_models and precision != "fp32":
-            vae = copy.deepcopy(vae)
-        elif copy_models and backend == "onnx":  # the caller's module keeps its own rollout
-            vae = copy.copy(vae)  # shares the weights
-        self.vae = accelerate(vae, precision, backend)
-        # The decoder's transposed convolutions have no dynamic-int8 kernels. With int8 they run
-        # in bfloat16 where it is native (3x faster at batch 32 with AMX, ~0.5% relative error),
-        # else in float32 (bf16 took 4.6x fp32's time there).
-        bf16_decoder = precision == "bf16" or (precision == "int8" and native)
-        self.decoder_dtype = torch.bfloat16 if bf16_decoder else torch.float32
-        if precision == "int8" and not native:
-            logger.info(
-                "int8: the movement decoder runs in float32 on %s, which has no native "
-                "bfloat16 (a bf16 decoder took 4.6x fp32's time on an AVX2 CPU)",
-                device_description(self.device),
-            )
-        if self.decoder_dtype != torch.float32 and copy_models:
-            decoder = copy.deepcopy(decoder)
-        self.decoder = accelerate(decoder, "bf16" if bf16_decoder else "fp32")
-        self.encoder = accelerate(encoder.to(self.device).eval()) if encoder is not None else None
-        self.encoder_input_size = self.spec.feature_dim - CONTACT_DIMS
-        self.initial_code = initial_code.to(self.device, self.dtype)
-        self.length_model = (
-            accelerate(length_model.to(self.device).eval()) if length_model else None
+        # the models, converted (device, precision, backend) and accelerated
+        self.device = torch.device(device)
+        models = convert(
+            vae,
+            decoder,
+            self.device,
+            precision,
+            backend,
+            encoder=encoder,
+            length_model=length_model,
+            copy_models=copy_models,
         )
-        self.length_vectorizer = length_vectorizer or vectorizer
-        if not self.length_vectorizer.compatible(vectorizer):
-            raise ValueError(
-                "the text2length model and the text-to-motion model use different "
-                "word vectors (retrain with `make train-len` on the same dataset)"
-            )
+        self.precision, self.backend = precision, backend
+        self.vae, self.decoder, self.encoder = models.vae, models.decoder, models.encoder
+        self.length_model = models.length_model
+        self.dtype, self.decoder_dtype = models.dtype, models.decoder_dtype
+        self.spec = spec
+        self.normalizer = normalizer
+        self.vectorizer, self.length_vectorizer = vectorizer, length_vectorizer
+        self.training_words = frozenset(training_words)
+        self.spacy_pos = spacy_pos
+        self.encoder_input_size = spec.feature_dim - CONTACT_DIMS
+        self.initial_code = initial_code.to(self.device, self.dtype)
 
     def with_precision(self, precision: str) -> TextToMotion:
         """The same models, vocabulary and settings behind another inference precision (from a
@@ -338,89 +284,15 @@ class TextToMotion:
         backend: str = "torch",
     ) -> TextToMotion:
         """Load the ``generator`` (and ``length``) stages of a run folder, or the original T2M
-        release's models from any folder of its layout (:func:`t2m.release.load_release`;
-        ``glove_dir``: its GloVe subset, default ``glove/`` beside its ``checkpoints/``).
+        release's models from any folder of its layout (:func:`t2m.inference.loading.load_models`;
+        ``glove_dir``: its GloVe subset, default ``glove/`` beside its ``checkpoints/``), and
+        convert them in place (the pipeline owns what it loads).
 
         Raises ValueError, one line naming the make target that trains a missing stage, when a
         stage is missing, unreadable or does not belong with the other.
         """
-        from t2m.release import is_release_folder, load_release
-        from t2m.train.runtime import resolve_device
-        from t2m.train.stages import find_stage, load_stage
-
-        run_dir = Path(run_dir)
-        if is_release_folder(run_dir):
-            release = load_release(run_dir, glove_dir, resolve_device(device), need_length_model)
-            return cls(
-                vae=release.vae,
-                decoder=release.decoder,
-                normalizer=release.normalizer,
-                vectorizer=release.vectorizer,
-                initial_code=release.initial_code,
-                spec=release.spec,
-                length_model=release.length_model,
-                device=resolve_device(device),
-                precision=precision,
-                encoder=release.encoder,
-                copy_models=False,
-                backend=backend,
-            )
-        if not run_dir.is_dir():
-            raise ValueError(
-                f"no checkpoint folder {run_dir} (train one with `make train-ae train-len "
-                "train-t2m`, or pass --checkpoints DIR)"
-            )
-        resolved = resolve_device(device)
-        retrain = {
-            name: f"`make {find_stage(name).make_target}`" for name in ("generator", "length")
-        }
-
-        def load(stage: str):
-            try:
-                return load_stage(run_dir, stage, resolved, which)
-            except ValueError as error:
-                if "make " in str(error):  # it already says what to run
-                    raise
-                raise UsageError(f"{error} (train it with {retrain[stage]})") from None
-
-        t2m = load("generator")
-        length = load("length") if need_length_model else None
-        if t2m.vectorizer is None or t2m.initial_code is None:
-            raise ValueError(
-                f"{t2m.path}: incomplete generator checkpoint (retrain with {retrain['generator']})"
-            )
-        if length is not None:
-            if length.vectorizer is None or not length.vectorizer.compatible(t2m.vectorizer):
-                raise ValueError(
-                    f"{length.path} was trained with other word vectors than {t2m.path} "
-                    f"(retrain with {retrain['length']} on the same dataset)"
-                )
-            if length.spec != t2m.spec:
-                raise ValueError(
-                    f"{length.path} was trained on {length.spec.name}, {t2m.path} "
-                    f"on {t2m.spec.name} (retrain with {retrain['length']})"
-                )
-        try:  # the frozen encoder of the autoencoder stage: only edits use it
-            encoder = load_stage(run_dir, "autoencoder", resolved, which).models["autoencoder"]
-            encoder = encoder.encoder
-        except ValueError:
-            encoder = None
-        return cls(
-            vae=t2m.models["vae"],
-            decoder=t2m.models["decoder"],
-            normalizer=t2m.normalizer,
-            vectorizer=t2m.vectorizer,
-            initial_code=t2m.initial_code,
-            spec=t2m.spec,
-            length_model=length.models["length"] if length else None,
-            length_vectorizer=length.vectorizer if length else None,
-            device=resolved,
-            precision=precision,
-            training_words=t2m.extra.get("training_words"),
-            encoder=encoder,
-            copy_models=False,
-            backend=backend,
-        )
+        loaded = load_models(run_dir, device, need_length_model, which, glove_dir)
+        return cls(**loaded.arguments(), precision=precision, copy_models=False, backend=backend)
 
     # -- steps -------------------------------------------------------------------------------
 

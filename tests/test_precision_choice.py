@@ -74,11 +74,11 @@ def test_an_unknown_device_type_is_not_native():
 
 def test_int8_runs_a_float32_decoder_without_native_bf16(fp32_pipe, monkeypatch, caplog):
     fake_cpu(monkeypatch, bf16=False)
-    caplog.set_level(logging.INFO, logger="t2m.pipeline")
+    caplog.set_level(logging.INFO, logger="t2m.inference.conversion")
     pipe = fp32_pipe.with_precision("int8")
     assert pipe.decoder_dtype == torch.float32
     assert next(pipe.decoder.parameters()).dtype == torch.float32
-    [line] = records(caplog, "t2m.pipeline")
+    [line] = records(caplog, "t2m.inference.conversion")
     assert line.levelno == logging.INFO
     message = line.getMessage()
     assert "float32" in message and "no native bfloat16" in message and "no AMX" in message
@@ -88,20 +88,20 @@ def test_int8_runs_a_float32_decoder_without_native_bf16(fp32_pipe, monkeypatch,
 
 def test_int8_runs_a_bf16_decoder_with_native_bf16(fp32_pipe, monkeypatch, caplog):
     fake_cpu(monkeypatch, bf16=False, amx=True)
-    caplog.set_level(logging.INFO, logger="t2m.pipeline")
+    caplog.set_level(logging.INFO, logger="t2m.inference.conversion")
     pipe = fp32_pipe.with_precision("int8")
     assert pipe.decoder_dtype == torch.bfloat16
     assert next(pipe.decoder.parameters()).dtype == torch.bfloat16
-    assert records(caplog, "t2m.pipeline") == []
+    assert records(caplog, "t2m.inference.conversion") == []
 
 
 def test_explicit_bf16_runs_but_warns_with_its_cost(fp32_pipe, monkeypatch, caplog):
     fake_cpu(monkeypatch, bf16=False)
     monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
-    caplog.set_level(logging.INFO, logger="t2m.pipeline")
+    caplog.set_level(logging.INFO, logger="t2m.inference.conversion")
     pipe = fp32_pipe.with_precision("bf16")
     assert pipe.dtype == pipe.decoder_dtype == torch.bfloat16  # asked for, so it runs
-    [line] = records(caplog, "t2m.pipeline")
+    [line] = records(caplog, "t2m.inference.conversion")
     assert line.levelno == logging.WARNING
     message = line.getMessage()
     assert "4.9x at batch 32" in message and "AVX2" in message and "restricted by" in message
@@ -109,7 +109,7 @@ def test_explicit_bf16_runs_but_warns_with_its_cost(fp32_pipe, monkeypatch, capl
     caplog.clear()
     fake_cpu(monkeypatch, bf16=True)
     assert fp32_pipe.with_precision("bf16").dtype == torch.bfloat16
-    assert records(caplog, "t2m.pipeline") == []
+    assert records(caplog, "t2m.inference.conversion") == []
 
 
 def test_the_web_app_offers_bf16_only_where_it_is_native(monkeypatch):
