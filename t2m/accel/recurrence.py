@@ -239,7 +239,8 @@ BLOCKS = ("prior", "posterior", "generator")
 class _Recurrence(torch.autograd.Function):
     """The training loop of :func:`fast_forward` as one autograd node. The forward runs the
     steps without recording a graph and keeps what the backward needs; the backward runs them
-    in reverse with the gradients written out (GRU, LayerNorm, attention), and each weight's
+    in reverse with the gradients written out (GRU, LayerNorm, attention; :class:`_Backward`),
+    and each weight's
     gradient is one product over all steps. Autograd's graph of the loop held about 60 nodes
     per step; the engine's bookkeeping of them was much of a demo-size step's time.
 
@@ -399,163 +400,201 @@ class _Recurrence(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, *grads):
         with torch.autocast(ctx.keys.device.type, enabled=False):
-            return _Recurrence._backward(ctx, *grads)
+            return _Backward(ctx, *grads).run()
 
-    @staticmethod
-    def _backward(ctx, grad_prior, grad_second, grad_mean, grad_logvar):
-        loop, products, kept, read, norms = ctx.loop, ctx.products, ctx.kept, ctx.read, ctx.norms
-        keys, values, work, forced = ctx.keys, ctx.values, loop.work, loop.teacher_forcing
-        steps, batch = len(kept["z"]), keys.shape[0]
-        hidden = loop.time_codes.shape[-1]
-        attention_size, latent_size = keys.shape[-1], loop.noise.shape[-1]
-        scale = attention_size**-0.5
 
-        def given(grad, size):
-            return keys.new_zeros(batch, steps, size) if grad is None else grad.to(work)
+class _Backward:
+    """:class:`_Recurrence`'s backward, in the order it runs: the output head (free-running),
+    the prior's GRU through time and its input path (:meth:`prior`), the steps in reverse
+    (:meth:`step`: the generator, the latent, the posterior, the attention), the readers' calls
+    on the initial states (:meth:`initial_states`), then one product per weight over all steps
+    (:meth:`weight_gradients`). Gradients of step i + 1's inputs are carried between steps:
+    each block's state (through its GRU alone, ``carry``), the hidden gates its reader made
+    (``next_gates``) and the attention query (``next_query``)."""
 
-        grad_prior = given(grad_prior, hidden).unbind(1)
-        grad_mean = given(grad_mean, latent_size).unbind(1)
-        grad_logvar = given(grad_logvar, latent_size).unbind(1)
-        noise = loop.noise.to(work).unbind(1)
-        result = {}
-        norm_grads = {name: [None, None] for name in norms}
-        if forced:
-            grad_states = given(grad_second, hidden).unbind(1)
-        else:  # no gradient through the fed-back codes: the output head at once for all steps
-            grad_codes = given(grad_second, products["last"].weight.shape[0])  # (B, S, C)
-            head_inputs = torch.stack(kept["head_inputs"], dim=1)  # (B, S, H)
-            result["last"] = matmul(grad_codes.flatten(0, 1).t(), head_inputs.flatten(0, 1))
-            result["last_bias"] = grad_codes.sum((0, 1))
-            saved = [torch.stack(parts, dim=1) for parts in list(zip(*kept["head"]))[:4]]
-            saved += norms["output"]
-            grad_head = grad_codes @ products["last"].weight.to(work)
-            grad_first = _norm_backward(grad_head, saved, norm_grads["output"]).unbind(1)
-        reader_grads = {block: [] for block in BLOCKS}  # per call, from the last one back
-        gate_grads = {block: [] for block in BLOCKS}
-        pre_grads, latent_grads, current_grads, score_grads, attention_grads = [], [], [], [], []
-        # gradients of step i + 1's inputs: the states (through the GRUs alone), the readers'
-        # parts read at step i + 1 (hidden gates, query)
-        carry = dict.fromkeys(BLOCKS)
-        next_gates = dict.fromkeys(BLOCKS)
-        next_query = None
+    def __init__(self, ctx, grad_prior, grad_second, grad_mean, grad_logvar):
+        self.ctx, loop = ctx, ctx.loop
+        self.loop, self.products, self.kept, self.norms = loop, ctx.products, ctx.kept, ctx.norms
+        self.keys, self.values, self.work = ctx.keys, ctx.values, loop.work
+        self.forced = loop.teacher_forcing
+        self.steps, self.batch = len(self.kept["z"]), self.keys.shape[0]
+        self.hidden = loop.time_codes.shape[-1]
+        self.attention_size, self.latent_size = self.keys.shape[-1], loop.noise.shape[-1]
+        self.grad_prior = self.given(grad_prior, self.hidden).unbind(1)
+        self.grad_mean = self.given(grad_mean, self.latent_size).unbind(1)
+        self.grad_logvar = self.given(grad_logvar, self.latent_size).unbind(1)
+        self.grad_second = grad_second
+        self.noise = loop.noise.to(self.work).unbind(1)
+        self.result = {}
+        self.norm_grads = {name: [None, None] for name in self.norms}
+        self.reader_grads = {block: [] for block in BLOCKS}  # per call, from the last one back
+        self.gate_grads = {block: [] for block in BLOCKS}
+        self.pre_grads, self.latent_grads, self.current_grads = [], [], []
+        self.score_grads, self.attention_grads = [], []
+        self.carry = dict.fromkeys(BLOCKS)
+        self.next_gates = dict.fromkeys(BLOCKS)
+        self.next_query = None
 
-        def zeros(size):
-            return keys.new_zeros(batch, size)
+    def given(self, grad: torch.Tensor | None, size: int) -> torch.Tensor:
+        """An output's gradient (B, S, size) in the working dtype, zeros where none came."""
+        if grad is None:
+            return self.keys.new_zeros(self.batch, self.steps, size)
+        return grad.to(self.work)
 
-        def state_grad(block, direct, call_grad):
-            """Gradient of a state after step i: its reader's call after the step (if made),
-            the next step's GRU, and ``direct`` (an output's gradient)."""
-            grad = direct
-            if carry[block] is not None:
-                grad = carry[block] if grad is None else grad + carry[block]
-            if call_grad is not None:
-                reader_grads[block].append(call_grad)
-                through = products[f"{block}_reader"].backward(call_grad)
-                grad = through if grad is None else grad + through
-            return zeros(hidden) if grad is None else grad
+    def zeros(self, size: int) -> torch.Tensor:
+        return self.keys.new_zeros(self.batch, size)
 
-        def block_backward(block, i, grad_state):
-            """Gradient of the state after step i -> of the block's preactivation (B, H); keeps
-            the gradients of its hidden gates and of the state before the step."""
-            grad_gates, next_gates[block], carry[block] = _gru_backward(
-                kept[f"gru_{block}"][i], grad_state
-            )
-            gate_grads[block].append(grad_gates)
-            grad = products[f"{block}_gates"].backward(grad_gates)
-            return _norm_backward(grad, kept[f"norm_{block}"][i], norm_grads[block])
+    def run(self) -> tuple:
+        """The gradients of :meth:`_Recurrence.forward`'s inputs, in its order."""
+        if self.forced:
+            self.grad_states = self.given(self.grad_second, self.hidden).unbind(1)
+        else:
+            self.output_head()
+        grad_pre_prior = self.prior()
+        for i in reversed(range(self.steps)):
+            self.step(i, grad_pre_prior[i])
+        initial = self.initial_states()
+        return self.weight_gradients(initial)
 
-        # the prior first (nothing in the loop reads it): its GRU backward through time, then its
-        # input path for all steps at once
+    def output_head(self) -> None:
+        """Free-running: no gradient through the fed-back codes, so the output head's backward
+        runs at once for all steps; ``grad_first`` (per step) reaches the generator's reader."""
+        kept, products, work = self.kept, self.products, self.work
+        grad_codes = self.given(self.grad_second, products["last"].weight.shape[0])  # (B, S, C)
+        head_inputs = torch.stack(kept["head_inputs"], dim=1)  # (B, S, H)
+        self.result["last"] = matmul(grad_codes.flatten(0, 1).t(), head_inputs.flatten(0, 1))
+        self.result["last_bias"] = grad_codes.sum((0, 1))
+        saved = [torch.stack(parts, dim=1) for parts in list(zip(*kept["head"]))[:4]]
+        saved += self.norms["output"]
+        grad_head = grad_codes @ products["last"].weight.to(work)
+        self.grad_first = _norm_backward(grad_head, saved, self.norm_grads["output"]).unbind(1)
+
+    def state_grad(self, block: str, direct, call_grad):
+        """Gradient of a state after step i: its reader's call after the step (if made),
+        the next step's GRU, and ``direct`` (an output's gradient)."""
+        grad = direct
+        if self.carry[block] is not None:
+            grad = self.carry[block] if grad is None else grad + self.carry[block]
+        if call_grad is not None:
+            self.reader_grads[block].append(call_grad)
+            through = self.products[f"{block}_reader"].backward(call_grad)
+            grad = through if grad is None else grad + through
+        return self.zeros(self.hidden) if grad is None else grad
+
+    def block_backward(self, block: str, i: int, grad_state: torch.Tensor) -> torch.Tensor:
+        """Gradient of the state after step i -> of the block's preactivation (B, H); keeps
+        the gradients of its hidden gates and of the state before the step."""
+        grad_gates, self.next_gates[block], self.carry[block] = _gru_backward(
+            self.kept[f"gru_{block}"][i], grad_state
+        )
+        self.gate_grads[block].append(grad_gates)
+        grad = self.products[f"{block}_gates"].backward(grad_gates)
+        return _norm_backward(grad, self.kept[f"norm_{block}"][i], self.norm_grads[block])
+
+    def prior(self) -> tuple[torch.Tensor, ...]:
+        """The prior (nothing in the loop reads it): its GRU backward through time, then its
+        input path for all steps at once -> the gradient of its preactivation per step."""
+        kept, steps, batch, hidden = self.kept, self.steps, self.batch, self.hidden
         grad_gates = []
         for i in reversed(range(steps)):
-            call = next_gates["prior"] if i + 1 < steps else None
-            grad, next_gates["prior"], carry["prior"] = _gru_backward(
-                kept["gru_prior"][i], state_grad("prior", grad_prior[i], call)
+            call = self.next_gates["prior"] if i + 1 < steps else None
+            grad, self.next_gates["prior"], self.carry["prior"] = _gru_backward(
+                kept["gru_prior"][i], self.state_grad("prior", self.grad_prior[i], call)
             )
             grad_gates.append(grad)
         grad_gates = torch.stack(grad_gates[::-1], dim=1).flatten(0, 1)  # (B*S, 3H)
         inputs = kept["inputs_prior"].flatten(0, 1)
-        result["prior_gates"], result["prior_gates_bias"] = _weight_gradient([grad_gates], [inputs])
-        grad_inputs = products["prior_gates"].backward(grad_gates).view(batch, steps, hidden)
-        grad_pre_prior = _norm_backward(
-            grad_inputs, kept["norm_prior"], norm_grads["prior"]
-        ).unbind(1)
+        self.result["prior_gates"], self.result["prior_gates_bias"] = _weight_gradient(
+            [grad_gates], [inputs]
+        )
+        grad_inputs = self.products["prior_gates"].backward(grad_gates).view(batch, steps, hidden)
+        return _norm_backward(grad_inputs, kept["norm_prior"], self.norm_grads["prior"]).unbind(1)
 
-        for i in reversed(range(steps)):
-            # the generator's reader after step i: next query and hidden gates, this step's head
-            call = None
-            if not forced or i + 1 < steps:
-                call = [
-                    zeros(attention_size) if next_query is None else next_query,
-                    zeros(3 * hidden)
-                    if next_gates["generator"] is None
-                    else next_gates["generator"],
-                ]
-                call = torch.cat(call + ([] if forced else [grad_first[i]]), dim=-1)
-            grad = state_grad("generator", grad_states[i] if forced else None, call)
-            grad_pre_gen = block_backward("generator", i, grad)
-            latent_grads.append(grad_pre_gen)
-            grad_z = products["latent"].backward(grad_pre_gen)
-            grad_mean_i = grad_z + grad_mean[i]
-            grad_logvar_i = torch.addcmul(
-                grad_logvar[i], grad_z, kept["std"][i] * noise[i], value=0.5
-            )
-            next_post = next_gates["posterior"]
+    def step(self, i: int, grad_pre_prior: torch.Tensor) -> None:
+        """Step i in reverse: the generator's state and block, z, the posterior's state and
+        block, then the attention (its query's gradient goes to step i - 1's reader)."""
+        kept, products, hidden = self.kept, self.products, self.hidden
+        # the generator's reader after step i: next query and hidden gates, this step's head
+        call = None
+        if not self.forced or i + 1 < self.steps:
             call = [
-                zeros(3 * hidden) if next_post is None else next_post,
-                grad_mean_i,
-                grad_logvar_i,
+                self.zeros(self.attention_size) if self.next_query is None else self.next_query,
+                self.zeros(3 * hidden)
+                if self.next_gates["generator"] is None
+                else self.next_gates["generator"],
             ]
-            grad = state_grad("posterior", None, torch.cat(call, dim=-1))
-            grad_pre_post = block_backward("posterior", i, grad)
-            current_grads.append(grad_pre_post)
-            grad_pre = torch.cat([grad_pre_prior[i], grad_pre_post, grad_pre_gen], dim=-1)
-            pre_grads.append(grad_pre)
-            grad_attention = products["attention"].backward(grad_pre)  # (B, A)
-            attention_grads.append(grad_attention)
-            grad_weights = torch.linalg.vecdot(values, grad_attention[:, None])  # (B, L)
-            grad_scores = torch.ops.aten._softmax_backward_data(
-                grad_weights, kept["weights"][i], -1, work
-            )
-            score_grads.append(grad_scores)
-            next_query = torch.bmm(grad_scores[:, None], keys)[:, 0]
-        # the readers' calls on the initial states
-        generator_call = [next_query, next_gates["generator"]] + ([] if forced else [zeros(hidden)])
-        initial = [
-            state_grad("prior", None, next_gates["prior"]),
-            state_grad(
-                "posterior", None, torch.cat([next_gates["posterior"], zeros(2 * latent_size)], -1)
-            ),
-            state_grad("generator", None, torch.cat(generator_call, dim=-1)),
+            call = torch.cat(call + ([] if self.forced else [self.grad_first[i]]), dim=-1)
+        grad = self.state_grad("generator", self.grad_states[i] if self.forced else None, call)
+        grad_pre_gen = self.block_backward("generator", i, grad)
+        self.latent_grads.append(grad_pre_gen)
+        grad_z = products["latent"].backward(grad_pre_gen)
+        grad_mean = grad_z + self.grad_mean[i]
+        grad_logvar = torch.addcmul(
+            self.grad_logvar[i], grad_z, kept["std"][i] * self.noise[i], value=0.5
+        )
+        next_post = self.next_gates["posterior"]
+        call = [
+            self.zeros(3 * hidden) if next_post is None else next_post,
+            grad_mean,
+            grad_logvar,
         ]
-        # per-sequence tensors and weights: one product each over all steps
+        grad = self.state_grad("posterior", None, torch.cat(call, dim=-1))
+        grad_pre_post = self.block_backward("posterior", i, grad)
+        self.current_grads.append(grad_pre_post)
+        grad_pre = torch.cat([grad_pre_prior, grad_pre_post, grad_pre_gen], dim=-1)
+        self.pre_grads.append(grad_pre)
+        grad_attention = products["attention"].backward(grad_pre)  # (B, A)
+        self.attention_grads.append(grad_attention)
+        grad_weights = torch.linalg.vecdot(self.values, grad_attention[:, None])  # (B, L)
+        grad_scores = torch.ops.aten._softmax_backward_data(
+            grad_weights, kept["weights"][i], -1, self.work
+        )
+        self.score_grads.append(grad_scores)
+        self.next_query = torch.bmm(grad_scores[:, None], self.keys)[:, 0]
+
+    def initial_states(self) -> list[torch.Tensor]:
+        """The readers' calls on the initial states -> the gradients of those states."""
+        next_gates, forced = self.next_gates, self.forced
+        generator_call = [self.next_query, next_gates["generator"]]
+        generator_call += [] if forced else [self.zeros(self.hidden)]
+        posterior_call = [next_gates["posterior"], self.zeros(2 * self.latent_size)]
+        return [
+            self.state_grad("prior", None, next_gates["prior"]),
+            self.state_grad("posterior", None, torch.cat(posterior_call, -1)),
+            self.state_grad("generator", None, torch.cat(generator_call, dim=-1)),
+        ]
+
+    def weight_gradients(self, initial: list[torch.Tensor]) -> tuple:
+        """Per-sequence tensors and weights, one product each over all steps, and every
+        gradient in the order and dtypes of the forward's inputs."""
+        kept, result, ctx = self.kept, self.result, self.ctx
         weights = torch.stack(kept["weights"], dim=1)  # (B, S, L)
-        grad_values = weights.transpose(1, 2) @ torch.stack(attention_grads[::-1], dim=1)
-        grad_keys = torch.stack(score_grads[::-1], dim=1).transpose(1, 2) @ torch.stack(
+        grad_values = weights.transpose(1, 2) @ torch.stack(self.attention_grads[::-1], dim=1)
+        grad_keys = torch.stack(self.score_grads[::-1], dim=1).transpose(1, 2) @ torch.stack(
             kept["query"], dim=1
         )
-        pre_grads = pre_grads[::-1]
+        pre_grads = self.pre_grads[::-1]
         result["attention"] = _weight_gradient(pre_grads, kept["attention"])[0]
-        result["latent"] = _weight_gradient(latent_grads[::-1], kept["z"])[0]
+        result["latent"] = _weight_gradient(self.latent_grads[::-1], kept["z"])[0]
         grad_previous_all = None
-        if forced:
+        if self.forced:
             grad_previous_all = torch.stack(pre_grads, dim=1)
         else:
             result["previous"], result["input_bias"] = _weight_gradient(pre_grads, kept["previous"])
         for block in BLOCKS:
             if block != "prior":
                 result[f"{block}_gates"], result[f"{block}_gates_bias"] = _weight_gradient(
-                    gate_grads[block][::-1], kept[f"inputs_{block}"]
+                    self.gate_grads[block][::-1], kept[f"inputs_{block}"]
                 )
             result[f"{block}_reader"], result[f"{block}_reader_bias"] = _weight_gradient(
-                reader_grads[block][::-1], read[block]
+                self.reader_grads[block][::-1], ctx.read[block]
             )
-        for name, (weight_grad, bias_grad) in norm_grads.items():
+        for name, (weight_grad, bias_grad) in self.norm_grads.items():
             result[f"{name}_norm"], result[f"{name}_norm_bias"] = weight_grad, bias_grad
         grads = [
-            grad_keys * scale,
+            grad_keys * self.attention_size**-0.5,
             grad_values,
-            torch.stack(current_grads[::-1], dim=1),
+            torch.stack(self.current_grads[::-1], dim=1),
             grad_previous_all,
             *initial,
             *(
