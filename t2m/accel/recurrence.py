@@ -240,9 +240,9 @@ class _Recurrence(torch.autograd.Function):
     """The training loop of :func:`fast_forward` as one autograd node. The forward runs the
     steps without recording a graph and keeps what the backward needs; the backward runs them
     in reverse with the gradients written out (GRU, LayerNorm, attention; :class:`_Backward`),
-    and each weight's
-    gradient is one product over all steps. Autograd's graph of the loop held about 60 nodes
-    per step; the engine's bookkeeping of them was much of a demo-size step's time.
+    and each weight's gradient is one product over all steps. Autograd's graph of the loop held
+    about 60 nodes per step; the engine's bookkeeping of them was much of a demo-size step's
+    time.
 
     Inputs: a :class:`_Loop`; keys and values (B, L, A); the posterior's projected current codes
     (B, S, H); under teacher forcing the projected previous codes (B, S, 3H), bias included,
