@@ -15,7 +15,10 @@ Each generation backend is a :class:`~t2m.models.temporal_vae.Rollout` (what
 ``TemporalVAE.generate`` runs), held by the model as an attribute
 (:meth:`~t2m.models.temporal_vae.TemporalVAE.set_rollout`); ``tests/test_rollouts.py`` holds each
 to its stated tolerance against the plain :class:`~t2m.models.temporal_vae.StepRollout`. A new
-backend is one module with a class of that shape and a branch in :func:`accelerate`.
+backend is one module here with a class of that shape (``tolerance``, and ``__call__(state,
+context, time_codes, noise, lengths)``, made from the float model), its name in
+:data:`BACKENDS`, a branch in :func:`accelerate` that sets it (``vae.set_rollout``), and a row in
+``tests/test_rollouts.py``.
 
 The models import nothing from here; everything here may import the models.
 """
@@ -27,13 +30,17 @@ from torch import nn
 
 from t2m.accel.int8 import quantize_int8
 from t2m.accel.onednn import use_onednn
-from t2m.accel.onnx import BACKENDS, ONNX_PRECISIONS, OnnxGenerationPlan
+from t2m.accel.onnx import ONNX_PRECISIONS, OnnxGenerationPlan
 from t2m.accel.plans import TorchPlanRollout
 from t2m.accel.recurrence import fast_forward
 from t2m.models.temporal_vae import TemporalVAE
 
 PRECISIONS = ("fp32", "bf16", "int8")
 """Weights and activations in float32, bfloat16, or int8 (dynamic quantisation, CPU only)."""
+
+BACKENDS = ("torch", "onnx")
+"""What runs the generation step: torch (:mod:`t2m.accel.plans`) or ONNX Runtime
+(:mod:`t2m.accel.onnx`, fp32 and int8 on the CPU)."""
 
 
 def accelerate(model: nn.Module, precision: str = "fp32", backend: str = "torch") -> nn.Module:

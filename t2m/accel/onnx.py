@@ -53,9 +53,6 @@ from t2m.accel.plans import (
 if TYPE_CHECKING:
     from t2m.models.temporal_vae import RecurrentState, TemporalVAE, WordContext
 
-BACKENDS = ("torch", "onnx")
-"""Generation backends: what :func:`t2m.accel.accelerate` runs the generation step with."""
-
 ONNX_PRECISIONS = ("fp32", "int8")
 """What the ONNX Runtime backend runs (bfloat16 has no fast CPU kernels there)."""
 
