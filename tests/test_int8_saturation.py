@@ -33,8 +33,8 @@ import torch
 pytest.importorskip("onnx", reason="the onnx backend's optional packages are not installed")
 pytest.importorskip("onnxruntime", reason="the onnx backend's optional packages are not installed")
 
-from t2m.accel.int8 import int8_linear  # noqa: E402
-from t2m.accel.onnx import (  # noqa: E402
+from t2m.accel.int8 import int8_linear
+from t2m.accel.onnx import (
     DYNAMIC_WEIGHT_LEVELS,
     INT8_BLOCK,
     product_model,

@@ -26,19 +26,19 @@ import torch.nn.functional as F
 pytest.importorskip("onnx", reason="the onnx backend's optional packages are not installed")
 pytest.importorskip("onnxruntime", reason="the onnx backend's optional packages are not installed")
 
-from t2m.accel import accelerate  # noqa: E402
-from t2m.accel.int8 import quantize_int8  # noqa: E402
-from t2m.accel.onnx import (  # noqa: E402
+from t2m.accel import accelerate
+from t2m.accel.int8 import quantize_int8
+from t2m.accel.onnx import (
     BATCHED_FROM,
     OnnxGenerationPlan,
     session,
     step_model,
     step_weights,
 )
-from t2m.accel.plans import generation_plan  # noqa: E402
-from t2m.config import TemporalVAEConfig, TextEncoderConfig  # noqa: E402
-from t2m.models.temporal_vae import TemporalVAE  # noqa: E402
-from t2m.pipeline import TextToMotion  # noqa: E402
+from t2m.accel.plans import generation_plan
+from t2m.config import TemporalVAEConfig, TextEncoderConfig
+from t2m.models.temporal_vae import TemporalVAE
+from t2m.pipeline import TextToMotion
 
 WORD_DIM, L, CODE, LATENT = 12, 9, 16, 6
 CONFIG = TemporalVAEConfig(

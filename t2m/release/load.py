@@ -107,7 +107,7 @@ def read_release_checkpoint(path: Path, entries: tuple[str, ...]) -> dict[str, W
         raise UsageError(f"no such file: {path}")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # noqa: BLE001 - torch raises many types; every one is a refusal
+    except Exception as error:  # torch raises many types; every one is a refusal
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise UsageError(f"{path}: refused, not a plain weights file ({first})") from None
     missing = [e for e in entries if not isinstance(checkpoint, dict) or e not in checkpoint]
