@@ -68,7 +68,8 @@ $(STAMP): setup.cfg pyproject.toml
 # its int8 products to the clip of the non-VNNI kernels on whatever CPU runs it.
 NUMERICS_TESTS := tests/test_onednn.py tests/test_fast_recurrence.py tests/test_temporal_vae.py \
 	tests/test_models.py tests/test_speed_paths.py tests/test_release.py \
-	tests/test_onnx_backend.py tests/test_int8_saturation.py tests/test_precision_choice.py
+	tests/test_onnx_backend.py tests/test_int8_saturation.py tests/test_precision_choice.py \
+	tests/test_rollouts.py
 
 test: install
 	@$(py) -c 'from t2m.hardware import cpu_description; print("cpu:", cpu_description())'
