@@ -398,8 +398,9 @@ class BvhMotion:
                 emit(child, depth + 1)
             if not children[joint]:
                 end = _TPOSE[joint] * _END_SITES.get(joint, 0.05) * scale
-                lines.extend([f"{pad}\tEnd Site", f"{pad}\t{{", f"{pad}\t\tOFFSET {vec(end)}",
-                              f"{pad}\t}}"])  # fmt: skip
+                lines.extend(
+                    [f"{pad}\tEnd Site", f"{pad}\t{{", f"{pad}\t\tOFFSET {vec(end)}", f"{pad}\t}}"]
+                )
             lines.append(f"{pad}}}")
 
         emit(0, 0)

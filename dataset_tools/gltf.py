@@ -235,13 +235,15 @@ def glb_bytes(document: dict, binary: bytes) -> bytes:
     text += b" " * (-len(text) % 4)
     binary += b"\0" * (-len(binary) % 4)
     total = 12 + 8 + len(text) + 8 + len(binary)
-    return b"".join([
-        struct.pack("<III", GLB_MAGIC, 2, total),
-        struct.pack("<II", len(text), CHUNK_JSON),
-        text,
-        struct.pack("<II", len(binary), CHUNK_BIN),
-        binary,
-    ])  # fmt: skip
+    return b"".join(
+        [
+            struct.pack("<III", GLB_MAGIC, 2, total),
+            struct.pack("<II", len(text), CHUNK_JSON),
+            text,
+            struct.pack("<II", len(binary), CHUNK_BIN),
+            binary,
+        ]
+    )
 
 
 def write_glb(

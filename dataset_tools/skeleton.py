@@ -15,16 +15,53 @@ from dataclasses import dataclass
 import numpy as np
 
 SMPL_JOINT_NAMES: tuple[str, ...] = (
-    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
-    "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-    "left_elbow", "right_elbow", "left_wrist", "right_wrist",
-)  # fmt: skip
+    "pelvis",
+    "left_hip",
+    "right_hip",
+    "spine1",
+    "left_knee",
+    "right_knee",
+    "spine2",
+    "left_ankle",
+    "right_ankle",
+    "spine3",
+    "left_foot",
+    "right_foot",
+    "neck",
+    "left_collar",
+    "right_collar",
+    "head",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+)
 
 KIT_JOINT_NAMES: tuple[str, ...] = (
-    "root", "BP", "BT", "BLN", "BUN", "LS", "LE", "LW", "RS", "RE", "RW",
-    "LH", "LK", "LA", "LMrot", "LF", "RH", "RK", "RA", "RMrot", "RF",
-)  # fmt: skip
+    "root",
+    "BP",
+    "BT",
+    "BLN",
+    "BUN",
+    "LS",
+    "LE",
+    "LW",
+    "RS",
+    "RE",
+    "RW",
+    "LH",
+    "LK",
+    "LA",
+    "LMrot",
+    "LF",
+    "RH",
+    "RK",
+    "RA",
+    "RMrot",
+    "RF",
+)
 
 
 @dataclass(frozen=True)
@@ -97,8 +134,13 @@ def _parents_from_chains(num_joints: int, chains: tuple[tuple[int, ...], ...]) -
     return tuple(parents)
 
 
-_SMPL_CHAINS = ((0, 2, 5, 8, 11), (0, 1, 4, 7, 10), (0, 3, 6, 9, 12, 15), (9, 14, 17, 19, 21),
-                (9, 13, 16, 18, 20))  # fmt: skip
+_SMPL_CHAINS = (
+    (0, 2, 5, 8, 11),
+    (0, 1, 4, 7, 10),
+    (0, 3, 6, 9, 12, 15),
+    (9, 14, 17, 19, 21),
+    (9, 13, 16, 18, 20),
+)
 _SMPL_REST = np.array([
     [0, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, -1, 0], [0, 1, 0], [0, -1, 0],
     [0, -1, 0], [0, 1, 0], [0, 0, 1], [0, 0, 1], [0, 1, 0], [1, 0, 0], [-1, 0, 0], [0, 0, 1],
@@ -125,8 +167,13 @@ SMPL = SkeletonSpec(
     contact_threshold=0.002,
 )
 
-_KIT_CHAINS = ((0, 11, 12, 13, 14, 15), (0, 16, 17, 18, 19, 20), (0, 1, 2, 3, 4), (3, 5, 6, 7),
-               (3, 8, 9, 10))  # fmt: skip
+_KIT_CHAINS = (
+    (0, 11, 12, 13, 14, 15),
+    (0, 16, 17, 18, 19, 20),
+    (0, 1, 2, 3, 4),
+    (3, 5, 6, 7),
+    (3, 8, 9, 10),
+)
 _KIT_REST = np.array([
     [0, 0, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0], [1, 0, 0], [0, -1, 0], [0, -1, 0],
     [-1, 0, 0], [0, -1, 0], [0, -1, 0], [1, 0, 0], [0, -1, 0], [0, -1, 0], [0, 0, 1], [0, 0, 1],

@@ -21,13 +21,27 @@ import numpy as np
 from dataset_tools.skeleton import SMPL
 
 CENTRAL_DOFS: tuple[str, ...] = (
-    "pelvis_pitch", "pelvis_roll", "pelvis_twist", "spine_flex", "spine_lat", "spine_twist",
-    "neck_flex", "head_flex",
-)  # fmt: skip
+    "pelvis_pitch",
+    "pelvis_roll",
+    "pelvis_twist",
+    "spine_flex",
+    "spine_lat",
+    "spine_twist",
+    "neck_flex",
+    "head_flex",
+)
 SIDE_DOFS: tuple[str, ...] = (
-    "hip_flex", "hip_abd", "hip_rot", "knee", "ankle", "collar_elev", "shoulder_flex",
-    "shoulder_abd", "shoulder_twist", "elbow",
-)  # fmt: skip
+    "hip_flex",
+    "hip_abd",
+    "hip_rot",
+    "knee",
+    "ankle",
+    "collar_elev",
+    "shoulder_flex",
+    "shoulder_abd",
+    "shoulder_twist",
+    "elbow",
+)
 DOF_NAMES: tuple[str, ...] = (
     CENTRAL_DOFS + tuple(f"l_{n}" for n in SIDE_DOFS) + tuple(f"r_{n}" for n in SIDE_DOFS)
 )

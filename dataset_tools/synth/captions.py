@@ -21,8 +21,16 @@ SUBJECTS = {
     "heldout": ["an individual", "the subject", "a character", "the man"],
 }  # fmt: skip
 
-_COUNT_WORDS = {1: "once", 2: "twice", 3: "three times", 4: "four times", 5: "five times",
-                6: "six times", 7: "seven times", 8: "eight times"}  # fmt: skip
+_COUNT_WORDS = {
+    1: "once",
+    2: "twice",
+    3: "three times",
+    4: "four times",
+    5: "five times",
+    6: "six times",
+    7: "seven times",
+    8: "eight times",
+}
 _NUMBER_WORDS = {
     1: "one",
     2: "two",
@@ -184,7 +192,7 @@ _TEMPLATES: dict[str, dict[str, list[tuple[str, str]]]] = {
 _ANGLES = {
     "train": {90: ["90 degrees", "ninety degrees"], 180: ["180 degrees", "around"]},
     "heldout": {90: ["by a right angle"], 180: ["by half a circle"]},
-}  # fmt: skip
+}
 _TURN_NOUNS = {
     90: ["a quarter turn", "a 90 degree turn"],
     180: ["a half turn", "a 180 degree turn"],

@@ -105,13 +105,19 @@ class Style:
             None,
             spine_flex=self.lean,
             neck_flex=self.head,
-            l_hip_abd=self.stance_width, r_hip_abd=self.stance_width,
-            l_knee=self.knee_bend, r_knee=self.knee_bend,
-            l_hip_flex=0.5 * self.knee_bend, r_hip_flex=0.5 * self.knee_bend,
-            l_ankle=0.5 * self.knee_bend, r_ankle=0.5 * self.knee_bend,
-            l_shoulder_abd=self.arm_abd, r_shoulder_abd=self.arm_abd,
-            l_elbow=self.elbow, r_elbow=self.elbow,
-        )  # fmt: skip
+            l_hip_abd=self.stance_width,
+            r_hip_abd=self.stance_width,
+            l_knee=self.knee_bend,
+            r_knee=self.knee_bend,
+            l_hip_flex=0.5 * self.knee_bend,
+            r_hip_flex=0.5 * self.knee_bend,
+            l_ankle=0.5 * self.knee_bend,
+            r_ankle=0.5 * self.knee_bend,
+            l_shoulder_abd=self.arm_abd,
+            r_shoulder_abd=self.arm_abd,
+            l_elbow=self.elbow,
+            r_elbow=self.elbow,
+        )
 
 
 def pose_vector(base: np.ndarray | None, **degrees: float) -> np.ndarray:
@@ -220,9 +226,15 @@ def _gait_angles(phase: np.ndarray, run: bool, amplitude: float) -> dict:
 
 
 def forward_gait(
-    n: int, fps: float, rng: np.random.Generator, style: Style, speed: float, run: bool,
-    backward: bool = False, yaw_rate_s: float = 0.0,
-) -> Track:  # fmt: skip
+    n: int,
+    fps: float,
+    rng: np.random.Generator,
+    style: Style,
+    speed: float,
+    run: bool,
+    backward: bool = False,
+    yaw_rate_s: float = 0.0,
+) -> Track:
     """Walk or run along the heading at about ``speed`` m/s; backward = the cycle played in reverse.
 
     Cadence and stride length both grow with speed (stride = speed / cadence); the hip amplitude

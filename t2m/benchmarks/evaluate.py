@@ -261,19 +261,13 @@ def _measure(quick: bool) -> dict:
         "evaluate.batch_size": backend.batch_size,
         "evaluate.load_average_1min_at_start": round(os.getloadavg()[0], 2),
     }
-    results.update(
-        _generation_speedup(
-            backend, clips, 128 if quick else 512, 32 if quick else 128, 1 if quick else 3,
-            "evaluate.demo",
-        )
-    )  # fmt: skip
+    # (count, single_count, rounds) of _generation_speedup
+    demo_sizes = (128, 32, 1) if quick else (512, 128, 3)
+    results.update(_generation_speedup(backend, clips, *demo_sizes, "evaluate.demo"))
     paper_clips = _synthetic_clips(PAPER_TEST_ITEMS, np.random.default_rng(0))
-    results.update(
-        _generation_speedup(
-            _untrained_backend("paper"), paper_clips, 256 if quick else 1024, 8 if quick else 32,
-            1 if quick else 3, "evaluate.paper",
-        )
-    )  # fmt: skip
+    paper_sizes = (256, 8, 1) if quick else (1024, 32, 3)
+    paper_backend = _untrained_backend("paper")
+    results.update(_generation_speedup(paper_backend, paper_clips, *paper_sizes, "evaluate.paper"))
     results["evaluate.paper_evaluator_forward_batch32_s"] = round(
         _paper_evaluator_forward(2 if quick else 5), 3
     )

@@ -102,9 +102,15 @@ def _paper_pipeline(device: torch.device, precision: str):
     decoder = MovementDecoder(263, config.autoencoder.model)
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
     return TextToMotion(
-        vae, decoder, normalizer, vectorizer, torch.zeros(code_size),
-        device=device, precision=precision, copy_models=False,
-    )  # fmt: skip
+        vae,
+        decoder,
+        normalizer,
+        vectorizer,
+        torch.zeros(code_size),
+        device=device,
+        precision=precision,
+        copy_models=False,
+    )
 
 
 def generation(device: torch.device, repeats: int) -> dict:

@@ -91,9 +91,17 @@ def _paper_checkpoints(folder: Path, glove: Path) -> tuple[dict[str, Path], int]
     runs = {}
     for name, vocabulary in (("file", whole.info()), ("table", table.info())):
         checkpoint = make_checkpoint(
-            "generator", config, sizes, HUMANML3D, models, optimizer, {}, normalizer,
-            vocabulary, extra,
-        )  # fmt: skip
+            "generator",
+            config,
+            sizes,
+            HUMANML3D,
+            models,
+            optimizer,
+            {},
+            normalizer,
+            vocabulary,
+            extra,
+        )
         path = folder / name / "generator" / "best.pt"
         path.parent.mkdir(parents=True)
         atomic_save(checkpoint, path)

@@ -182,25 +182,31 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
             text = donor[2][int(rng.integers(len(donor[2])))]
             if mode == "continue":
                 keep = int(SECONDS["keep"] * fps)
-                request = EditRequest(mode, text.text, load(source[0]),
-                                      keep_seconds=SECONDS["keep"],
-                                      seconds=SECONDS["keep"] + SECONDS["part"])  # fmt: skip
-                items.append(Item(request, (keep, keep + part), donor[1] or [], [text],
-                                  [donor[0]], source[0], [keep]))  # fmt: skip
+                timing = dict(
+                    keep_seconds=SECONDS["keep"], seconds=SECONDS["keep"] + SECONDS["part"]
+                )
+                judged, seams = (keep, keep + part), [keep]
             else:
                 end = int(SECONDS["end"] * fps)
-                request = EditRequest(mode, text.text, load(source[0]),
-                                      keep_start=SECONDS["end"], keep_end=SECONDS["end"],
-                                      seconds=2 * SECONDS["end"] + SECONDS["part"])  # fmt: skip
-                items.append(Item(request, (end, end + part), donor[1] or [], [text],
-                                  [donor[0]], source[0], [end, end + part]))  # fmt: skip
+                timing = dict(
+                    keep_start=SECONDS["end"],
+                    keep_end=SECONDS["end"],
+                    seconds=2 * SECONDS["end"] + SECONDS["part"],
+                )
+                judged, seams = (end, end + part), [end, end + part]
+            request = EditRequest(mode, text.text, load(source[0]), **timing)
+            items.append(
+                Item(request, judged, donor[1] or [], [text], [donor[0]], source[0], seams)
+            )
         elif mode == "body":
             source, donor = pick(walkers, True), pick(upper)
             text = donor[2][int(rng.integers(len(donor[2])))]
             motion = load(source[0])[: 196 + 1]
             request = EditRequest(mode, text.text, motion, part="lower")
-            items.append(Item(request, None, donor[1] or [], [text], [donor[0]], source[0],
-                              source_labels=source[1]))  # fmt: skip
+            labels = donor[1] or []
+            items.append(
+                Item(request, None, labels, [text], [donor[0]], source[0], source_labels=source[1])
+            )
         elif mode in ("path", "keys"):
             source = pick(clips, True)
             text = source[2][int(rng.integers(len(source[2])))]
@@ -228,8 +234,9 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
             ]
             request = EditRequest(mode, timeline=timeline)
             labels = [d[1][0] if d[1] else None for d in donors]
-            items.append(Item(request, None, labels, texts, [d[0] for d in donors],
-                              seams=[part, 2 * part]))  # fmt: skip
+            items.append(
+                Item(request, None, labels, texts, [d[0] for d in donors], seams=[part, 2 * part])
+            )
     return items
 
 
@@ -280,8 +287,12 @@ def judge(item: Item, motion, fps: float) -> dict:
     if target is not None and finite.any():
         difference = np.where(given, motion.joints - np.nan_to_num(target), 0.0)
         distance = np.linalg.norm(difference, axis=-1)[finite]
-        out.update(err_mean=float(distance.mean()), err_max=float(distance.max()),
-                   miss_5=float((distance > 0.05).mean()), miss_20=float((distance > 0.2).mean()))  # fmt: skip
+        out.update(
+            err_mean=float(distance.mean()),
+            err_max=float(distance.max()),
+            miss_5=float((distance > 0.05).mean()),
+            miss_20=float((distance > 0.2).mean()),
+        )
     out["before_keep"] = motion.constraint_error
     out["seams"] = [seam_statistics(motion.joints, s, fps) for s in item.seams]
     out["skate"] = skating_ratio(motion.joints, fps)

@@ -245,10 +245,12 @@ def run_check(config: MocapCheckConfig) -> dict:
         by_content[caption].append(motions[0].joints)
     # 4. detect
     rows = {
-        caption: {"real": _judge(caption, real[caption], fps),
-                  "generated": _judge(caption, by_content[caption], fps)}
+        caption: {
+            "real": _judge(caption, real[caption], fps),
+            "generated": _judge(caption, by_content[caption], fps),
+        }
         for caption in CONTENT_CHECKS
-    }  # fmt: skip
+    }
     overall = {
         side: float(np.mean([row[side]["recognised"] for row in rows.values()]))
         for side in ("real", "generated")
