@@ -37,7 +37,8 @@ from dataset_tools.command import (
     parse_config,
 )
 from dataset_tools.io import check_output_folder
-from t2m.config import PRESETS, check_seed, preset
+from t2m.config import check_seed
+from t2m.presets import PRESETS, preset
 from t2m.train import runtime as runtime_module
 from t2m.train.logbook import read_records
 from t2m.train.stage import FINISHED

@@ -149,7 +149,8 @@ def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def tiny_config():
     """The ``tiny`` preset with the built-in 50-d GloVe vectors, single-threaded, on CPU."""
-    from t2m.config import apply_overrides, tiny
+    from t2m.config import apply_overrides
+    from t2m.presets import tiny
 
     return apply_overrides(tiny(), {"device": "cpu"})
 

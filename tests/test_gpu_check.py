@@ -18,9 +18,9 @@ def test_without_cuda_it_stops_with_one_line(tmp_path, capsys):
 
 
 def test_the_parts_run_on_the_cpu(monkeypatch):
-    import t2m.config
+    import t2m.presets
 
-    monkeypatch.setattr(t2m.config, "paper", t2m.config.tiny)  # the same code, small models
+    monkeypatch.setattr(t2m.presets, "paper", t2m.presets.tiny)  # the same code, small models
     monkeypatch.setattr(gpu, "FRAMES", 16)
     monkeypatch.setattr(gpu, "BATCH", 2)
     cpu = torch.device("cpu")

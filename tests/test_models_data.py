@@ -11,7 +11,7 @@ import torch
 
 from dataset_tools.humanml3d import Caption
 from dataset_tools.spec import HUMANML3D, KIT_ML
-from t2m.config import apply_overrides, demo, from_dict, paper, preset, tiny, validate_for_spec
+from t2m.config import apply_overrides, from_dict, validate_for_spec
 from t2m.data.dataset import MotionTextData, epoch_batches, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import (
@@ -23,6 +23,7 @@ from t2m.data.words import (
     load_vectorizer,
     vectorizer_from_info,
 )
+from t2m.presets import demo, paper, preset, tiny
 from tests.tolerances import gamma
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

@@ -15,12 +15,13 @@ from PIL import Image
 
 from dataset_tools.skeleton import KIT, SMPL
 from dataset_tools.spec import HUMANML3D, KIT_ML, DatasetSpec, spec_for_dim, spec_for_folder
-from t2m.config import apply_overrides, from_dict, tiny
+from t2m.config import apply_overrides, from_dict
 from t2m.data.dataset import MotionTextData, load_split
 from t2m.data.normalization import Normalizer
 from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
 from t2m.models.autoencoder import check_snippet_length
 from t2m.pipeline import frames_for, frames_for_seconds
+from t2m.presets import tiny
 
 
 def test_known_specs_round_trip_and_are_found_by_dimension(tmp_path):

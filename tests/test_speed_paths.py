@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from t2m.config import PRESETS, preset
+from t2m.presets import PRESETS, preset
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))

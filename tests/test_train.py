@@ -15,10 +15,11 @@ import torch
 import torch.multiprocessing as mp
 
 from dataset_tools.command import UsageError
-from t2m.config import apply_overrides, from_dict, tiny
+from t2m.config import apply_overrides, from_dict
 from t2m.data.dataset import load_split
 from t2m.data.words import TRAINABLE
 from t2m.models.autoencoder import MovementAutoencoder
+from t2m.presets import tiny
 from t2m.train import STAGE_NAMES, ModelSizes, find_stage, load_stage, train_stage
 from t2m.train.__main__ import main
 from t2m.train.checkpoint import atomic_save, read_checkpoint

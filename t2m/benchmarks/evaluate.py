@@ -51,9 +51,9 @@ WORDS = (
 
 def _untrained_stages(preset_name: str) -> dict:
     """eval, length and t2m stages of a preset's sizes with random weights, by name."""
-    from t2m.config import preset
     from t2m.data.normalization import Normalizer
     from t2m.data.words import load_vectorizer
+    from t2m.presets import preset
     from t2m.train import ModelSizes, TrainedStage
 
     config = preset(preset_name)

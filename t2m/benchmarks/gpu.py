@@ -87,12 +87,12 @@ def _median_s(function: Callable[[], object], repeats: int, device: torch.device
 
 
 def _paper_pipeline(device: torch.device, precision: str):
-    from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
     from t2m.models.autoencoder import MovementDecoder
     from t2m.models.temporal_vae import TemporalVAE
     from t2m.pipeline import TextToMotion
+    from t2m.presets import paper
 
     config = paper()
     vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)
@@ -178,9 +178,9 @@ def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
     import torch.distributed as dist
 
     from t2m.accel import accelerate
-    from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder
     from t2m.models.temporal_vae import TemporalVAE
+    from t2m.presets import paper
     from t2m.train.generator import GeneratorObjective
 
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))

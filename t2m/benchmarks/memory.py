@@ -29,9 +29,9 @@ def write_paper_run(run_dir: Path) -> None:
     import numpy as np
 
     from dataset_tools.spec import HUMANML3D
-    from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
+    from t2m.presets import paper
     from t2m.train.checkpoint import ModelSizes, atomic_save, make_checkpoint
     from t2m.train.stages import find_stage
 

@@ -26,11 +26,11 @@ import torch
 import torch.nn.functional as F
 
 from t2m.accel import accelerate
-from t2m.config import preset as preset_config
 from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
 from t2m.models.evaluator import Evaluator, contrastive_loss
 from t2m.models.length import LengthEstimator, length_loss
 from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+from t2m.presets import preset as preset_config
 from t2m.train.generator import decode
 from t2m.train.runtime import adam, resolve_device
 

@@ -158,11 +158,11 @@ def features_row(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
 def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[], object]]:
     from dataset_tools.texts import tag_prompts
     from t2m.accel import onnx as onnx_backend
-    from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.models.autoencoder import MovementDecoder
     from t2m.models.temporal_vae import TemporalVAE
     from t2m.pipeline import TextToMotion
+    from t2m.presets import paper
 
     vectorizer = vectorizer_300d()
     mean, std = np.zeros(FEATURES, np.float32), np.ones(FEATURES, np.float32)
@@ -219,9 +219,9 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
 
 def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
     from t2m.accel import accelerate
-    from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder
     from t2m.models.temporal_vae import TemporalVAE, temporal_vae_loss
+    from t2m.presets import paper
     from t2m.train.runtime import adam
 
     batch, config = 32, paper()
@@ -299,10 +299,10 @@ def _sides(ours: Callable[[bool], None], original: Callable[[], None]) -> dict:
 
 def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], object]]]:
     from t2m.accel import accelerate
-    from t2m.config import paper
     from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
     from t2m.models.evaluator import Evaluator, contrastive_loss
     from t2m.models.length import LengthEstimator, length_loss
+    from t2m.presets import paper
     from t2m.train.runtime import adam
 
     config, m = paper(), orig.modules
@@ -416,11 +416,11 @@ def memory_child(side: str, original_path: str) -> float:
 
 def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[], object]:
     """One side's batch-1 generation, built as a user's process would (ours converts in place)."""
-    from t2m.config import paper
     from t2m.data.normalization import Normalizer
     from t2m.models.autoencoder import MovementDecoder
     from t2m.models.temporal_vae import TemporalVAE
     from t2m.pipeline import TextToMotion
+    from t2m.presets import paper
 
     if side == "original":
         models = original_generation_models(orig)

@@ -69,8 +69,9 @@ def _paper_checkpoints(folder: Path, glove: Path) -> tuple[dict[str, Path], int]
     """Run folders ``file`` and ``table`` with one paper-size generator checkpoint each, and
     the size of the table."""
     from dataset_tools.spec import HUMANML3D
-    from t2m.config import apply_overrides, preset
+    from t2m.config import apply_overrides
     from t2m.data.normalization import Normalizer
+    from t2m.presets import preset
     from t2m.train import ModelSizes, find_stage
     from t2m.train.checkpoint import atomic_save, make_checkpoint
 

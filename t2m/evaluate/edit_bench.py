@@ -490,10 +490,10 @@ def _rprec_fid(backend, captions, motions, reference) -> dict:
 def _paper_pipeline():
     """The random-weight pipeline of :func:`~t2m.evaluate.paper_sized.paper_sized_pipeline`
     (what ``t2m.benchmarks.sample`` times) with a movement encoder: for latency only."""
-    from t2m.config import paper
     from t2m.evaluate.paper_sized import paper_sized_pipeline
     from t2m.models.autoencoder import CONTACT_DIMS, MovementEncoder
     from t2m.pipeline import TextToMotion
+    from t2m.presets import paper
 
     pipe, (vae, decoder, initial_code) = paper_sized_pipeline("fp32")
     torch.manual_seed(0)

@@ -202,8 +202,9 @@ def _judge(caption: str, motions: list[np.ndarray], fps: float) -> dict:
 def run_check(config: MocapCheckConfig) -> dict:
     """Build, train, sample, detect; returns (and writes) the results."""
     from dataset_tools.build import BuildConfig, build_dataset
-    from t2m.config import apply_overrides, preset
+    from t2m.config import apply_overrides
     from t2m.pipeline import TextToMotion
+    from t2m.presets import preset
     from t2m.train.stage import FINISHED
     from t2m.train.stages import find_stage, train_stage
 

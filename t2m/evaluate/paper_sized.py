@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from t2m.config import paper
 from t2m.data.normalization import Normalizer
 from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
 from t2m.models.autoencoder import MovementDecoder
 from t2m.models.temporal_vae import TemporalVAE
 from t2m.pipeline import TextToMotion
+from t2m.presets import paper
 
 
 def paper_sized_pipeline(

@@ -3,7 +3,7 @@
 ``python -m t2m.train <stage> --preset demo --dataset data/demo`` trains a stage (the command
 line); in Python::
 
-    from t2m.config import tiny
+    from t2m.presets import tiny
     from t2m.train import load_stage, train_stage
 
     train_stage("autoencoder", tiny(), "data/demo", "checkpoints/tiny")

@@ -31,7 +31,8 @@ from dataset_tools.command import (
     option,
 )
 from dataset_tools.io import check_output_folder
-from t2m.config import PRESETS, Config, apply_overrides, preset
+from t2m.config import Config, apply_overrides
+from t2m.presets import PRESETS, preset
 from t2m.train.stages import STAGES, find_stage, train_stage
 
 logger = logging.getLogger("t2m.train")
