@@ -1,5 +1,5 @@
 """The generator stage's fast paths against the plain modules: the oneDNN Linear
-(``t2m.accel.recurrence.linear``), the fine-tuned decoder (``t2m.train.generator.decode``),
+(``t2m.accel.packed.linear``), the fine-tuned decoder (``t2m.train.generator.decode``),
 and the training loop's autograd node without gradients (validation) and with outputs the loss
 does not read. Tolerances: float32 sums in another order, so the fast path and the plain one are
 compared through their distances to a float64 evaluation of the same weights
@@ -11,7 +11,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from t2m.accel.recurrence import linear
+from t2m.accel.packed import linear
 from t2m.config import AutoencoderConfig
 from t2m.models.autoencoder import MovementDecoder
 from t2m.train.generator import decode

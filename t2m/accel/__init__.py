@@ -6,6 +6,8 @@
   on the CPU (subclasses of the torch layers, swapped in: the same parameters and state dict);
 * :mod:`t2m.accel.recurrence`: the temporal VAE's training loop as one autograd node
   (:meth:`~t2m.models.temporal_vae.TemporalVAE.set_training_pass`);
+* :mod:`t2m.accel.packed`: matrix products through weights packed once for oneDNN (the
+  training loop's per-step products, the fine-tuned decoder's Linear);
 * :mod:`t2m.accel.plans`: generation plans, the prior / generator step with its weights stacked
   and folded (:class:`~t2m.accel.plans.TorchPlanRollout`, and the int8 one);
 * :mod:`t2m.accel.int8`: dynamic int8 quantisation for CPU inference;

@@ -19,7 +19,8 @@ The rearrangements, each the same sums in another order:
    graph; the backward runs the steps in reverse with the gradients written out (GRU, LayerNorm,
    LeakyReLU, attention), and each weight's gradient is one (O, S*B) x (S*B, I) product over all
    steps instead of S thin ones. Every product in the loop runs through weights packed once per
-   sequence for oneDNN on a CPU (its transpose too, for the input gradients).
+   sequence for oneDNN on a CPU (its transpose too, for the input gradients;
+   :class:`t2m.accel.packed.StepProduct`).
 4. What the loop does not feed back runs once over all steps outside it: the prior's input path
    (its GRU alone stays a loop, of its own) and Gaussian; the output head under teacher
    forcing.
@@ -40,118 +41,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from t2m.accel.onednn import matmul
+from t2m.accel.packed import StepProduct, weight_gradient
 
 if TYPE_CHECKING:
     from t2m.models.temporal_vae import TemporalVAE
-
-
-def _packable(weight: torch.Tensor) -> bool:
-    """Whether oneDNN can pack ``weight`` for its matrix product on this CPU and torch build."""
-    if weight.device.type != "cpu" or not torch.backends.mkldnn.is_available():
-        return False
-    if weight.dtype == torch.bfloat16:
-        return torch.ops.mkldnn._is_mkldnn_bf16_supported()
-    return weight.dtype == torch.float32
-
-
-def _packed_product(
-    inputs: torch.Tensor, packed: torch.Tensor, bias: torch.Tensor | None
-) -> torch.Tensor:
-    """``F.linear`` with a weight packed by ``torch.ops.mkldnn._reorder_linear_weight``."""
-    return torch.ops.mkldnn._linear_pointwise(inputs, packed, bias, "none", [], "")
-
-
-class _OneDNNLinear(torch.autograd.Function):
-    """``F.linear`` (inputs (..., I), weight (O, I), bias (O,)) whose forward and input gradient
-    run through oneDNN; the weight gradient is one matrix product."""
-
-    @staticmethod
-    def forward(ctx, inputs, weight, bias):
-        inputs = inputs.contiguous()  # once: the backward reads it as (N, I) too
-        ctx.save_for_backward(inputs, weight)
-        ctx.has_bias = bias is not None
-        return _packed_product(inputs, weight, bias)
-
-    @staticmethod
-    @torch.autograd.function.once_differentiable
-    def backward(ctx, grad):
-        inputs, weight = ctx.saved_tensors
-        grad = grad.contiguous()
-        flat = grad.reshape(-1, grad.shape[-1])
-        grad_inputs = _packed_product(grad, weight.t().contiguous(), None)
-        grad_weight = matmul(flat.t(), inputs.reshape(-1, inputs.shape[-1]))
-        return grad_inputs, grad_weight, flat.sum(0) if ctx.has_bias else None
-
-
-def linear(inputs: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None) -> torch.Tensor:
-    """``F.linear``, through oneDNN where it takes float32 weights on a CPU outside autocast: for
-    shapes such as the decoder's (263, 263) output Linear over 32 x 196 frames, torch's own
-    product (MKL) ran at 42 GFLOP/s on one thread, oneDNN's at 90."""
-    device_type = weight.device.type
-    if (
-        weight.dtype != torch.float32
-        or inputs.dtype != torch.float32
-        or not _packable(weight)
-        or torch.is_autocast_enabled(device_type)
-    ):
-        return F.linear(inputs, weight, bias)
-    return _OneDNNLinear.apply(inputs, weight, bias)
-
-
-class _StepProduct:
-    """A weight (O, I) (and bias) read at every step of the loop: ``x W^T + b`` forward and the
-    input gradient ``g W`` backward, computed in ``dtype`` (the autocast dtype, or the
-    weight's), returned in ``work``. On a CPU the weight (and its transpose, for the backward)
-    is packed once per sequence for oneDNN: at the loop's batch of 32, one thread, its
-    products take 0.55-0.8x the time of ``F.linear``'s, and packing costs one to three."""
-
-    def __init__(
-        self,
-        weight: torch.Tensor,
-        bias: torch.Tensor | None,
-        dtype: torch.dtype,
-        work: torch.dtype,
-        backward: bool = True,
-    ):
-        self.weight = weight.detach().to(dtype)
-        self.bias = None if bias is None else bias.detach().to(dtype)
-        self.dtype, self.work = dtype, work
-        self.packed = self.transposed = None
-        if _packable(self.weight):
-            self.packed = torch.ops.mkldnn._reorder_linear_weight(self.weight)
-            if backward:
-                transposed = self.weight.t().contiguous()
-                self.transposed = torch.ops.mkldnn._reorder_linear_weight(transposed)
-
-    def __call__(self, inputs: torch.Tensor) -> torch.Tensor:
-        """(B, I) -> (B, O)."""
-        if self.dtype != self.work:
-            inputs = inputs.to(self.dtype)
-        if self.packed is None:
-            output = F.linear(inputs, self.weight, self.bias)
-        else:
-            output = _packed_product(inputs, self.packed, self.bias)
-        return output if self.dtype == self.work else output.to(self.work)
-
-    def backward(self, grad: torch.Tensor) -> torch.Tensor:
-        """(B, O) gradient of the outputs -> (B, I) gradient of the inputs."""
-        if self.dtype != self.work:
-            grad = grad.to(self.dtype)
-        if self.transposed is None:
-            output = grad @ self.weight
-        else:
-            output = _packed_product(grad, self.transposed, None)
-        return output if self.dtype == self.work else output.to(self.work)
-
-
-def _weight_gradient(
-    grads: list[torch.Tensor], inputs: list[torch.Tensor]
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """A step product's weight (O, I) and bias (O,) gradients from the output gradients and
-    inputs of all its calls ((B, O) and (B, I) each, in call order): one (O, N*B) x (N*B, I)
-    product instead of N thin ones."""
-    grad = torch.cat(grads)
-    return matmul(grad.t(), torch.cat(inputs).to(grad.dtype)), grad.sum(0)
 
 
 def _gru_forward(
@@ -270,12 +163,12 @@ class _Recurrence(torch.autograd.Function):
         hidden, steps = states[0].shape[-1], loop.time_codes.shape[1]
         latent_size, gate_size = loop.noise.shape[-1], 3 * hidden
         products = {
-            name: _StepProduct(w[name], None, dtype, work) for name in ("attention", "latent")
+            name: StepProduct(w[name], None, dtype, work) for name in ("attention", "latent")
         }
         for name in ("gates", "reader"):
             for block in BLOCKS:
                 key = f"{block}_{name}"
-                products[key] = _StepProduct(w[key], w[key + "_bias"], dtype, work)
+                products[key] = StepProduct(w[key], w[key + "_bias"], dtype, work)
         norms = {
             block: [w[f"{block}_norm"].to(work), w[f"{block}_norm_bias"].to(work)]
             for block in (*BLOCKS, "output")
@@ -283,10 +176,10 @@ class _Recurrence(torch.autograd.Function):
         }
         generator_parts = [attention_size, gate_size] + ([] if forced else [hidden])
         if not forced:
-            products["previous"] = _StepProduct(
+            products["previous"] = StepProduct(
                 w["previous"], w["input_bias"], dtype, work, backward=False
             )
-            products["last"] = _StepProduct(w["last"], w["last_bias"], dtype, work, backward=False)
+            products["last"] = StepProduct(w["last"], w["last_bias"], dtype, work, backward=False)
         time_codes = loop.time_codes.to(work).unbind(1)
         noise = loop.noise.to(work).unbind(1)
         current = current.to(work).unbind(1)
@@ -504,7 +397,7 @@ class _Backward:
             grad_gates.append(grad)
         grad_gates = torch.stack(grad_gates[::-1], dim=1).flatten(0, 1)  # (B*S, 3H)
         inputs = kept["inputs_prior"].flatten(0, 1)
-        self.result["prior_gates"], self.result["prior_gates_bias"] = _weight_gradient(
+        self.result["prior_gates"], self.result["prior_gates_bias"] = weight_gradient(
             [grad_gates], [inputs]
         )
         grad_inputs = self.products["prior_gates"].backward(grad_gates).view(batch, steps, hidden)
@@ -574,19 +467,19 @@ class _Backward:
             kept["query"], dim=1
         )
         pre_grads = self.pre_grads[::-1]
-        result["attention"] = _weight_gradient(pre_grads, kept["attention"])[0]
-        result["latent"] = _weight_gradient(self.latent_grads[::-1], kept["z"])[0]
+        result["attention"] = weight_gradient(pre_grads, kept["attention"])[0]
+        result["latent"] = weight_gradient(self.latent_grads[::-1], kept["z"])[0]
         grad_previous_all = None
         if self.forced:
             grad_previous_all = torch.stack(pre_grads, dim=1)
         else:
-            result["previous"], result["input_bias"] = _weight_gradient(pre_grads, kept["previous"])
+            result["previous"], result["input_bias"] = weight_gradient(pre_grads, kept["previous"])
         for block in BLOCKS:
             if block != "prior":
-                result[f"{block}_gates"], result[f"{block}_gates_bias"] = _weight_gradient(
+                result[f"{block}_gates"], result[f"{block}_gates_bias"] = weight_gradient(
                     self.gate_grads[block][::-1], kept[f"inputs_{block}"]
                 )
-            result[f"{block}_reader"], result[f"{block}_reader_bias"] = _weight_gradient(
+            result[f"{block}_reader"], result[f"{block}_reader_bias"] = weight_gradient(
                 self.reader_grads[block][::-1], ctx.read[block]
             )
         for name, (weight_grad, bias_grad) in self.norm_grads.items():

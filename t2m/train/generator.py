@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from t2m.accel.recurrence import linear
+from t2m.accel.packed import linear
 from t2m.config import Config, GeneratorStageConfig
 from t2m.data.dataset import MotionTextData
 from t2m.models.autoencoder import CONTACT_DIMS, MovementDecoder, MovementEncoder
@@ -103,7 +103,7 @@ class GeneratorObjective(nn.Module):
 
 def decode(decoder: MovementDecoder, codes: torch.Tensor) -> torch.Tensor:
     """``decoder(codes)`` (B, S, C) -> (B, 4S, D), its output Linear through
-    :func:`t2m.accel.recurrence.linear` (oneDNN): 1.3-1.4x faster for the fine-tuned
+    :func:`t2m.accel.packed.linear` (oneDNN): 1.3-1.4x faster for the fine-tuned
     decoder's forward and backward at demo size on one CPU thread."""
     hidden = decoder.net(codes.transpose(1, 2)).transpose(1, 2)
     return linear(hidden, decoder.out.weight, decoder.out.bias)
