@@ -21,7 +21,8 @@ from dataset_tools.synth.body import (
     make_body,
     sample_body,
 )
-from dataset_tools.synth.motions import ACTIONS, Style, Track
+from dataset_tools.synth.motions import ACTIONS
+from dataset_tools.synth.track import Style, Track
 
 FPS = 60.0
 MIN_SECONDS = 2.0

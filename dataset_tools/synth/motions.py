@@ -10,6 +10,8 @@ the left side (or leftward turn) and mirrored for the right with ``body.mirror_d
 left and right exact mirror images by construction.
 
 Every ACTIONS entry knows how to sample its parameters and duration and how to generate itself.
+The gaits are :mod:`dataset_tools.synth.gaits`; the Track, the Style and the pose helpers every
+generator uses, :mod:`dataset_tools.synth.track`.
 """
 
 from __future__ import annotations
@@ -18,9 +20,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
-from dataset_tools.synth.body import DOF, NUM_DOFS, mirror_dofs
+from dataset_tools.synth.body import DOF
+from dataset_tools.synth.gaits import gait
+from dataset_tools.synth.track import (
+    Style,
+    Track,
+    both,
+    keyframes,
+    lead_in,
+    pose_vector,
+    smoothstep,
+)
 
 GRAVITY = 9.81
 SPEEDS = ("slow", "normal", "fast")
@@ -29,319 +40,6 @@ SPEEDS = ("slow", "normal", "fast")
 _WALK_SPEED = {"slow": (0.6, 0.8), "normal": (1.05, 1.3), "fast": (1.5, 1.75)}
 _RUN_SPEED = {"slow": (2.25, 2.55), "normal": (2.8, 3.2), "fast": (3.5, 3.9)}
 _SIDE_SPEED = {"slow": (0.25, 0.33), "normal": (0.42, 0.52), "fast": (0.62, 0.75)}
-# Stride length (m) of the mean body against the thigh amplitude of the gait tables, measured on
-# the generated motion (the root follows the planted feet, so the stride is an outcome, not an
-# input); tests check the resulting speeds.
-_AMPLITUDES = np.arange(0.3, 1.81, 0.15)
-_WALK_STRIDES = np.array(
-    [0.484, 0.595, 0.765, 0.865, 1.01, 1.123, 1.224, 1.354, 1.493, 1.587, 1.698]
-)
-_RUN_STRIDES = np.array(
-    [0.694, 0.92, 1.108, 1.338, 1.561, 1.743, 1.959, 2.155, 2.289, 2.452, 2.631]
-)
-
-
-@dataclass
-class Track:
-    """Joint-angle tracks of one action over n frames.
-
-    Attributes:
-        dofs: (n, D) joint angles, radians.
-        yaw_rate: (n,) heading change per frame, radians (positive = turning left).
-        flight: (n,) height of the airborne root above its ground-supported path, metres.
-        air_velocity: (n, 2) heading-frame (left, forward) velocity in metres per frame while
-            airborne; NaN lets the assembler interpolate between the neighbouring ground frames.
-        stance: optional (n, 2) weights of the left and right foot as the planted one (gaits,
-            where the phase says which foot carries the body); None lets the lowest foot decide.
-    """
-
-    dofs: np.ndarray
-    yaw_rate: np.ndarray
-    flight: np.ndarray
-    air_velocity: np.ndarray
-    stance: np.ndarray | None = None
-
-    @classmethod
-    def still(cls, dofs: np.ndarray) -> Track:
-        n = dofs.shape[0]
-        return cls(dofs, np.zeros(n), np.zeros(n), np.full((n, 2), np.nan))
-
-    def mirrored(self) -> Track:
-        air = self.air_velocity.copy()
-        air[:, 0] *= -1
-        stance = None if self.stance is None else self.stance[:, ::-1].copy()
-        return Track(mirror_dofs(self.dofs), -self.yaw_rate, self.flight.copy(), air, stance)
-
-
-@dataclass
-class Style:
-    """Per-clip mannerisms applied to every action (degrees and factors)."""
-
-    stance_width: float = 3.0
-    knee_bend: float = 4.0
-    arm_abd: float = 8.0
-    elbow: float = 14.0
-    lean: float = 2.0
-    head: float = 0.0
-    arm_swing: float = 1.0
-    tempo: float = 1.0
-
-    @classmethod
-    def sample(cls, rng: np.random.Generator) -> Style:
-        return cls(
-            stance_width=float(rng.uniform(1.5, 5.0)),
-            knee_bend=float(rng.uniform(2.0, 7.0)),
-            arm_abd=float(rng.uniform(5.0, 12.0)),
-            elbow=float(rng.uniform(8.0, 22.0)),
-            lean=float(rng.uniform(0.0, 5.0)),
-            head=float(rng.uniform(-6.0, 6.0)),
-            arm_swing=float(rng.uniform(0.75, 1.25)),
-            tempo=float(rng.uniform(0.9, 1.1)),
-        )
-
-    def base_pose(self) -> np.ndarray:
-        """The relaxed standing pose (D,), radians."""
-        return pose_vector(
-            None,
-            spine_flex=self.lean,
-            neck_flex=self.head,
-            l_hip_abd=self.stance_width,
-            r_hip_abd=self.stance_width,
-            l_knee=self.knee_bend,
-            r_knee=self.knee_bend,
-            l_hip_flex=0.5 * self.knee_bend,
-            r_hip_flex=0.5 * self.knee_bend,
-            l_ankle=0.5 * self.knee_bend,
-            r_ankle=0.5 * self.knee_bend,
-            l_shoulder_abd=self.arm_abd,
-            r_shoulder_abd=self.arm_abd,
-            l_elbow=self.elbow,
-            r_elbow=self.elbow,
-        )
-
-
-def pose_vector(base: np.ndarray | None, **degrees: float) -> np.ndarray:
-    """A pose (D,) in radians: ``base`` (or zeros) with the named angles set, given in degrees."""
-    pose = np.zeros(NUM_DOFS) if base is None else base.copy()
-    for name, value in degrees.items():
-        pose[DOF[name]] = np.radians(value)
-    return pose
-
-
-def both(**degrees: float) -> dict[str, float]:
-    """Expand ``hip_flex=10`` to ``l_hip_flex=10, r_hip_flex=10``."""
-    return {f"{s}_{k}": v for k, v in degrees.items() for s in ("l", "r")}
-
-
-def keyframes(times: list[float], poses: list[np.ndarray], n: int, fps: float) -> np.ndarray:
-    """Shape-preserving cubic interpolation of key poses (K, D) at times (K,) seconds to (n, D)."""
-    times_arr = np.asarray(times, dtype=np.float64)
-    if np.any(np.diff(times_arr) <= 0):
-        raise ValueError("key times must increase")
-    t = np.clip(np.arange(n) / fps, times_arr[0], times_arr[-1])
-    return PchipInterpolator(times_arr, np.stack(poses), axis=0)(t)
-
-
-def _bump(phase: np.ndarray, centre: float, width: float) -> np.ndarray:
-    """Periodic bump in [0, 1] peaking at ``centre`` (cycles) with about ``width`` cycles spread."""
-    return np.exp((np.cos(2 * np.pi * (phase - centre)) - 1.0) / (2 * np.pi * width) ** 2)
-
-
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3 - 2 * x)
-
-
-def _lead_in(n: int, fps: float, natural: float) -> float:
-    """Start time (s) that centres an action of ``natural`` seconds in n frames."""
-    return max(0.0, 0.5 * (n / fps - natural))
-
-
-# --- gaits -------------------------------------------------------------------------------------
-
-
-def _periodic_curve(knots: list[tuple[float, float]], samples: int = 240) -> np.ndarray:
-    """A smooth periodic table (samples,) through (phase, value) knots, phases in [0, 1)."""
-    xp = np.array([k[0] for k in knots])
-    fp = np.array([k[1] for k in knots])
-    grid = np.arange(samples) / samples
-    table = np.interp(grid, xp, fp, period=1.0)
-    # Circular smoothing removes the corners of the piecewise-linear interpolation.
-    kernel = np.exp(-0.5 * (np.arange(-12, 13) / 4.0) ** 2)
-    kernel /= kernel.sum()
-    padded = np.concatenate([table[-12:], table, table[:12]])
-    return np.convolve(padded, kernel, mode="valid")
-
-
-def _lookup(table: np.ndarray, phase: np.ndarray) -> np.ndarray:
-    grid = np.arange(len(table) + 1) / len(table)
-    return np.interp(phase % 1.0, grid, np.append(table, table[0]))
-
-
-# Gait cycles, phase 0 = heel strike of the leg. Thigh angle from the vertical (not from the
-# pelvis), knee flexion, and foot pitch (toe up positive; 0 = flat on the ground), degrees.
-# The thigh keeps sweeping back at an even rate through stance, from heel strike on, so that the
-# landing foot and the planted foot move alike relative to the pelvis (neither slides).
-_WALK_THIGH = _periodic_curve(
-    [(0, 19), (0.1, 12.5), (0.3, -1), (0.52, -15), (0.62, -9), (0.75, 10), (0.9, 22)]
-)
-_WALK_KNEE = _periodic_curve(
-    [
-        (0, 3),
-        (0.12, 16),
-        (0.25, 9),
-        (0.42, 5),
-        (0.52, 14),
-        (0.62, 38),
-        (0.72, 60),
-        (0.85, 28),
-        (0.95, 4),
-    ]
-)
-_WALK_FOOT = _periodic_curve(
-    [(0, 12), (0.07, 0), (0.43, 0), (0.52, -12), (0.62, -36), (0.72, -12), (0.85, 6), (0.95, 12)]
-)
-_RUN_THIGH = _periodic_curve(
-    [(0, 22), (0.2, 0), (0.4, -22), (0.5, -14), (0.7, 25), (0.85, 34), (0.95, 27)]
-)
-_RUN_KNEE = _periodic_curve(
-    [(0, 18), (0.15, 40), (0.3, 22), (0.4, 15), (0.55, 70), (0.68, 105), (0.82, 70), (0.95, 25)]
-)
-_RUN_FOOT = _periodic_curve(
-    [(0, 6), (0.06, 0), (0.25, 0), (0.35, -15), (0.42, -38), (0.55, -20), (0.75, 6)]
-)
-
-
-def _gait_angles(phase: np.ndarray, run: bool, amplitude: float) -> dict:
-    """Leg angles (degrees) of one leg over gait phases (n,); ``amplitude`` scales the thigh swing.
-
-    The ankle is solved so the foot has the pitch of the foot curve: flat during stance.
-    """
-    thigh = amplitude * _lookup(_RUN_THIGH if run else _WALK_THIGH, phase)
-    knee = _lookup(_RUN_KNEE if run else _WALK_KNEE, phase) * (0.8 + 0.2 * amplitude)
-    foot = _lookup(_RUN_FOOT if run else _WALK_FOOT, phase)
-    ankle = np.clip(foot - thigh + knee, -40, 30)
-    abd = 1.0 - 2.0 * _bump(phase, 0.3, 0.12)
-    return {"hip_flex": thigh, "knee": knee, "ankle": ankle, "hip_abd": abd}
-
-
-def forward_gait(
-    n: int,
-    fps: float,
-    rng: np.random.Generator,
-    style: Style,
-    speed: float,
-    run: bool,
-    backward: bool = False,
-    yaw_rate_s: float = 0.0,
-) -> Track:
-    """Walk or run along the heading at about ``speed`` m/s; backward = the cycle played in reverse.
-
-    Cadence and stride length both grow with speed (stride = speed / cadence); the hip amplitude
-    is set from the stride so the planted foot, not a root velocity, moves the body.
-    """
-    # Strides per second; a subject's tempo changes cadence, and the stride makes up for it.
-    cadence = (1.15 + 0.13 * speed if run else 0.55 + 0.36 * speed) * style.tempo
-    strides = _RUN_STRIDES if run else _WALK_STRIDES
-    # Speeds are for the mean body: with the same joint angles a longer-legged subject takes
-    # longer strides and goes proportionally faster, as people do.
-    amplitude = float(np.interp(speed / cadence, strides, _AMPLITUDES))
-    t = np.arange(n) / fps
-    direction = -1.0 if backward else 1.0
-    phase_left = rng.uniform() + direction * cadence * t
-    phase_right = phase_left + 0.5
-    dofs = np.repeat(style.base_pose()[None], n, axis=0)
-    legs = {}
-    for side, phase in (("l", phase_left), ("r", phase_right)):
-        legs[side] = _gait_angles(phase % 1.0, run, amplitude)
-        legs[side]["hip_abd"] = legs[side]["hip_abd"] + style.stance_width - 2.0
-        for name, value in legs[side].items():
-            dofs[:, DOF[f"{side}_{name}"]] = np.radians(value)
-    mean_hip = 0.0
-    swing = style.arm_swing * (1.4 if run else 0.9)
-    for side, other in (("l", "r"), ("r", "l")):
-        # An arm swings with the opposite leg.
-        flex = swing * (legs[other]["hip_flex"] - mean_hip)
-        dofs[:, DOF[f"{side}_shoulder_flex"]] = np.radians(flex)
-        elbow = (85.0 if run else style.elbow + 4 * speed) + 0.3 * np.maximum(flex, 0)
-        dofs[:, DOF[f"{side}_elbow"]] = np.radians(elbow)
-        dofs[:, DOF[f"{side}_shoulder_abd"]] = np.radians(style.arm_abd + (6 if run else 0))
-    lean = style.lean + (6 + 2 * speed if run else 1.5 * speed) * direction
-    dofs[:, DOF["spine_flex"]] = np.radians(lean)
-    dofs[:, DOF["neck_flex"]] = np.radians(style.head - 0.5 * lean)
-    twist = (5 if run else 4) * np.cos(2 * np.pi * phase_left)
-    dofs[:, DOF["pelvis_twist"]] = np.radians(-twist)
-    dofs[:, DOF["spine_twist"]] = np.radians(1.6 * twist)
-    dofs[:, DOF["pelvis_roll"]] = np.radians(3.0 * np.cos(2 * np.pi * (phase_left - 0.3)))
-    flight = np.zeros(n)
-    if run:
-        # Both feet are off the ground between one foot's toe-off and the other's heel strike.
-        height = 0.02 + 0.01 * speed
-        for phase in (phase_left % 1.0, phase_right % 1.0):
-            window = (phase >= 0.4) & (phase < 0.5)
-            flight[window] = height * np.sin(np.pi * (phase[window] - 0.4) / 0.1)
-    yaw_rate = np.full(n, yaw_rate_s / fps)
-    end = 0.4 if run else 0.5
-    stance = np.stack([_stance_weight(p % 1.0, end) for p in (phase_left, phase_right)], axis=1)
-    return Track(dofs, yaw_rate, flight, np.full((n, 2), np.nan), stance)
-
-
-def _stance_weight(phase: np.ndarray, end: float, ramp: float = 0.07) -> np.ndarray:
-    """Weight (n,) of a leg as the planted one: rises after heel strike, falls at ``end``."""
-    return _smoothstep(phase / ramp) * (1 - _smoothstep((phase - end) / ramp))
-
-
-def sidestep_left(
-    n: int, fps: float, rng: np.random.Generator, style: Style, speed: float, run: bool
-) -> Track:
-    """Step sideways to the left: the left leg swings out while the right leg, planted, abducts;
-    then the right leg swings in while the left, planted, comes back under the body."""
-    reach = 2 * 0.88  # the mean body's leg, hip to sole
-    cadence = (1.5 if run else 1.0) * (0.8 + 0.4 * speed)
-    abduction = np.degrees(np.arcsin(np.clip(speed / cadence / reach, 0, 0.6)))
-    t = np.arange(n) / fps
-    phase = (rng.uniform() + cadence * t) % 1.0
-    first = phase < 0.5
-    local = (2 * phase) % 1.0
-    # The swinging foot rises first, then moves out (or in), then comes down.
-    progress = _smoothstep((local - 0.12) / 0.76)
-    abd = np.where(first, progress, 1 - progress) * abduction
-    lift = np.sin(np.pi * local) ** 2
-    dofs = np.repeat(style.base_pose()[None], n, axis=0)
-    for side, swinging in (("l", first), ("r", ~first)):
-        dofs[:, DOF[f"{side}_hip_abd"]] = np.radians(abd + 1.0)
-        knee = style.knee_bend + (14 if run else 8) + np.where(swinging, 30 * lift, 0)
-        hip = 6 + np.where(swinging, 14 * lift, 0)
-        dofs[:, DOF[f"{side}_knee"]] = np.radians(knee)
-        dofs[:, DOF[f"{side}_hip_flex"]] = np.radians(hip)
-        # Foot flat (pitch = thigh - knee + ankle = 0) while planted, toes a little down in swing.
-        dofs[:, DOF[f"{side}_ankle"]] = np.radians(knee - hip - np.where(swinging, 10 * lift, 0))
-        dofs[:, DOF[f"{side}_shoulder_abd"]] = np.radians(style.arm_abd + 0.5 * abd)
-        dofs[:, DOF[f"{side}_elbow"]] = np.radians(style.elbow + (50 if run else 10))
-    dofs[:, DOF["spine_lat"]] = np.radians(2.0 * np.sin(2 * np.pi * phase))
-    flight = np.zeros(n)
-    if run:
-        # A shuffle: a small hop as the feet cross the widest stance.
-        window = (phase > 0.45) & (phase < 0.55)
-        flight[window] = 0.025 * np.sin(np.pi * (phase[window] - 0.45) / 0.1)
-    stance = np.stack([(~first).astype(float), first.astype(float)], axis=1)
-    return Track(dofs, np.zeros(n), flight, np.full((n, 2), np.nan), stance)
-
-
-def gait(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style) -> Track:
-    """Walk or run (``params["speed_mps"]``) forward, backward, sideways or in a circle."""
-    run = params["gait"] == "run"
-    speed = params["speed_mps"]
-    direction = params["direction"]
-    if direction in ("forward", "backward"):
-        return forward_gait(n, fps, rng, style, speed, run, backward=direction == "backward")
-    if direction in ("left", "right"):
-        track = sidestep_left(n, fps, rng, style, speed, run)
-        return track if direction == "left" else track.mirrored()
-    yaw_rate = speed / params["radius_m"]
-    track = forward_gait(n, fps, rng, style, speed, run, yaw_rate_s=yaw_rate)
-    # Counterclockwise seen from above is a continuous left turn.
-    return track if direction == "counterclockwise" else track.mirrored()
 
 
 # --- in place ----------------------------------------------------------------------------------
@@ -353,7 +51,7 @@ def turn(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
     angle = np.radians(params["angle"])
     steps = 2 if params["angle"] <= 90 else 4
     natural = 0.45 * steps + 0.3
-    start = _lead_in(n, fps, natural)
+    start = lead_in(n, fps, natural)
     t = np.arange(n) / fps
     step_time = (natural - 0.3) / steps
     foot_yaw = {"l": np.zeros(n), "r": np.zeros(n)}
@@ -367,7 +65,7 @@ def turn(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
         foot_yaw[leg] = np.where(
             local >= 1,
             target,
-            np.where(active, previous + (target - previous) * _smoothstep(local), foot_yaw[leg]),
+            np.where(active, previous + (target - previous) * smoothstep(local), foot_yaw[leg]),
         )
         lift[leg] = lift[leg] + np.where(active, np.sin(np.pi * np.clip(local, 0, 1)) ** 2, 0)
     heading = 0.5 * (foot_yaw["l"] + foot_yaw["r"])
@@ -422,7 +120,7 @@ def jump(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
         spine_flex=6,
         **both(hip_flex=40, knee=65, ankle=25, shoulder_flex=20, elbow=25),
     )
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     times, poses = [t], [base]
     flight = np.zeros(n)
     air = np.full((n, 2), np.nan)
@@ -470,7 +168,7 @@ def hop_left(params: dict, n: int, fps: float, rng: np.random.Generator, style: 
     ready = pose_vector(base, l_knee=12, l_hip_flex=8, l_ankle=8, **held)
     crouch = pose_vector(base, pelvis_pitch=6, l_knee=35, l_hip_flex=25, l_ankle=18, **held)
     push = pose_vector(base, pelvis_pitch=3, l_knee=4, l_hip_flex=4, l_ankle=-25, **held)
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     times, poses = [t, t + 0.5], [base, ready]
     t += 0.5
     flight = np.zeros(n)
@@ -527,7 +225,7 @@ def kick_left(params: dict, n: int, fps: float, rng: np.random.Generator, style:
         **arms,
     )
     natural = 1.15
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     times = [t, t + 0.35, t + 0.52, t + 0.72, t + 1.15]
     poses = [base, chamber, extend, chamber, base]
     return Track.still(keyframes(times, poses, n, fps))
@@ -552,7 +250,7 @@ def punch_left(params: dict, n: int, fps: float, rng: np.random.Generator, style
         r_shoulder_flex=30,
     )
     natural = 0.45 + count * 0.5 + 0.45
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     times, poses = [t, t + 0.45], [base, guard]
     t += 0.45
     for _ in range(count):
@@ -576,7 +274,7 @@ def wave(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
     base = style.base_pose()
     up = _arm_pose(base, sides, shoulder_abd=105, shoulder_flex=18, shoulder_twist=-80, elbow=85)
     natural = 0.5 + count / rate + 0.5
-    t0 = _lead_in(n, fps, natural)
+    t0 = lead_in(n, fps, natural)
     t1 = t0 + 0.5
     t2 = t1 + count / rate
     dofs = keyframes([t0, t1, t2, t2 + 0.5], [base, up, up, base], n, fps)
@@ -596,7 +294,7 @@ def raise_hands(params: dict, n: int, fps: float, rng: np.random.Generator, styl
     up = _arm_pose(base, sides, shoulder_flex=170, shoulder_abd=12, elbow=8, collar_elev=10)
     hold = params["hold_s"]
     natural = 0.7 + hold + 0.7
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     track = Track.still(
         keyframes([t, t + 0.7, t + 0.7 + hold, t + natural], [base, up, up, base], n, fps)
     )
@@ -612,7 +310,7 @@ def clap(params: dict, n: int, fps: float, rng: np.random.Generator, style: Styl
         base, **both(shoulder_flex=40, shoulder_abd=12, elbow=100, shoulder_twist=20)
     )
     natural = 0.5 + count / rate + 0.5
-    t0 = _lead_in(n, fps, natural)
+    t0 = lead_in(n, fps, natural)
     t1 = t0 + 0.5
     t2 = t1 + count / rate
     dofs = keyframes([t0, t1, t2, t2 + 0.5], [base, ready, ready, base], n, fps)
@@ -639,7 +337,7 @@ def squat(params: dict, n: int, fps: float, rng: np.random.Generator, style: Sty
     )
     period = params["period_s"]
     natural = count * period
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     times, poses = [t], [base]
     for _ in range(count):
         times += [t + 0.5 * period, t + period]
@@ -673,7 +371,7 @@ def sit(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style
     )
     hold = params["hold_s"]
     natural = 0.9 + 0.45 + 0.55 + hold + 0.55 + 0.45 + 0.9
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     # Halfway down the buttocks approach the floor before the legs slide out (the pelvis keeps
     # going down instead of rising as the knees straighten).
     lowering = pose_vector(
@@ -700,7 +398,7 @@ def bow(params: dict, n: int, fps: float, rng: np.random.Generator, style: Style
     )
     hold = params["hold_s"]
     natural = 1.0 + hold + 1.0
-    t = _lead_in(n, fps, natural)
+    t = lead_in(n, fps, natural)
     return Track.still(
         keyframes([t, t + 1.0, t + 1.0 + hold, t + natural], [base, bent, bent, base], n, fps)
     )
