@@ -1,4 +1,4 @@
-"""Timing-free semantic checks (detectors.align_segments): the labelled actions in their order,
+"""Timing-free semantic checks (matching.align_segments): the labelled actions in their order,
 wherever the motion performs them; wrong order and wrong counts still fail."""
 
 from __future__ import annotations
@@ -8,12 +8,8 @@ import pytest
 
 from dataset_tools.representation import process_motion
 from dataset_tools.synth.clip import synthesize_action
-from dataset_tools.synth.detectors import (
-    MotionSignals,
-    align_segments,
-    clip_matches,
-    detect_labels,
-)
+from dataset_tools.synth.detectors import MotionSignals, detect_labels
+from dataset_tools.synth.matching import align_segments, clip_matches
 from dataset_tools.synth.scoring import SemanticScorer
 
 FPS = 20.0

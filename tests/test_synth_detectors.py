@@ -9,13 +9,8 @@ import pytest
 
 from dataset_tools.mirror import mirror_joints
 from dataset_tools.synth.clip import synthesize_action, synthesize_clip
-from dataset_tools.synth.detectors import (
-    clip_matches,
-    detect_labels,
-    label_matches,
-    mirror_label,
-    plausibility,
-)
+from dataset_tools.synth.detectors import detect_labels, plausibility
+from dataset_tools.synth.matching import clip_matches, label_matches, mirror_label
 from dataset_tools.synth.motions import ACTIONS
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

@@ -23,7 +23,8 @@ from dataset_tools import humanml3d
 from dataset_tools.build import DATASET_FPS
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.synth.corpus import GENERATOR
-from dataset_tools.synth.detectors import MotionSignals, align_segments, mirror_label
+from dataset_tools.synth.detectors import MotionSignals
+from dataset_tools.synth.matching import align_segments, mirror_label
 
 logger = logging.getLogger(__name__)
 
@@ -57,9 +58,9 @@ class SemanticScorer:
 
     An item counts as right when every labelled segment of its source clip is found in the
     joints, in the labelled order, wherever the motion performs it
-    (:func:`~dataset_tools.synth.detectors.align_segments`: captions give the order and the
+    (:func:`~dataset_tools.synth.matching.align_segments`: captions give the order and the
     counts, never the timing). The strict score that cuts the motion in the proportions of the
-    labelled clip (:func:`~dataset_tools.synth.detectors.clip_matches`) is reported beside it
+    labelled clip (:func:`~dataset_tools.synth.matching.clip_matches`) is reported beside it
     under ``*_fixed_timing`` names. Mirrored clips (:func:`~dataset_tools.humanml3d.mirror_name`)
     are checked against the mirrored labels. Sub-clips with their own time range are not scored.
 

@@ -15,7 +15,8 @@ import numpy as np
 from dataset_tools.mirror import mirror_joints
 from dataset_tools.synth.clip import synthesize_clip
 from dataset_tools.synth.corpus import write_corpus
-from dataset_tools.synth.detectors import clip_matches, mirror_label, plausibility
+from dataset_tools.synth.detectors import plausibility
+from dataset_tools.synth.matching import clip_matches, mirror_label
 
 SEED = 1234
 

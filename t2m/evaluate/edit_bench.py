@@ -57,7 +57,8 @@ import torch
 from dataset_tools import humanml3d
 from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
 from dataset_tools.io import check_output_folder, write_json_atomic, write_text_atomic
-from dataset_tools.synth.detectors import clip_matches, detect_labels, label_matches
+from dataset_tools.synth.detectors import detect_labels
+from dataset_tools.synth.matching import clip_matches, label_matches
 from t2m.edit import EditRequest, SearchSettings, edit_batch
 from t2m.edit.core import METHODS, EditPlan
 from t2m.edit.modes import Mode
