@@ -19,7 +19,9 @@ Each field becomes ``--field-name`` (required when the field has no default); it
 string literal written under the field (its attribute docstring). Field types: ``int``,
 ``float``, ``str``, ``Path``, ``bool`` (``--x`` / ``--no-x``), ``Literal[...]`` (choices),
 ``tuple[X, ...]`` (zero or more values), each optionally ``| None``. :func:`option` in a field's
-metadata renames the option, makes it positional or adds a metavar. A union such as
+metadata renames the option, makes it positional, adds a metavar or gives the field another
+JSON key (``option(key="samples")``: ``--num-samples`` on the command line, ``"samples"`` in
+JSON). A union such as
 ``Path | np.ndarray`` (a file, or an array from Python or JSON) is the option of its first member
 the command line can spell.
 
@@ -129,6 +131,7 @@ class _Option:
     positional: bool = False
     metavar: str | None = None
     choices: tuple | None = None
+    key: str | None = None
 
 
 def option(
@@ -137,6 +140,7 @@ def option(
     positional: bool = False,
     metavar: str | None = None,
     choices: Sequence | None = None,
+    key: str | None = None,
 ) -> dict:
     """Field metadata for an option that is not plain ``--field-name``.
 
@@ -147,12 +151,21 @@ def option(
         positional: a positional argument instead of an option.
         metavar: the placeholder shown in ``--help`` (e.g. ``"DIR"``).
         choices: the allowed values, when they live in a constant rather than a ``Literal``.
+        key: the field's key in a JSON object (:func:`fields_from_dict`) instead of its name.
 
     Use as ``input_dir: Path = field(metadata=option("--input", metavar="DIR"))``.
     """
     return {
-        _METADATA_KEY: _Option(flags, negative, positional, metavar, choices and tuple(choices))
+        _METADATA_KEY: _Option(
+            flags, negative, positional, metavar, choices and tuple(choices), key
+        )
     }
+
+
+def json_key(field: dataclasses.Field) -> str:
+    """A field's key in a JSON object: its :func:`option` ``key``, else its name."""
+    spec: _Option = field.metadata.get(_METADATA_KEY, _Option())
+    return spec.key or field.name
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -389,42 +402,58 @@ def fields_from_dict(
     where: str,
     files: Path | None = None,
     exclude: Sequence[str] = (),
+    only: Sequence[str] | None = None,
+    others: Sequence[str] = (),
 ) -> dict[str, Any]:
     """The fields of the dataclass ``cls`` from a JSON object ``data``, each checked against its
     type (the same table the options come from; an array type takes nested lists of numbers).
 
-    ``where`` names the object in messages: ``edit.mode must be one of ...; got 'x'``.
+    A field is read from its JSON key (:func:`json_key`: its name, or its :func:`option`
+    ``key``). ``where`` names the object in messages: ``edit.mode must be one of ...; got 'x'``
+    (empty: the key alone, ``samples must be ...``, for a request that is the whole object).
     ``files``: the folder a relative file name is read from; None refuses file names (a web
-    request never names a file of the server). ``exclude``: fields this reader does not take.
-    A missing field keeps its default; a missing required one, an unknown key or a value of
-    the wrong type is a one-line :class:`UsageError`. Returns ``{field: value}`` of the keys
-    given, for ``cls(**values)`` (whose ``__post_init__`` checks the rest).
+    request never names a file of the server). ``exclude``: fields this reader does not take;
+    ``only``: the fields it takes (None: all but ``exclude``). ``others``: keys of ``data`` that
+    another reader takes, skipped here but named among the known keys of the unknown-key
+    message. A missing field keeps its default; a missing required one, an unknown key or a
+    value of the wrong type is a one-line :class:`UsageError`. Returns ``{field: value}`` (field
+    names) of the keys given, for ``cls(**values)`` (whose ``__post_init__`` checks the rest).
     """
     if not isinstance(data, dict):
-        raise UsageError(f"{where} must be a JSON object, got {type(data).__name__}")
+        raise UsageError(
+            f"{where or 'the object'} must be a JSON object, got {type(data).__name__}"
+        )
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in exclude}
-    unknown = sorted(set(data) - set(fields), key=str)
+    fields = {
+        json_key(f): f
+        for f in dataclasses.fields(cls)
+        if f.name not in exclude and (only is None or f.name in only)
+    }
+    unknown = sorted(set(data) - set(fields) - set(others), key=str)
     if unknown:
-        raise UsageError(f"{where}: unknown field {unknown[0]!r}; use {', '.join(fields)}")
+        known = ", ".join([*fields, *others])
+        raise UsageError(
+            f"{where + ': ' if where else ''}unknown field {unknown[0]!r}; use {known}"
+        )
     values = {}
-    for name, field in fields.items():
-        if name not in data:
+    for key, field in fields.items():
+        shown_key = f"{where}.{key}" if where else key
+        if key not in data:
             if _default_of(field) is dataclasses.MISSING:
-                raise UsageError(f"{where}.{name} is required")
+                raise UsageError(f"{shown_key} is required")
             continue
-        hint, value = hints[name], data[name]
+        hint, value = hints[field.name], data[key]
         if value is None and type(None) in typing.get_args(hint):
-            values[name] = None
+            values[field.name] = None
             continue
         try:
-            values[name] = _json_value(hint, value, files)
+            values[field.name] = _json_value(hint, value, files)
         except ValueError:
             kinds = " or ".join(
                 _describe(m) for m in _members(hint) if files is not None or m is not Path
             )
             shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:37] + "..."
-            raise UsageError(f"{where}.{name} must be {kinds}; got {shown}") from None
+            raise UsageError(f"{shown_key} must be {kinds}; got {shown}") from None
     return values
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import importlib
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Literal
 
@@ -304,3 +304,46 @@ def test_union_fields_become_the_option_of_their_first_spellable_type():
     given = given_fields(ToyRequest, parser.parse_args(["--mode", "a", "--source", "w.npy"]))
     assert given == {"mode": "a", "source": Path("w.npy")}
     assert given_fields(ToyRequest, parser.parse_args([])) == {}
+
+
+@dataclass
+class ToyCount:
+    """A field whose JSON key differs from its option's name."""
+
+    num_samples: int = field(default=1, metadata=option(metavar="N", key="samples"))
+    """how many"""
+    seed: int = 0
+    """random seed"""
+    batch_size: int = 4
+    """the command line's only"""
+
+
+def test_a_json_key_renames_a_field_in_json_only():
+    from dataset_tools.command import fields_from_dict, json_key
+
+    parser = CommandParser(prog="toy")
+    add_config_options(parser, ToyCount)
+    assert parser.parse_args(["--num-samples", "3"]).num_samples == 3
+    assert [json_key(f) for f in fields(ToyCount)] == ["samples", "seed", "batch_size"]
+    assert fields_from_dict(ToyCount, {"samples": 3}, "toy") == {"num_samples": 3}
+    with pytest.raises(UsageError, match=r"^toy.samples must be a whole number; got '3'$"):
+        fields_from_dict(ToyCount, {"samples": "3"}, "toy")
+    with pytest.raises(UsageError, match="unknown field 'num_samples'; use samples, seed"):
+        fields_from_dict(ToyCount, {"num_samples": 3}, "toy")
+
+
+def test_a_reader_of_some_fields_names_the_keys_other_readers_take():
+    from dataset_tools.command import fields_from_dict
+
+    # the whole request, no prefix: the key alone names the field
+    with pytest.raises(UsageError, match=r"^seed must be a whole number; got 1.5$"):
+        fields_from_dict(ToyCount, {"seed": 1.5}, "")
+    read = fields_from_dict(
+        ToyCount, {"seed": 2, "mode": "x"}, "", only=("seed",), others=("mode",)
+    )
+    assert read == {"seed": 2}
+    with pytest.raises(UsageError) as error:
+        fields_from_dict(ToyCount, {"batch_size": 2}, "", only=("seed",), others=("mode",))
+    assert str(error.value) == "unknown field 'batch_size'; use seed, mode"
+    with pytest.raises(UsageError, match="^the object must be a JSON object, got list$"):
+        fields_from_dict(ToyCount, [1], "")

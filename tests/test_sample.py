@@ -11,8 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dataset_tools.command import UsageError
 from t2m import outputs, sample
 from t2m.pipeline import TextToMotion, frames_for, frames_for_seconds
+from t2m.prompts import Prompt
+from t2m.request import GenerationRequest
 
 
 @pytest.fixture(scope="module")
@@ -288,6 +291,41 @@ def test_unwritable_or_occupied_out(tiny_run, tmp_path, capsys):
     assert code == 0, err
     assert (occupied / "results.npy").read_bytes() != first
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt", "occupied"]
+
+
+def test_one_request_schema_for_the_command_line_and_python(pipe, tmp_path):
+    # the command's config is the request plus the output options: one declaration
+    assert issubclass(sample.SampleConfig, GenerationRequest)
+    # --text is taken as typed; prompt lines (a file, or a list from Python or JSON) read '#N'
+    assert GenerationRequest(text="a person walks#40").read_prompts() == [
+        Prompt("a person walks#40")
+    ]
+    lines = GenerationRequest(prompts=["a person walks#48", " ", "someone jumps"], seconds=3.0)
+    expected = [Prompt("a person walks", 48), Prompt("someone jumps", 60)]
+    assert lines.prompts_for(pipe.spec) == expected
+    file = tmp_path / "prompts.txt"
+    file.write_text("a person walks#48\n\nsomeone jumps\n")
+    assert GenerationRequest(prompts=str(file), seconds=3.0).prompts_for(pipe.spec) == expected
+    with pytest.raises(UsageError, match="^prompt 2: after '#' give a length in frames"):
+        GenerationRequest(prompts=("a person walks", "someone jumps#x")).read_prompts()
+    for bad, message in [
+        ({}, "give one of --text and --text-file"),
+        ({"text": "x", "prompts": ("y",)}, "give one of --text and --text-file"),
+        ({"prompts": ("", " ")}, "empty prompts"),
+        ({"text": "x", "num_samples": 0}, "at least 1"),
+        ({"text": "x", "length": 40, "seconds": 2.0}, "give one of --length and --seconds"),
+    ]:
+        with pytest.raises(UsageError, match=message):
+            GenerationRequest(**bad)
+    # the Python API takes the request's parts: the motions pipe.generate gives for them
+    request = GenerationRequest(prompts=("a person walks forward#40",), num_samples=2, seed=3)
+    prompts = request.prompts_for(pipe.spec)
+    motions = pipe.generate(
+        [p.text for p in prompts], lengths=[p.frames for p in prompts], **request.generate_options()
+    )
+    alone = pipe.generate("a person walks forward", 2, 40, seed=3)
+    for got, want in zip(motions[0], alone[0]):
+        np.testing.assert_array_equal(got.joints, want.joints)
 
 
 def test_lengths_are_rounded_and_clamped_with_a_warning(caplog):

@@ -209,6 +209,11 @@ BAD_REQUESTS = [
     ({"prompts": ["a person walks"], "seed": 1.5}, "seed must be a whole number"),
     ({"prompts": ["a person walks"], "precision": "fp16"}, "precision must be one of"),
     ({"prompts": ["a person walks"], "lengths": [40]}, "unknown field 'lengths'"),
+    # the schema's fields the web does not take: the command line's literal --text, its name
+    # of samples, its length in frames
+    ({"prompts": ["a person walks"], "text": "a person walks"}, "unknown field 'text'"),
+    ({"prompts": ["a person walks"], "num_samples": 2}, "unknown field 'num_samples'"),
+    ({"prompts": ["a person walks"], "length": 40}, "unknown field 'length'"),
     ([1, 2], "must be a JSON object"),
 ]
 
@@ -219,6 +224,28 @@ def test_bad_generate_requests_are_refused_in_words(server, body, words):
     assert status == 400
     assert words in answer["error"], answer["error"]
     assert "\n" not in answer["error"]
+
+
+def test_a_generate_request_is_the_generation_schema_plus_the_web_limits(pipe):
+    from dataset_tools.command import UsageError
+    from t2m.prompts import Prompt
+    from t2m.request import GenerationRequest
+
+    body = {"prompts": "a person walks#48\n\nsomeone jumps", "seconds": 3, "samples": 2}
+    checked = api.parse_generate({**body, "seed": 5}, pipe.spec, True, api.Limits(), "cpu")
+    assert checked.request == GenerationRequest(
+        prompts=("a person walks#48", "someone jumps"), seconds=3.0, num_samples=2, seed=5
+    )
+    assert checked.prompts == (Prompt("a person walks", 48), Prompt("someone jumps", 60))
+    assert checked.precision == "fp32"
+    # the edit's samples, seed and precision are read by the same types and limits
+    assert api.run_options({"mode": "body", "samples": 2, "seed": 5}, api.Limits(), "cpu") == (
+        2,
+        5,
+        "fp32",
+    )
+    with pytest.raises(UsageError, match="^samples must be a whole number; got '2'$"):
+        api.run_options({"mode": "body", "samples": "2"}, api.Limits(), "cpu")
 
 
 def test_bad_bodies_routes_and_hosts(server):

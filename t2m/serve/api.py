@@ -1,24 +1,37 @@
 """The JSON API of the web app: the checks of every request's values and the answers' layout.
 
-Every value of a request is checked here before any work, against :class:`Limits` (stated in
-the README); a bad one raises ``UsageError`` with one sentence the page shows as it is.
+A generate request is a :class:`t2m.request.GenerationRequest` read by its schema's JSON reader
+(:func:`dataset_tools.command.fields_from_dict`: the fields :data:`WEB_FIELDS`, file names
+refused) plus the precision it runs at (the type of :class:`t2m.options.OutputOptions`'s field);
+this module adds only the web's limits (:class:`Limits`, stated in the README) and the model's
+length range, checked before any work. A bad value raises ``UsageError`` with one sentence
+naming the field, which the page shows as it is.
 """
 
 from __future__ import annotations
 
-import math
+import dataclasses
 import unicodedata
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from dataset_tools.command import UsageError
+from dataset_tools.command import UsageError, fields_from_dict, json_key
 from dataset_tools.spec import DatasetSpec
 from t2m.motion import GeneratedMotion
-from t2m.pipeline import PRECISIONS, PreparedText, frames_for
-from t2m.prompts import Prompt, parse_prompt_line
+from t2m.options import OutputOptions
+from t2m.pipeline import PreparedText, frames_for
+from t2m.prompts import Prompt
+from t2m.request import GenerationRequest
 
-GENERATE_KEYS = {"prompts", "seconds", "samples", "seed", "precision"}
+WEB_FIELDS = ("prompts", "seconds", "num_samples", "seed")
+"""The fields of :class:`GenerationRequest` a generate request takes, as JSON ``prompts`` (a
+list of lines ``text`` or ``text#FRAMES``, or one text of them), ``seconds``, ``samples`` and
+``seed``; the others (one literal ``--text``, ``--length`` in frames, ``--batch-size``,
+``--clean``, ``--plan``) are the command line's."""
+RUN_FIELDS = ("precision",)
+"""The field of :class:`OutputOptions` a generate or edit request takes: the precision it runs
+at (the command line loads its models at one)."""
 
 
 @dataclass(frozen=True)
@@ -46,22 +59,13 @@ class Busy(RuntimeError):
 
 
 @dataclass(frozen=True)
-class GenerateRequest:
-    """A checked generate request: prompts with lengths in frames (None: drawn by the model)."""
+class CheckedGeneration:
+    """A generate request checked against the web's limits and the model: the request, its
+    prompts with lengths in frames of the model (None: drawn by text2length), the precision."""
 
+    request: GenerationRequest
     prompts: tuple[Prompt, ...]
-    samples: int
-    seed: int
     precision: str
-
-
-def integer_field(payload: dict, key: str, default: int, low: int, high: int) -> int:
-    value = payload.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise UsageError(f"{key} must be a whole number from {low} to {high}, got {value!r}")
-    if not low <= value <= high:
-        raise UsageError(f"{key} must be from {low} to {high}, got {value}")
-    return value
 
 
 def check_text(value: object, what: str, limit: int) -> str:
@@ -89,37 +93,34 @@ def _check_frames(frames: float, spec: DatasetSpec, what: str) -> int:
 
 def parse_generate(
     payload: object, spec: DatasetSpec, has_length_model: bool, limits: Limits, device_type: str
-) -> GenerateRequest:
+) -> CheckedGeneration:
     """Check a generate request's JSON object (keys: prompts, seconds, samples, seed,
     precision; see the README) and return it with lengths in frames."""
     if not isinstance(payload, dict):
         raise UsageError("the request must be a JSON object")
-    unknown = sorted(set(payload) - GENERATE_KEYS)
-    if unknown:
-        raise UsageError(f"unknown field {unknown[0]!r}; use {', '.join(sorted(GENERATE_KEYS))}")
-    # 1. prompts, one a line, "text#FRAMES" fixing that prompt's length
-    lines = payload.get("prompts")
-    if isinstance(lines, str):
-        lines = lines.splitlines()
-    if not isinstance(lines, list) or not all(isinstance(line, str) for line in lines):
+    if isinstance(payload.get("prompts"), str):  # one text, one prompt a line
+        payload = {**payload, "prompts": payload["prompts"].splitlines()}
+    # 1. the schema: known keys, each value of its field's type
+    values = fields_from_dict(GenerationRequest, payload, "", only=WEB_FIELDS, others=RUN_FIELDS)
+    # 2. the web's limits: prompts, samples, seed, precision
+    if values.get("prompts") is None:
         raise UsageError("prompts must be a list of sentences (or one text, one prompt a line)")
-    lines = [line for line in lines if line.strip()]
+    lines = [line for line in values["prompts"] if line.strip()]
     if not lines:
         raise UsageError("empty prompt: type a sentence describing the motion")
     if len(lines) > limits.max_prompts:
         raise UsageError(f"{len(lines)} prompts; at most {limits.max_prompts} in one request")
-    prompts = []
     for number, line in enumerate(lines, start=1):
-        where = f"prompt {number}"
-        prompts.append(parse_prompt_line(check_text(line, where, limits.max_prompt_chars), where))
-    # 2. lengths: "#FRAMES" per prompt, else "seconds" for all, else drawn by text2length
-    seconds = payload.get("seconds")
+        check_text(line, f"prompt {number}", limits.max_prompt_chars)
+    _check_run_limits(values, limits)
+    precision = _precision(payload, device_type)
+    request = GenerationRequest(**{**values, "prompts": tuple(lines)})
+    # 3. lengths: "#FRAMES" per prompt, else "seconds" for all, else drawn by text2length; out
+    # of the model's range is refused (the command line clamps with a warning)
+    prompts = request.read_prompts()
     default_frames = None
-    if seconds is not None:
-        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)):
-            raise UsageError(f"seconds must be a number or null (automatic), got {seconds!r}")
-        if not math.isfinite(seconds):
-            raise UsageError("seconds must be a finite number")
+    if request.seconds is not None:
+        seconds = request.seconds
         default_frames = _check_frames(seconds * spec.fps, spec, f"length {seconds:g} s")
     checked = []
     for number, prompt in enumerate(prompts, start=1):
@@ -134,26 +135,50 @@ def parse_generate(
                 "'#FRAMES' after the prompt"
             )
         checked.append(Prompt(prompt.text, frames))
-    # 3. samples, seed, precision
-    samples, seed, precision = run_options(payload, limits, device_type)
-    if len(checked) * samples > limits.max_motions:
+    motions = len(checked) * request.num_samples
+    if motions > limits.max_motions:
         raise UsageError(
-            f"{len(checked)} prompts x {samples} samples = {len(checked) * samples} motions; at "
+            f"{len(checked)} prompts x {request.num_samples} samples = {motions} motions; at "
             f"most {limits.max_motions} in one request"
         )
-    return GenerateRequest(tuple(checked), samples, seed, precision)
+    return CheckedGeneration(request, tuple(checked), precision)
+
+
+def _read(cls: type, payload: dict, names: tuple[str, ...]) -> dict:
+    """The fields ``names`` of the dataclass ``cls`` from their JSON keys in ``payload`` (the
+    schema's reader; the payload's other keys are other readers')."""
+    keys = {json_key(f) for f in dataclasses.fields(cls) if f.name in names}
+    given = {key: value for key, value in payload.items() if key in keys}
+    return fields_from_dict(cls, given, "", only=names)
+
+
+def _check_run_limits(values: dict, limits: Limits) -> None:
+    """The web's ranges of a request's samples and seed (fields read by the schema)."""
+    samples = values.get("num_samples", GenerationRequest.num_samples)
+    seed = values.get("seed", GenerationRequest.seed)
+    if not 1 <= samples <= limits.max_samples:
+        raise UsageError(f"samples must be from 1 to {limits.max_samples}, got {samples}")
+    if not 0 <= seed <= limits.max_seed:
+        raise UsageError(f"seed must be from 0 to {limits.max_seed}, got {seed}")
+
+
+def _precision(payload: dict, device_type: str) -> str:
+    """A request's ``precision``, read with the type of :class:`OutputOptions`' field; int8 only
+    on a CPU server."""
+    precision = _read(OutputOptions, payload, RUN_FIELDS).get("precision", OutputOptions.precision)
+    if precision == "int8" and device_type != "cpu":
+        raise UsageError("int8 runs on the CPU only; this server runs on a GPU (use bf16)")
+    return precision
 
 
 def run_options(payload: dict, limits: Limits, device_type: str) -> tuple[int, int, str]:
-    """The ``samples``, ``seed`` and ``precision`` of a generate or edit request, checked."""
-    samples = integer_field(payload, "samples", 1, 1, limits.max_samples)
-    seed = integer_field(payload, "seed", 0, 0, limits.max_seed)
-    precision = payload.get("precision", "fp32")
-    if precision not in PRECISIONS:
-        raise UsageError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    if precision == "int8" and device_type != "cpu":
-        raise UsageError("int8 runs on the CPU only; this server runs on a GPU (use bf16)")
-    return samples, seed, precision
+    """The ``samples``, ``seed`` and ``precision`` of an edit request, read with the types of
+    :class:`GenerationRequest` and :class:`OutputOptions` and checked against the web's limits."""
+    values = _read(GenerationRequest, payload, ("num_samples", "seed"))
+    _check_run_limits(values, limits)
+    samples = values.get("num_samples", GenerationRequest.num_samples)
+    seed = values.get("seed", GenerationRequest.seed)
+    return samples, seed, _precision(payload, device_type)
 
 
 def motion_json(motion: GeneratedMotion, links: dict[str, str], decimals: int = 4) -> dict:

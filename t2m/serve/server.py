@@ -144,7 +144,7 @@ class App:
     def generate(self, payload: object) -> dict:
         """POST /api/generate: check, queue, wait, store, answer."""
         started = time.perf_counter()
-        request = api.parse_generate(
+        checked = api.parse_generate(
             payload,
             self.pipe.spec,
             self.pipe.length_model is not None,
@@ -152,11 +152,11 @@ class App:
             self.pipe.device.type,
         )
         job = GenerationJob(
-            texts=[p.text for p in request.prompts],
-            frames=[p.frames for p in request.prompts],
-            num_samples=request.samples,
-            seed=request.seed,
-            precision=request.precision,
+            texts=[p.text for p in checked.prompts],
+            frames=[p.frames for p in checked.prompts],
+            num_samples=checked.request.num_samples,
+            seed=checked.request.seed,
+            precision=checked.precision,
         )
         try:
             self.worker.submit(job)
@@ -172,10 +172,10 @@ class App:
             raise job.error
         motions, prepared = job.result
         generated = time.perf_counter()
-        extra = {"precision": request.precision, "checkpoints": Path(self.checkpoints).name}
-        stored = self.store.add(motions, request.seed, extra)
+        extra = {"precision": checked.precision, "checkpoints": Path(self.checkpoints).name}
+        stored = self.store.add(motions, checked.request.seed, extra)
         stored.prompts = [
-            api.prompt_json(item, prompt.frames) for item, prompt in zip(prepared, request.prompts)
+            api.prompt_json(item, prompt.frames) for item, prompt in zip(prepared, checked.prompts)
         ]
         answer = self.answer(stored.id)
         answer["timing"] = {
