@@ -364,14 +364,14 @@ def test_bad_bvh_files_are_reported(tmp_path):
 
 def test_a_bug_stops_the_build_instead_of_skipping_the_clip(tmp_path, monkeypatch):
     """Only clip data errors are skipped; anything else keeps its traceback."""
-    import dataset_tools.build as build
+    import dataset_tools.build_clips as build_clips
 
     source = synth_source(tmp_path / "src", num_clips=1, num_frames=60)
 
     def broken(clip, skeleton, target_offsets):
         raise TypeError("a bug in the feature code")
 
-    monkeypatch.setattr(build, "process_motion", broken)
+    monkeypatch.setattr(build_clips, "process_motion", broken)
     with pytest.raises(TypeError, match="a bug in the feature code"):
         build_dataset(BuildConfig("joints", source, tmp_path / "out"))
 

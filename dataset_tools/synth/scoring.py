@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from dataset_tools import humanml3d
-from dataset_tools.build import DATASET_FPS
+from dataset_tools.build_clips import DATASET_FPS
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.synth.corpus import GENERATOR
 from dataset_tools.synth.detectors import MotionSignals
@@ -133,5 +133,5 @@ def scorer_for(dataset_dir: str | Path) -> SemanticScorer | None:
     if path is None:
         return None
     logger.info("semantic accuracy from the corpus labels in %s", path)
-    # The builder writes every dataset at HumanML3D's rate (dataset_tools.build.DATASET_FPS).
+    # The builder writes every dataset at HumanML3D's rate (build_clips.DATASET_FPS).
     return SemanticScorer(json.loads(path.read_text(encoding="utf-8")), fps=DATASET_FPS)

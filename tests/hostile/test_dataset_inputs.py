@@ -386,12 +386,13 @@ def test_a_second_build_into_a_locked_folder_is_refused(tmp_path, capsys):
 KILL_A_WORKER = """
 import os, signal, sys
 import dataset_tools.build as build
-original = build.process_task
+import dataset_tools.build_clips as build_clips
+original = build_clips.process_task
 def process(task, context):
     if task.name == "clip02":
         os.kill(os.getpid(), signal.SIGKILL)  # what the out-of-memory killer does
     return original(task, context)
-build.process_task = process
+build_clips.process_task = process
 sys.exit(build.main(sys.argv[1:]))
 """
 
