@@ -61,6 +61,7 @@ from t2m.data.words import EncodedText, WordVectors
 from t2m.inference.conversion import BF16_EMULATED_COST as BF16_EMULATED_COST
 from t2m.inference.conversion import convert
 from t2m.inference.conversion import offered_precisions as offered_precisions
+from t2m.inference.generation import clause_codes, decode_features, text_batch
 from t2m.inference.loading import load_models
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
@@ -394,18 +395,6 @@ class TextToMotion:
                 )
         return out
 
-    def _text_batch(
-        self, encoded: Sequence[EncodedText], vectorizer: WordVectors, dtype: torch.dtype
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Stack encoded captions into (words, pos, lengths) tensors on the device."""
-        words = np.stack([item.words for item in encoded])
-        pos = np.stack([item.pos_onehot for item in encoded])
-        lengths = torch.tensor([item.length for item in encoded], dtype=torch.long)
-        words_tensor = torch.from_numpy(words).to(self.device)
-        if words_tensor.is_floating_point():
-            words_tensor = words_tensor.to(dtype)
-        return words_tensor, torch.from_numpy(pos).to(self.device, dtype), lengths
-
     def sample_lengths(
         self,
         prepared: Sequence[PreparedText],
@@ -461,7 +450,7 @@ class TextToMotion:
         logits = []
         for start in range(0, len(encoded), batch_size):
             chunk = encoded[start : start + batch_size]
-            words, pos, lengths = self._text_batch(chunk, self.length_vectorizer, torch.float32)
+            words, pos, lengths = text_batch(chunk, self.device, torch.float32)
             counts = torch.tensor([c.count for c in chunk], device=self.device)
             logits.append(self.length_model(words, pos, lengths, counts, clause).float())
         return torch.cat(logits)
@@ -574,7 +563,7 @@ class TextToMotion:
         if planned:
             codes = self._clause_codes(encoded, clauses, frames, generator, noise)
         else:
-            words, pos, text_lengths = self._text_batch(encoded, self.vectorizer, self.dtype)
+            words, pos, text_lengths = text_batch(encoded, self.device, self.dtype)
             word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
             codes = self.vae.generate(
                 word_features,
@@ -586,17 +575,9 @@ class TextToMotion:
                 noise=noise,
                 counts=torch.tensor([e.count for e in encoded], device=self.device),
             )
-        # Decode each length on its own: the transposed convolutions would carry the padding
-        # past a shorter item's end into its last frames (a batch must give what batch 1 gives).
-        features: list[np.ndarray] = [np.empty(0)] * len(frames)
-        for steps in sorted(set(num_snippets.tolist())):
-            rows = [i for i, n in enumerate(num_snippets.tolist()) if n == steps]
-            group = codes[rows, :steps].to(self.decoder_dtype)  # (G, steps, C)
-            normalised = self.decoder(group).float()  # (G, unit * steps, D)
-            decoded = self.normalizer.denormalize(normalised).cpu().numpy()
-            for row, item in zip(rows, decoded):
-                features[row] = item[: frames[row]]
-        return features
+        return decode_features(
+            self.decoder, self.normalizer, codes, num_snippets, frames, self.decoder_dtype
+        )
 
     def _clause_codes(
         self,
@@ -606,63 +587,16 @@ class TextToMotion:
         generator: torch.Generator,
         noise: torch.Tensor | None,
     ) -> torch.Tensor:
-        """Codes (B, max snippets, C) generated clause by clause.
-
-        Clause k of every item that has one runs as one batch: its standalone caption's words
-        are what the attention reads, its GRU states start from that caption's sentence feature
-        (as a caption's do in training), the time-to-arrival counts down to the clause's end,
-        and the previous code fed to its first step is the code the item's previous clause
-        ended on (the mean-pose code for the first). The latent draws are the one-pass draws
-        (B, max snippets, Z), each clause reading its own stretch of them, so an item of one
-        clause gets exactly what the one-pass plan gives it."""
-        vae, device = self.vae, self.device
+        """Codes (B, max snippets, C) generated clause by clause
+        (:func:`t2m.inference.generation.clause_codes`), each item's snippets shared among its
+        clauses by :meth:`clause_snippets` (an item with fewer snippets than clauses, or of one
+        clause, runs as one)."""
         lists = [list(c) if len(c) > 1 else [e] for c, e in zip(clauses, encoded, strict=True)]
         snippets = self.clause_snippets(lists, frames)
         lists = [c if len(n) == len(c) else [e] for c, n, e in zip(lists, snippets, encoded)]
-        batch = len(lists)
-        steps = max(sum(n) for n in snippets)
-        latent = vae.config.latent_size
-        if noise is None:
-            noise = torch.randn(
-                batch, steps, latent, generator=generator, device=device, dtype=self.dtype
-            )
-        elif noise.shape != (batch, steps, latent):
-            raise ValueError(
-                f"noise must be (B, S, Z) = {(batch, steps, latent)}, got {tuple(noise.shape)}"
-            )
-        codes = torch.zeros(batch, steps, vae.code_size, device=device, dtype=self.dtype)
-        previous = self.initial_code.to(device, self.dtype).expand(batch, vae.code_size).clone()
-        offset = torch.zeros(batch, dtype=torch.long, device=device)
-        for k in range(max(len(c) for c in lists)):
-            members = [b for b in range(batch) if len(lists[b]) > k]  # items with a clause k
-            sizes = [snippets[b][k] for b in members]
-            rows = torch.tensor(members, device=device)
-            words, pos, text_lengths = self._text_batch(
-                [lists[b][k] for b in members], self.vectorizer, self.dtype
-            )
-            word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
-            count = torch.tensor(sizes, device=device)
-            width = max(sizes)  # from the host's lists: no device sync
-            span = offset[rows, None] + torch.arange(width, device=device)[None, :]  # (R, W)
-            span = span.clamp(max=steps - 1)
-            draws = noise[rows[:, None], span]  # (R, W, Z)
-            made = vae.generate(
-                word_features,
-                sentence,
-                mask,
-                count,
-                noise=draws,
-                state=vae.initial_state(sentence, previous[rows]),
-                counts=torch.tensor([lists[b][k].count for b in members], device=device),
-            )
-            inside = torch.arange(width, device=device)[None, :] < count[:, None]
-            row_index = rows[:, None].expand(-1, width)[inside]
-            codes[row_index, span[inside]] = made[inside].to(codes.dtype)
-            previous[rows] = made[torch.arange(len(rows), device=device), count - 1].to(
-                previous.dtype
-            )
-            offset[rows] += count
-        return codes
+        return clause_codes(
+            self.vae, lists, snippets, self.initial_code, generator, noise, self.device, self.dtype
+        )
 
     def generate(
         self,

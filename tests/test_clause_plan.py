@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from t2m.evaluate.protocol import EvalConfig, deviations
+from t2m.inference.generation import text_batch
 from t2m.models.temporal_vae import StepRollout
 from t2m.pipeline import PLANS, TextToMotion
 
@@ -40,9 +41,7 @@ def test_clause_snippets_follow_the_length_model(pipe):
     shares = pipe.clause_snippets([two.clauses], [160])[0]
     assert sum(shares) == 40 and min(shares) >= 5
     with torch.inference_mode():
-        words, pos, lengths = pipe._text_batch(
-            list(two.clauses), pipe.length_vectorizer, torch.float32
-        )
+        words, pos, lengths = text_batch(list(two.clauses), pipe.device, torch.float32)
         counts = torch.tensor([c.count for c in two.clauses])
         logits = pipe.length_model(words, pos, lengths, counts, clause=True)
         probs = torch.softmax(logits.double(), -1)
@@ -151,7 +150,7 @@ def test_clause_codes_chain_the_clauses(pipe):
     for b, (items, counts) in enumerate(zip(lists, shares)):
         previous, start, made = pipe.initial_code, 0, []
         for caption, count in zip(items, counts):
-            words, pos, lengths = pipe._text_batch([caption], pipe.vectorizer, pipe.dtype)
+            words, pos, lengths = text_batch([caption], pipe.device, pipe.dtype)
             with torch.inference_mode():
                 features, sentence, mask = vae.encode_text(words, pos, lengths)
                 out = vae.generate(

@@ -134,11 +134,12 @@ def generation(device: torch.device, repeats: int) -> dict:
 def cuda_graph(device: torch.device, repeats: int) -> dict:
     """The 49-step recurrent loop (generation plan, batch 1, fp32) eagerly and as a CUDA graph."""
     from t2m.accel.plans import generation_plan
+    from t2m.inference.generation import text_batch
 
     pipe = _paper_pipeline(device, "fp32")
     vae = pipe.vae
-    words, pos, lengths = pipe._text_batch(
-        [item.encoded for item in pipe.prepare([PROMPT])], pipe.vectorizer, torch.float32
+    words, pos, lengths = text_batch(
+        [item.encoded for item in pipe.prepare([PROMPT])], pipe.device, torch.float32
     )
     steps = FRAMES // pipe.spec.snippet_length
     with torch.inference_mode():

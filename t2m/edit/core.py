@@ -44,6 +44,7 @@ import torch
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from t2m.edit.recover import recover_from_ric_torch, yaw_rotate
 from t2m.edit.source import half_yaw_of
+from t2m.inference.generation import text_batch
 
 logger = logging.getLogger(__name__)
 
@@ -185,7 +186,7 @@ def _search(
     encoded = [item.encoded for item in pipe.prepare([p.text for p in plans])]
     encoded = [item for item in encoded for _ in range(draws)]  # plan-major
     with torch.no_grad():
-        words, pos, text_lengths = pipe._text_batch(encoded, pipe.vectorizer, dtype)
+        words, pos, text_lengths = text_batch(encoded, pipe.device, dtype)
         word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
         context = vae.word_context(word_features, mask)
         left = torch.full((batch,), total, dtype=torch.long, device=device)
