@@ -87,7 +87,26 @@ class BvhFile:
 def parse_bvh(text: str, where: str = "BVH") -> BvhFile:
     """Parse BVH text. Raises ValueError with the problem for malformed or truncated files."""
     tokens = text.split()
-    position = 0
+    if not tokens or tokens[0].upper() != "HIERARCHY":
+        raise ValueError(f"{where}: not a BVH file (no HIERARCHY)")
+    try:
+        names, parents, offsets, channels, position = _parse_hierarchy(tokens, where)
+    except (IndexError, ValueError) as error:
+        raise ValueError(
+            str(error) if str(error).startswith(where) else f"{where}: {error}"
+        ) from None
+    motion, frame_time = _parse_motion(tokens[position:], channels, where)
+    return BvhFile(
+        names, parents, np.asarray(offsets, dtype=np.float64), channels, motion, frame_time
+    )
+
+
+def _parse_hierarchy(
+    tokens: list[str], where: str
+) -> tuple[list[str], list[int], list[list[float]], list[list[str]], int]:
+    """The joints of the HIERARCHY section after its keyword: (names, parents, offsets,
+    channels, index of the token after ``MOTION``)."""
+    position = 1
     names: list[str] = []
     parents: list[int] = []
     offsets: list[list[float]] = []
@@ -101,63 +120,61 @@ def parse_bvh(text: str, where: str = "BVH") -> BvhFile:
         position += 1
         return tokens[position - 1]
 
-    if not tokens or tokens[0].upper() != "HIERARCHY":
-        raise ValueError(f"{where}: not a BVH file (no HIERARCHY)")
-    position = 1
     pending: int | None = None  # the joint whose brace comes next
-    try:
-        while True:
-            token = take()
-            keyword = token.upper()
-            if keyword in ("ROOT", "JOINT"):
-                if keyword == "ROOT" and names:
-                    raise ValueError(f"{where}: more than one ROOT")
-                names.append(take())
-                parents.append(stack[-1] if stack else -1)
-                offsets.append([0.0, 0.0, 0.0])
-                channels.append([])
-                pending = len(names) - 1
-            elif keyword == "END":
-                take()  # "Site"
-                pending = -2
-            elif token == "{":
-                if pending is None:
-                    raise ValueError(f"{where}: '{{' without a joint")
-                stack.append(pending)
-                pending = None
-            elif token == "}":
-                if not stack:
-                    raise ValueError(f"{where}: unbalanced '}}'")
-                stack.pop()
-            elif keyword == "OFFSET":
-                values = [float(take()) for _ in range(3)]
-                if stack and stack[-1] >= 0:
-                    offsets[stack[-1]] = values
-            elif keyword == "CHANNELS":
-                count = int(take())
-                channels[stack[-1]] = [take() for _ in range(count)]
-            elif keyword == "MOTION":
-                break
-            else:
-                raise ValueError(f"{where}: unexpected token {token!r} in HIERARCHY")
-    except (IndexError, ValueError) as error:
-        raise ValueError(
-            str(error) if str(error).startswith(where) else f"{where}: {error}"
-        ) from None
+    while True:
+        token = take()
+        keyword = token.upper()
+        if keyword in ("ROOT", "JOINT"):
+            if keyword == "ROOT" and names:
+                raise ValueError(f"{where}: more than one ROOT")
+            names.append(take())
+            parents.append(stack[-1] if stack else -1)
+            offsets.append([0.0, 0.0, 0.0])
+            channels.append([])
+            pending = len(names) - 1
+        elif keyword == "END":
+            take()  # "Site"
+            pending = -2
+        elif token == "{":
+            if pending is None:
+                raise ValueError(f"{where}: '{{' without a joint")
+            stack.append(pending)
+            pending = None
+        elif token == "}":
+            if not stack:
+                raise ValueError(f"{where}: unbalanced '}}'")
+            stack.pop()
+        elif keyword == "OFFSET":
+            values = [float(take()) for _ in range(3)]
+            if stack and stack[-1] >= 0:
+                offsets[stack[-1]] = values
+        elif keyword == "CHANNELS":
+            count = int(take())
+            channels[stack[-1]] = [take() for _ in range(count)]
+        elif keyword == "MOTION":
+            break
+        else:
+            raise ValueError(f"{where}: unexpected token {token!r} in HIERARCHY")
     if stack or not names:
         raise ValueError(f"{where}: HIERARCHY is incomplete")
     for joint_channels in channels:
         for name in joint_channels:
             if name[1:] not in ("position", "rotation") or name[0].upper() not in _AXES:
                 raise ValueError(f"{where}: unknown channel {name!r}")
+    return names, parents, offsets, channels, position
 
-    # MOTION: "Frames: T" "Frame Time: dt" then T * C numbers.
-    header = tokens[position : position + 5]
+
+def _parse_motion(
+    tokens: list[str], channels: list[list[str]], where: str
+) -> tuple[np.ndarray, float]:
+    """The MOTION section after its keyword: "Frames: T" "Frame Time: dt" then T * C numbers
+    -> (motion (T, C), frame time)."""
+    header = tokens[:5]
     if len(header) < 5 or header[0].lower() != "frames:" or header[2:4] != ["Frame", "Time:"]:
         raise ValueError(f"{where}: malformed MOTION header")
     try:
         num_frames, frame_time = int(header[1]), float(header[4])
-        values = np.array(tokens[position + 5 :], dtype=np.float64)
+        values = np.array(tokens[5:], dtype=np.float64)
     except ValueError:
         raise ValueError(f"{where}: non-numeric value in MOTION") from None
     if not (np.isfinite(frame_time) and frame_time > 0):
@@ -169,9 +186,7 @@ def parse_bvh(text: str, where: str = "BVH") -> BvhFile:
             f"{num_channels} channels"
         )
     motion = values[: num_frames * num_channels].reshape(num_frames, num_channels)
-    return BvhFile(
-        names, parents, np.asarray(offsets, dtype=np.float64), channels, motion, frame_time
-    )
+    return motion, frame_time
 
 
 def euler_to_matrix(angles_deg: np.ndarray, order: str) -> np.ndarray:

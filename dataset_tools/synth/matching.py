@@ -28,6 +28,40 @@ def _speed_class(speed: float, gait: str, direction: str) -> str:
     return "slow" if speed < slow_max else "fast" if speed > fast_min else "normal"
 
 
+def _gait_matches(d: dict, action: str, params: dict) -> bool:
+    """:func:`label_matches` of a walk or run: moving the labelled way (forward, backward,
+    sideways, or in a circle), walking or running as labelled, in its speed class if it has
+    one."""
+    direction = params["direction"]
+    scale = d["speed_scale"]
+    if direction in ("forward", "backward", "clockwise", "counterclockwise"):
+        speed = abs(d["forward_speed_mps"]) * scale
+        ok = (
+            d["forward_speed_mps"] > 0.3
+            if direction != "backward"
+            else d["forward_speed_mps"] < -0.2
+        )
+        if direction in ("clockwise", "counterclockwise"):
+            turned = (
+                d["yaw_change_deg"] if direction == "counterclockwise" else -d["yaw_change_deg"]
+            )
+            ok = ok and turned > 90
+        else:
+            ok = ok and abs(d["yaw_change_deg"]) < 60
+        if direction != "backward":
+            is_run = d["path_speed_mps"] * scale > RUN_SPEED_MPS
+            ok = ok and is_run == (action == "run")
+        if action == "walk":
+            ok = ok and d["airborne_count"] == 0
+    else:
+        sign = 1.0 if direction == "left" else -1.0
+        speed = sign * d["left_speed_mps"] * scale
+        ok = speed > 0.15 and abs(d["forward_speed_mps"]) < 0.5 * speed
+    if "speed" in params:
+        ok = ok and _speed_class(speed, action, direction) == params["speed"]
+    return bool(ok)
+
+
 def label_matches(detected: dict, label: dict) -> bool:
     """Whether facts from ``detect_labels`` agree with one segment label {"action", "params"}.
 
@@ -37,34 +71,7 @@ def label_matches(detected: dict, label: dict) -> bool:
     action, params = label["action"], label.get("params", {})
     d = detected
     if action in ("walk", "run"):
-        direction = params["direction"]
-        scale = d["speed_scale"]
-        if direction in ("forward", "backward", "clockwise", "counterclockwise"):
-            speed = abs(d["forward_speed_mps"]) * scale
-            ok = (
-                d["forward_speed_mps"] > 0.3
-                if direction != "backward"
-                else d["forward_speed_mps"] < -0.2
-            )
-            if direction in ("clockwise", "counterclockwise"):
-                turned = (
-                    d["yaw_change_deg"] if direction == "counterclockwise" else -d["yaw_change_deg"]
-                )
-                ok = ok and turned > 90
-            else:
-                ok = ok and abs(d["yaw_change_deg"]) < 60
-            if direction != "backward":
-                is_run = d["path_speed_mps"] * scale > RUN_SPEED_MPS
-                ok = ok and is_run == (action == "run")
-            if action == "walk":
-                ok = ok and d["airborne_count"] == 0
-        else:
-            sign = 1.0 if direction == "left" else -1.0
-            speed = sign * d["left_speed_mps"] * scale
-            ok = speed > 0.15 and abs(d["forward_speed_mps"]) < 0.5 * speed
-        if "speed" in params:
-            ok = ok and _speed_class(speed, action, direction) == params["speed"]
-        return bool(ok)
+        return _gait_matches(d, action, params)
     if action == "turn":
         turned = d["yaw_change_deg"] if params["direction"] == "left" else -d["yaw_change_deg"]
         angle = params.get("angle", 90)
