@@ -131,6 +131,12 @@ class BuildConfig:
         """Raise UsageError, naming the option, for a configuration that cannot work (cheap:
         values, the named files and the output folder; what depends on the source, such as a
         missing --fps or --body-model, is checked when the build reads its source options)."""
+        self._validate_values()
+        self._validate_inputs()
+        self._validate_output()
+
+    def _validate_values(self) -> None:
+        """The options that are plain values: source kind, workers, seed, lengths, scale, fps."""
         if self.source not in SOURCES:
             raise UsageError(f"unknown --source {self.source!r} (choose from {', '.join(SOURCES)})")
         most_workers = 4 * (os.cpu_count() or 1)
@@ -150,6 +156,9 @@ class BuildConfig:
             raise UsageError(f"--bvh-scale must be a positive number, got {self.bvh_scale}")
         if self.fps is not None and (problem := fps_problem(self.fps)) is not None:
             raise UsageError(f"--fps: {problem}")
+
+    def _validate_inputs(self) -> None:
+        """The folders and files the build reads exist and hold what it needs."""
         if not self.input_dir.is_dir():
             raise UsageError(f"input folder {self.input_dir} does not exist")
         for name, folder in (("--texts", self.texts_dir), ("--splits", self.splits_dir)):
@@ -169,7 +178,6 @@ class BuildConfig:
             for split in ("train", "val", "test"):
                 if not humanml3d.split_path(self.splits_dir, split).is_file():
                     raise UsageError(f"--splits folder {self.splits_dir} has no {split}.txt")
-        self._validate_output()
 
     def content_options(self, reading: dict) -> dict:
         """The options that decide what a clip's files hold (JSON values), for

@@ -23,8 +23,8 @@ import dataclasses
 import json
 import math
 import os
-import types
 import typing
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -310,38 +310,55 @@ def _field_types(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
+def _to_bool(value: Any, key: str) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.lower() in ("true", "1", "yes", "false", "0", "no"):
+        return value.lower() in ("true", "1", "yes")
+    raise ValueError(f"{key}: expected true/false, got {value!r}")
+
+
+def _to_int(value: Any, key: str) -> int:
+    if isinstance(value, bool):
+        raise ValueError(f"{key}: expected an integer, got {value!r}")
+    try:
+        if isinstance(value, str):
+            return int(value, 10)
+        if isinstance(value, float) and not value.is_integer():
+            raise ValueError
+        return int(value)
+    except ValueError:
+        raise ValueError(f"{key}: expected an integer, got {value!r}") from None
+
+
+def _to_float(value: Any, key: str) -> float:
+    if isinstance(value, bool):
+        raise ValueError(f"{key}: expected a number, got {value!r}")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{key}: expected a number, got {value!r}") from None
+
+
+def _to_str(value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        raise ValueError(f"{key}: expected a string, got {value!r}")
+    return value
+
+
+_SCALARS: dict[type, Callable[[Any, str], Any]] = {
+    bool: _to_bool,
+    int: _to_int,
+    float: _to_float,
+    str: _to_str,
+}
+
+
 def _convert(value: Any, annotation: Any, key: str) -> Any:
     """Convert a string (from the command line) or JSON value to ``annotation``; ValueError if not."""
-    origin = typing.get_origin(annotation)
-    if annotation is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "1", "yes", "false", "0", "no"):
-            return value.lower() in ("true", "1", "yes")
-        raise ValueError(f"{key}: expected true/false, got {value!r}")
-    if annotation is int:
-        if isinstance(value, bool):
-            raise ValueError(f"{key}: expected an integer, got {value!r}")
-        try:
-            if isinstance(value, str):
-                return int(value, 10)
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError
-            return int(value)
-        except ValueError:
-            raise ValueError(f"{key}: expected an integer, got {value!r}") from None
-    if annotation is float:
-        if isinstance(value, bool):
-            raise ValueError(f"{key}: expected a number, got {value!r}")
-        try:
-            return float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"{key}: expected a number, got {value!r}") from None
-    if annotation is str:
-        if not isinstance(value, str):
-            raise ValueError(f"{key}: expected a string, got {value!r}")
-        return value
-    if origin is tuple:
+    if annotation in _SCALARS:
+        return _SCALARS[annotation](value, key)
+    if typing.get_origin(annotation) is tuple:
         if isinstance(value, str):
             items = [item for item in value.strip("()[] ").split(",") if item.strip()]
         elif isinstance(value, (list, tuple)):
@@ -353,8 +370,6 @@ def _convert(value: Any, annotation: Any, key: str) -> Any:
             _convert(item.strip() if isinstance(item, str) else item, item_type, key)
             for item in items
         )
-    if origin in (typing.Union, types.UnionType):
-        raise ValueError(f"{key}: unsupported config type {annotation}")
     raise ValueError(f"{key}: unsupported config type {annotation}")
 
 
@@ -499,7 +514,12 @@ def validate(cfg: Config) -> None:
         raise ValueError(
             f"autoencoder.model.dropout must be in [0, 1), got {autoencoder.model.dropout}"
         )
-    generator = cfg.generator
+    _validate_generator(cfg.generator)
+    for name, section in cfg.stage_sections().items():
+        _validate_stage(name, section)
+
+
+def _validate_generator(generator: GeneratorStageConfig) -> None:
     progress = generator.model.progress_frequencies  # at least 0: _check_numbers
     if 2 * (progress + generator.model.count_clock) >= generator.model.hidden_size:
         raise ValueError(
@@ -519,19 +539,21 @@ def validate(cfg: Config) -> None:
         )
     if not generator.decoder_lr > 0:
         raise ValueError(f"generator.decoder_lr must be positive, got {generator.decoder_lr}")
-    for name, section in cfg.stage_sections().items():
-        # Each of these would train nothing, or crash on its first step.
-        if section.batch_size < 1:
-            raise ValueError(f"{name}.batch_size must be at least 1, got {section.batch_size}")
-        if not section.lr > 0:
-            raise ValueError(f"{name}.lr must be positive, got {section.lr}")
-        epochs = getattr(section, "epochs", 1)
-        if epochs < 1:
-            raise ValueError(f"{name}.epochs must be at least 1, got {epochs}")
-        if section.max_steps < 0 or section.grad_clip < 0:
-            raise ValueError(f"{name}.max_steps and {name}.grad_clip must not be negative")
-        if section.checkpoint_every < 1 or section.log_every < 1:
-            raise ValueError(f"{name}.checkpoint_every and {name}.log_every must be at least 1")
+
+
+def _validate_stage(name: str, section: StageConfig) -> None:
+    # Each of these would train nothing, or crash on its first step.
+    if section.batch_size < 1:
+        raise ValueError(f"{name}.batch_size must be at least 1, got {section.batch_size}")
+    if not section.lr > 0:
+        raise ValueError(f"{name}.lr must be positive, got {section.lr}")
+    epochs = getattr(section, "epochs", 1)
+    if epochs < 1:
+        raise ValueError(f"{name}.epochs must be at least 1, got {epochs}")
+    if section.max_steps < 0 or section.grad_clip < 0:
+        raise ValueError(f"{name}.max_steps and {name}.grad_clip must not be negative")
+    if section.checkpoint_every < 1 or section.log_every < 1:
+        raise ValueError(f"{name}.checkpoint_every and {name}.log_every must be at least 1")
 
 
 def validate_for_spec(cfg: Config, spec: DatasetSpec) -> None:

@@ -253,26 +253,9 @@ def write_vocabulary(vectorizer: WordVectors, folder: Path) -> None:
     atomic_write(index_file, lambda handle: pickle.dump(index, handle, protocol=4))
 
 
-def export_release(
-    run_dir: str | Path, out: str | Path, name: str | None = None, which: str = "best"
-) -> Path:
-    """Write the run's generator, length and evaluator stages (those it has), ``meta/`` and the
-    vocabulary in the release layout under ``out``; returns the dataset folder
-    (``out/checkpoints/<t2m|kit>``). UsageError (one line) for what the layout cannot hold."""
-    from t2m.train.stages import load_stage
-
-    run_dir, out = Path(run_dir), Path(out)
-    if (out / "checkpoints").exists() or (out / "glove").exists():
-        raise UsageError(f"{out} already holds checkpoints/ or glove/: choose an empty --out")
-    # 1. the stages this run has
-    stages = {}
-    for stage in ("generator", "length", "evaluator"):
-        try:
-            stages[stage] = load_stage(run_dir, stage, "cpu", which)
-        except UsageError:
-            logger.info("no %s stage in %s: not exported", stage, run_dir)
-    if not stages:
-        raise UsageError(f"{run_dir}: no generator, length or evaluator stage to export")
+def _check_exportable(stages: dict, name: str | None) -> tuple[str, str]:
+    """Refuse (UsageError, one line) what the release layout cannot hold and warn of sizes its
+    code cannot load; returns the dataset's folder and the generator's folder name."""
     first = next(iter(stages.values()))
     vectorizer = first.vectorizer
     if vectorizer is None or vectorizer.trainable:
@@ -301,6 +284,32 @@ def export_release(
         )
     for warning in _size_warnings(stages):
         logger.warning("the original code cannot load this export: %s", warning)
+    return dataset, name
+
+
+def export_release(
+    run_dir: str | Path, out: str | Path, name: str | None = None, which: str = "best"
+) -> Path:
+    """Write the run's generator, length and evaluator stages (those it has), ``meta/`` and the
+    vocabulary in the release layout under ``out``; returns the dataset folder
+    (``out/checkpoints/<t2m|kit>``). UsageError (one line) for what the layout cannot hold."""
+    from t2m.train.stages import load_stage
+
+    run_dir, out = Path(run_dir), Path(out)
+    if (out / "checkpoints").exists() or (out / "glove").exists():
+        raise UsageError(f"{out} already holds checkpoints/ or glove/: choose an empty --out")
+    # 1. the stages this run has
+    stages = {}
+    for stage in ("generator", "length", "evaluator"):
+        try:
+            stages[stage] = load_stage(run_dir, stage, "cpu", which)
+        except UsageError:
+            logger.info("no %s stage in %s: not exported", stage, run_dir)
+    if not stages:
+        raise UsageError(f"{run_dir}: no generator, length or evaluator stage to export")
+    dataset, name = _check_exportable(stages, name)
+    first = next(iter(stages.values()))
+    vectorizer = first.vectorizer
     # 2. the checkpoints, each beside its opt.txt
     dataset_dir = out / "checkpoints" / dataset
     options = release_options(stages, name, dataset)
