@@ -137,108 +137,134 @@ def _whole_captions(dataset: Path, name: str) -> list[humanml3d.Caption]:
     return [c for c in humanml3d.read_texts(dataset, name) if c.whole_clip and c.tokens]
 
 
-def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
-    """Seeded edits of ``config.edit`` from the test split (see the module docstring)."""
-    from dataset_tools.synth.scoring import scorer_for
+class _Clips:
+    """The test split's clips that have whole-clip captions, as (name, labels, captions), in
+    the pools the edits draw from, and seeded draws from them."""
 
-    dataset = config.dataset
-    scorer = scorer_for(dataset)
-    names = humanml3d.read_split(dataset, "test")
-    rng = np.random.default_rng(config.seed)
-    joints = {}
-    clips = []
-    for name in names:
-        segments = scorer.segments_for(name) if scorer else None
-        captions = _whole_captions(dataset, name)
-        if not captions:
-            continue
-        clips.append((name, segments, captions))
+    def __init__(self, dataset: Path, seed: int, fps: float):
+        from dataset_tools.synth.scoring import scorer_for
 
-    def load(name: str) -> np.ndarray:
-        if name not in joints:
-            joints[name] = humanml3d.read_joints(humanml3d.joints_path(dataset, name))
-        return joints[name]
+        scorer = scorer_for(dataset)
+        names = humanml3d.read_split(dataset, "test")
+        self.rng = np.random.default_rng(seed)
+        self.dataset = dataset
+        self.joints: dict[str, np.ndarray] = {}
+        self.all = []
+        for name in names:
+            segments = scorer.segments_for(name) if scorer else None
+            captions = _whole_captions(dataset, name)
+            if not captions:
+                continue
+            self.all.append((name, segments, captions))
+        clips = self.all
+        self.single = [c for c in clips if c[1] is not None and len(c[1]) == 1]
+        self.upper = [c for c in self.single if c[1][0]["action"] in UPPER_ACTIONS]
+        self.walkers = [
+            c for c in clips if c[1] is not None and all(s["action"] in LOWER_ACTIONS for s in c[1])
+        ]
+        if scorer is None:  # not the demo corpus: captions only, no labels
+            self.single = self.upper = self.walkers = clips
+        self.shortest = int(
+            2.5 * fps
+        )  # every source: at least 2.5 s (2 s kept + some, or both ends)
 
-    single = [c for c in clips if c[1] is not None and len(c[1]) == 1]
-    upper = [c for c in single if c[1][0]["action"] in UPPER_ACTIONS]
-    walkers = [
-        c for c in clips if c[1] is not None and all(s["action"] in LOWER_ACTIONS for s in c[1])
-    ]
-    if scorer is None:  # not the demo corpus: captions only, no labels
-        single = upper = walkers = clips
-    mode = config.edit
-    shortest = int(2.5 * fps)  # every source: at least 2.5 s (2 s kept + some, or both ends)
+    def load(self, name: str) -> np.ndarray:
+        if name not in self.joints:
+            self.joints[name] = humanml3d.read_joints(humanml3d.joints_path(self.dataset, name))
+        return self.joints[name]
 
-    def pick(pool, source=False):
+    def pick(self, pool: list, source: bool = False) -> tuple:
+        """A clip of ``pool``; a ``source`` at least ``shortest`` frames long."""
         while True:
-            clip = pool[int(rng.integers(len(pool)))]
-            if not source or len(load(clip[0])) >= shortest:
+            clip = pool[int(self.rng.integers(len(pool)))]
+            if not source or len(self.load(clip[0])) >= self.shortest:
                 return clip
 
-    items = []
-    part = int(SECONDS["part"] * fps)
-    while len(items) < config.items:
-        if mode in ("continue", "inbetween"):
-            source, donor = pick(clips, True), pick(single)
-            text = donor[2][int(rng.integers(len(donor[2])))]
-            if mode == "continue":
-                keep = int(SECONDS["keep"] * fps)
-                timing = dict(
-                    keep_seconds=SECONDS["keep"], seconds=SECONDS["keep"] + SECONDS["part"]
-                )
-                judged, seams = (keep, keep + part), [keep]
-            else:
-                end = int(SECONDS["end"] * fps)
-                timing = dict(
-                    keep_start=SECONDS["end"],
-                    keep_end=SECONDS["end"],
-                    seconds=2 * SECONDS["end"] + SECONDS["part"],
-                )
-                judged, seams = (end, end + part), [end, end + part]
-            request = EditRequest(mode, text.text, load(source[0]), **timing)
-            items.append(
-                Item(request, judged, donor[1] or [], [text], [donor[0]], source[0], seams)
-            )
-        elif mode == "body":
-            source, donor = pick(walkers, True), pick(upper)
-            text = donor[2][int(rng.integers(len(donor[2])))]
-            motion = load(source[0])[: 196 + 1]
-            request = EditRequest(mode, text.text, motion, part="lower")
-            labels = donor[1] or []
-            items.append(
-                Item(request, None, labels, [text], [donor[0]], source[0], source_labels=source[1])
-            )
-        elif mode in ("path", "keys"):
-            source = pick(clips, True)
-            text = source[2][int(rng.integers(len(source[2])))]
-            from t2m.edit.source import prepare_source
+    def caption(self, clip: tuple) -> humanml3d.Caption:
+        return clip[2][int(self.rng.integers(len(clip[2])))]
 
-            prepared = prepare_source(load(source[0])[: 196 + 1])
-            frames = prepared.num_frames // 4 * 4
-            if mode == "path":
-                rows = np.arange(int(fps), frames, int(fps))
-                points = np.stack([rows / fps, *prepared.joints[rows, 0][:, [0, 2]].T], axis=-1)
-                request = EditRequest(mode, text.text, path=points, seconds=frames / fps)
-            else:
-                keys = np.full((frames, 22, 3), np.nan)
-                for row in (frames // 4, frames // 2, frames - 1):
-                    keys[row, 0, [0, 2]] = prepared.joints[row, 0, [0, 2]]
-                    keys[row, [20, 21]] = prepared.joints[row, [20, 21]]
-                request = EditRequest(mode, text.text, keys=keys)
-            items.append(Item(request, None, source[1] or [], [text], [source[0]], source[0]))
-        else:  # compose
-            donors = [pick(single) for _ in range(3)]
-            texts = [d[2][int(rng.integers(len(d[2])))] for d in donors]
-            length = SECONDS["segment"]
-            timeline = [
-                f"{t.text}#{i * length:g}#{(i + 1) * length:g}" for i, t in enumerate(texts)
-            ]
-            request = EditRequest(mode, timeline=timeline)
-            labels = [d[1][0] if d[1] else None for d in donors]
-            items.append(
-                Item(request, None, labels, texts, [d[0] for d in donors], seams=[part, 2 * part])
-            )
-    return items
+
+def _kept_ends_item(mode: str, clips: _Clips, fps: float) -> Item:
+    """continue (keep the source's first seconds) or inbetween (keep both ends): a donor's
+    caption for the regenerated part."""
+    source, donor = clips.pick(clips.all, True), clips.pick(clips.single)
+    text = clips.caption(donor)
+    part = int(SECONDS["part"] * fps)
+    if mode == "continue":
+        keep = int(SECONDS["keep"] * fps)
+        timing = dict(keep_seconds=SECONDS["keep"], seconds=SECONDS["keep"] + SECONDS["part"])
+        judged, seams = (keep, keep + part), [keep]
+    else:
+        end = int(SECONDS["end"] * fps)
+        timing = dict(
+            keep_start=SECONDS["end"],
+            keep_end=SECONDS["end"],
+            seconds=2 * SECONDS["end"] + SECONDS["part"],
+        )
+        judged, seams = (end, end + part), [end, end + part]
+    request = EditRequest(mode, text.text, clips.load(source[0]), **timing)
+    return Item(request, judged, donor[1] or [], [text], [donor[0]], source[0], seams)
+
+
+def _body_item(mode: str, clips: _Clips, fps: float) -> Item:
+    """body: a walker's legs kept, an upper-body action's caption for the rest."""
+    source, donor = clips.pick(clips.walkers, True), clips.pick(clips.upper)
+    text = clips.caption(donor)
+    motion = clips.load(source[0])[: 196 + 1]
+    request = EditRequest(mode, text.text, motion, part="lower")
+    labels = donor[1] or []
+    return Item(request, None, labels, [text], [donor[0]], source[0], source_labels=source[1])
+
+
+def _targets_item(mode: str, clips: _Clips, fps: float) -> Item:
+    """path (the source's root path, one point a second) or keys (its root and hands at three
+    frames), with the source's own caption."""
+    from t2m.edit.source import prepare_source
+
+    source = clips.pick(clips.all, True)
+    text = clips.caption(source)
+    prepared = prepare_source(clips.load(source[0])[: 196 + 1])
+    frames = prepared.num_frames // 4 * 4
+    if mode == "path":
+        rows = np.arange(int(fps), frames, int(fps))
+        points = np.stack([rows / fps, *prepared.joints[rows, 0][:, [0, 2]].T], axis=-1)
+        request = EditRequest(mode, text.text, path=points, seconds=frames / fps)
+    else:
+        keys = np.full((frames, 22, 3), np.nan)
+        for row in (frames // 4, frames // 2, frames - 1):
+            keys[row, 0, [0, 2]] = prepared.joints[row, 0, [0, 2]]
+            keys[row, [20, 21]] = prepared.joints[row, [20, 21]]
+        request = EditRequest(mode, text.text, keys=keys)
+    return Item(request, None, source[1] or [], [text], [source[0]], source[0])
+
+
+def _compose_item(mode: str, clips: _Clips, fps: float) -> Item:
+    """compose: three single-action captions on a timeline."""
+    donors = [clips.pick(clips.single) for _ in range(3)]
+    texts = [clips.caption(d) for d in donors]
+    length = SECONDS["segment"]
+    timeline = [f"{t.text}#{i * length:g}#{(i + 1) * length:g}" for i, t in enumerate(texts)]
+    request = EditRequest(mode, timeline=timeline)
+    labels = [d[1][0] if d[1] else None for d in donors]
+    part = int(SECONDS["part"] * fps)
+    return Item(request, None, labels, texts, [d[0] for d in donors], seams=[part, 2 * part])
+
+
+_ITEM_MAKERS = {
+    "continue": _kept_ends_item,
+    "inbetween": _kept_ends_item,
+    "body": _body_item,
+    "path": _targets_item,
+    "keys": _targets_item,
+    "compose": _compose_item,
+}
+
+
+def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
+    """Seeded edits of ``config.edit`` from the test split (see the module docstring)."""
+    clips = _Clips(config.dataset, config.seed, fps)
+    make = _ITEM_MAKERS.get(config.edit, _compose_item)
+    return [make(config.edit, clips, fps) for _ in range(config.items)]
 
 
 # ---------------------------------------------------------------------------- statistics
