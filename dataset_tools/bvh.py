@@ -90,7 +90,7 @@ def parse_bvh(text: str, where: str = "BVH") -> BvhFile:
     if not tokens or tokens[0].upper() != "HIERARCHY":
         raise ValueError(f"{where}: not a BVH file (no HIERARCHY)")
     try:
-        names, parents, offsets, channels, position = _parse_hierarchy(tokens, where)
+        names, parents, offsets, channels, position = _HierarchyReader(tokens, where).read()
     except (IndexError, ValueError) as error:
         raise ValueError(
             str(error) if str(error).startswith(where) else f"{where}: {error}"
@@ -101,67 +101,84 @@ def parse_bvh(text: str, where: str = "BVH") -> BvhFile:
     )
 
 
-def _parse_hierarchy(
-    tokens: list[str], where: str
-) -> tuple[list[str], list[int], list[list[float]], list[list[str]], int]:
-    """The joints of the HIERARCHY section after its keyword: (names, parents, offsets,
-    channels, index of the token after ``MOTION``)."""
-    position = 1
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[list[str]] = []
-    stack: list[int] = []  # joint index per open brace; -2 marks an End Site's brace
+class _HierarchyReader:
+    """Reads the HIERARCHY section, token by token after its keyword, up to ``MOTION``: one
+    method per keyword. ValueError for what is not a well-formed hierarchy."""
 
-    def take() -> str:
-        nonlocal position
-        if position >= len(tokens):
-            raise ValueError(f"{where}: unexpected end of file in HIERARCHY")
-        position += 1
-        return tokens[position - 1]
+    def __init__(self, tokens: list[str], where: str):
+        self.tokens, self.where, self.position = tokens, where, 1
+        self.names: list[str] = []
+        self.parents: list[int] = []
+        self.offsets: list[list[float]] = []
+        self.channels: list[list[str]] = []
+        self.stack: list[int] = []  # joint index per open brace; -2 marks an End Site's brace
+        self.pending: int | None = None  # the joint whose brace comes next
 
-    pending: int | None = None  # the joint whose brace comes next
-    while True:
-        token = take()
-        keyword = token.upper()
-        if keyword in ("ROOT", "JOINT"):
-            if keyword == "ROOT" and names:
-                raise ValueError(f"{where}: more than one ROOT")
-            names.append(take())
-            parents.append(stack[-1] if stack else -1)
-            offsets.append([0.0, 0.0, 0.0])
-            channels.append([])
-            pending = len(names) - 1
-        elif keyword == "END":
-            take()  # "Site"
-            pending = -2
-        elif token == "{":
-            if pending is None:
-                raise ValueError(f"{where}: '{{' without a joint")
-            stack.append(pending)
-            pending = None
-        elif token == "}":
-            if not stack:
-                raise ValueError(f"{where}: unbalanced '}}'")
-            stack.pop()
-        elif keyword == "OFFSET":
-            values = [float(take()) for _ in range(3)]
-            if stack and stack[-1] >= 0:
-                offsets[stack[-1]] = values
-        elif keyword == "CHANNELS":
-            count = int(take())
-            channels[stack[-1]] = [take() for _ in range(count)]
-        elif keyword == "MOTION":
-            break
-        else:
-            raise ValueError(f"{where}: unexpected token {token!r} in HIERARCHY")
-    if stack or not names:
-        raise ValueError(f"{where}: HIERARCHY is incomplete")
-    for joint_channels in channels:
-        for name in joint_channels:
-            if name[1:] not in ("position", "rotation") or name[0].upper() not in _AXES:
-                raise ValueError(f"{where}: unknown channel {name!r}")
-    return names, parents, offsets, channels, position
+    def take(self) -> str:
+        if self.position >= len(self.tokens):
+            raise ValueError(f"{self.where}: unexpected end of file in HIERARCHY")
+        self.position += 1
+        return self.tokens[self.position - 1]
+
+    def read(self) -> tuple[list[str], list[int], list[list[float]], list[list[str]], int]:
+        """(names, parents, offsets, channels, index of the token after ``MOTION``)."""
+        handlers = {
+            "ROOT": self._joint,
+            "JOINT": self._joint,
+            "END": self._end_site,
+            "{": self._open,
+            "}": self._close,
+            "OFFSET": self._offset,
+            "CHANNELS": self._channel_names,
+        }
+        while True:
+            token = self.take()
+            keyword = token.upper()
+            if keyword == "MOTION":
+                break
+            if keyword not in handlers:
+                raise ValueError(f"{self.where}: unexpected token {token!r} in HIERARCHY")
+            handlers[keyword](keyword)
+        if self.stack or not self.names:
+            raise ValueError(f"{self.where}: HIERARCHY is incomplete")
+        for joint_channels in self.channels:
+            for name in joint_channels:
+                if name[1:] not in ("position", "rotation") or name[0].upper() not in _AXES:
+                    raise ValueError(f"{self.where}: unknown channel {name!r}")
+        return self.names, self.parents, self.offsets, self.channels, self.position
+
+    def _joint(self, keyword: str) -> None:
+        if keyword == "ROOT" and self.names:
+            raise ValueError(f"{self.where}: more than one ROOT")
+        self.names.append(self.take())
+        self.parents.append(self.stack[-1] if self.stack else -1)
+        self.offsets.append([0.0, 0.0, 0.0])
+        self.channels.append([])
+        self.pending = len(self.names) - 1
+
+    def _end_site(self, keyword: str) -> None:
+        self.take()  # "Site"
+        self.pending = -2
+
+    def _open(self, keyword: str) -> None:
+        if self.pending is None:
+            raise ValueError(f"{self.where}: '{{' without a joint")
+        self.stack.append(self.pending)
+        self.pending = None
+
+    def _close(self, keyword: str) -> None:
+        if not self.stack:
+            raise ValueError(f"{self.where}: unbalanced '}}'")
+        self.stack.pop()
+
+    def _offset(self, keyword: str) -> None:
+        values = [float(self.take()) for _ in range(3)]
+        if self.stack and self.stack[-1] >= 0:
+            self.offsets[self.stack[-1]] = values
+
+    def _channel_names(self, keyword: str) -> None:
+        count = int(self.take())
+        self.channels[self.stack[-1]] = [self.take() for _ in range(count)]
 
 
 def _parse_motion(

@@ -403,6 +403,24 @@ def check_memory(num_items: int, config: EvalConfig, spec: DatasetSpec) -> None:
         )
 
 
+def _item_counts(num_clips: int, config: EvalConfig) -> tuple[int, int]:
+    """(clips a replication draws from: all or ``max_items``, items a row draws: whole
+    R-precision pools of them); UsageError when that is not one pool."""
+    available = num_clips if config.max_items is None else min(num_clips, config.max_items)
+    num_items = (available // config.pool_size) * config.pool_size
+    if num_items == 0:
+        if available < num_clips:  # the split would do: the user asked for too few
+            raise UsageError(
+                f"--max-items {config.max_items} is fewer than one R-precision pool of "
+                f"{config.pool_size} items (raise --max-items or lower --pool-size)"
+            )
+        raise UsageError(
+            f"the {config.split} split has {num_clips} usable items; R-precision needs at least "
+            f"one pool of {config.pool_size} (lower --pool-size or evaluate a larger split)"
+        )
+    return available, num_items
+
+
 def run_protocol(
     clips: Sequence[Clip],
     backend: Backend,
@@ -417,18 +435,7 @@ def run_protocol(
     per-replication values; :func:`~t2m.evaluate.report.summarize` turns them into means and
     intervals.
     """
-    available = len(clips) if config.max_items is None else min(len(clips), config.max_items)
-    num_items = (available // config.pool_size) * config.pool_size
-    if num_items == 0:
-        if available < len(clips):  # the split would do: the user asked for too few
-            raise UsageError(
-                f"--max-items {config.max_items} is fewer than one R-precision pool of "
-                f"{config.pool_size} items (raise --max-items or lower --pool-size)"
-            )
-        raise UsageError(
-            f"the {config.split} split has {len(clips)} usable items; R-precision needs at least "
-            f"one pool of {config.pool_size} (lower --pool-size or evaluate a larger split)"
-        )
+    available, num_items = _item_counts(len(clips), config)
     check_memory(num_items, config, spec)
     if config.clean:
         backend = CleanedBackend(backend)
