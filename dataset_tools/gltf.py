@@ -134,19 +134,41 @@ class _BinaryBuilder:
 
 def gltf_document(motion: BvhMotion, name: str = "motion") -> tuple[dict, bytes]:
     """The glTF JSON document and its binary buffer for a solved skeleton motion."""
-    parents = motion.parents
-    num_joints = len(parents)
+    num_joints = len(motion.parents)
     quaternions = Rotation.from_matrix(motion.local_rotations.reshape(-1, 3, 3)).as_quat()
     quaternions = continuous_quaternions(quaternions.reshape(motion.num_frames, num_joints, 4))
-    times = (np.arange(motion.num_frames) / motion.fps).astype(np.float32)
     binary = _BinaryBuilder()
+    # 1. the skeleton: nodes 0..J-1 are the joints, in SMPL order; then the mesh's node
+    nodes = _joint_nodes(motion, quaternions[0])
+    root = motion.parents.index(-1)
+    # 2. the stick-figure mesh bound to the skeleton
+    mesh, skin = _skinned_mesh(motion, root, binary)
+    nodes.append({"name": "stick_figure", "mesh": 0, "skin": 0})
+    # 3. the animation: one rotation channel per joint and the root's translation
+    animation = _animation(motion, quaternions, root, name, binary)
+    document = {
+        "asset": {"version": "2.0", "generator": "t2m-toolkit dataset_tools.gltf"},
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": [root, num_joints]}],
+        "nodes": nodes,
+        "meshes": [mesh],
+        "skins": [skin],
+        "animations": [animation],
+        "accessors": binary.accessors,
+        "bufferViews": binary.views,
+        "buffers": [{"byteLength": len(binary.data)}],
+    }
+    return document, bytes(binary.data)
 
-    # 1. the skeleton: nodes 0..J-1 are the joints, in SMPL order
+
+def _joint_nodes(motion: BvhMotion, first_rotations: np.ndarray) -> list[dict]:
+    """One node per joint, posed as the first frame (rotations (J, 4) x, y, z, w)."""
+    parents = motion.parents
     nodes = []
-    for joint in range(num_joints):
+    for joint in range(len(parents)):
         node = {
             "name": motion.joint_names[joint],
-            "rotation": [float(x) for x in quaternions[0, joint]],
+            "rotation": [float(x) for x in first_rotations[joint]],
             "translation": [
                 float(x)
                 for x in (motion.root_positions[0] if parents[joint] < 0 else motion.offsets[joint])
@@ -156,10 +178,14 @@ def gltf_document(motion: BvhMotion, name: str = "motion") -> tuple[dict, bytes]
         if children:
             node["children"] = children
         nodes.append(node)
-    root = parents.index(-1)
+    return nodes
 
-    # 2. the stick-figure mesh bound to the skeleton (bind pose: every rotation zero, root at
-    # the origin, so each inverse bind matrix is a translation)
+
+def _skinned_mesh(motion: BvhMotion, root: int, binary: _BinaryBuilder) -> tuple[dict, dict]:
+    """The stick-figure mesh and its skin. Bind pose: every rotation zero, root at the origin,
+    so each inverse bind matrix is a translation."""
+    parents = motion.parents
+    num_joints = len(parents)
     rest = np.zeros((num_joints, 3))
     for joint, parent in enumerate(parents):
         if parent >= 0:
@@ -186,9 +212,15 @@ def gltf_document(motion: BvhMotion, name: str = "motion") -> tuple[dict, bytes]
         "skeleton": root,
         "inverseBindMatrices": binary.add(inverse_bind, "MAT4"),
     }
-    nodes.append({"name": "stick_figure", "mesh": 0, "skin": 0})
+    return mesh, skin
 
-    # 3. the animation: one rotation channel per joint and the root's translation
+
+def _animation(
+    motion: BvhMotion, quaternions: np.ndarray, root: int, name: str, binary: _BinaryBuilder
+) -> dict:
+    """Linear samplers over the frame times: the root's translation, then every joint's
+    rotation (quaternions (T, J, 4))."""
+    times = (np.arange(motion.num_frames) / motion.fps).astype(np.float32)
     time_accessor = binary.add(times, "SCALAR", bounds=True)
     samplers, channels = [], []
 
@@ -203,29 +235,14 @@ def gltf_document(motion: BvhMotion, name: str = "motion") -> tuple[dict, bytes]
         channels.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": path}})
 
     channel(root, "translation", motion.root_positions, "VEC3")
-    for joint in range(num_joints):
+    for joint in range(len(motion.parents)):
         channel(joint, "rotation", quaternions[:, joint], "VEC4")
-
-    document = {
-        "asset": {"version": "2.0", "generator": "t2m-toolkit dataset_tools.gltf"},
-        "scene": 0,
-        "scenes": [{"name": name, "nodes": [root, num_joints]}],
-        "nodes": nodes,
-        "meshes": [mesh],
-        "skins": [skin],
-        "animations": [
-            {
-                "name": name,
-                "channels": channels,
-                "samplers": samplers,
-                "extras": {"fps": motion.fps, "frames": motion.num_frames},
-            }
-        ],
-        "accessors": binary.accessors,
-        "bufferViews": binary.views,
-        "buffers": [{"byteLength": len(binary.data)}],
+    return {
+        "name": name,
+        "channels": channels,
+        "samplers": samplers,
+        "extras": {"fps": motion.fps, "frames": motion.num_frames},
     }
-    return document, bytes(binary.data)
 
 
 def glb_bytes(document: dict, binary: bytes) -> bytes:
