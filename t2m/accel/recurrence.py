@@ -129,6 +129,57 @@ WEIGHTS = (
 BLOCKS = ("prior", "posterior", "generator")
 
 
+def _step_products(
+    w: dict[str, torch.Tensor | None], dtype: torch.dtype, work: torch.dtype, forced: bool
+) -> tuple[dict[str, StepProduct], dict[str, list[torch.Tensor]]]:
+    """The loop's products (:class:`StepProduct`: the attention and z projections, each block's
+    gates and state reader; free-running, the previous code's projection and the output head's
+    last Linear, forward only) and the LayerNorm weights and biases in ``work``."""
+    products = {name: StepProduct(w[name], None, dtype, work) for name in ("attention", "latent")}
+    for name in ("gates", "reader"):
+        for block in BLOCKS:
+            key = f"{block}_{name}"
+            products[key] = StepProduct(w[key], w[key + "_bias"], dtype, work)
+    norms = {
+        block: [w[f"{block}_norm"].to(work), w[f"{block}_norm_bias"].to(work)]
+        for block in (*BLOCKS, "output")
+        if w[f"{block}_norm"] is not None
+    }
+    if not forced:
+        products["previous"] = StepProduct(
+            w["previous"], w["input_bias"], dtype, work, backward=False
+        )
+        products["last"] = StepProduct(w["last"], w["last_bias"], dtype, work, backward=False)
+    return products, norms
+
+
+def _prior_forward(
+    pre: torch.Tensor,
+    state: torch.Tensor,
+    loop: _Loop,
+    products: dict[str, StepProduct],
+    norms: dict[str, list[torch.Tensor]],
+    kept: dict[str, list],
+    read: list[torch.Tensor],
+) -> list[torch.Tensor]:
+    """The prior's states (B, H) of every step from its input pre-activations (B, S, H) and
+    initial state: its input path for all steps at once, then its GRU over the steps. Keeps
+    what the backward needs in ``kept`` and the states its reader reads in ``read``."""
+    inputs, kept["norm_prior"] = _norm_forward(pre, *norms["prior"], loop.norm_eps[0])
+    kept["inputs_prior"] = inputs = inputs + loop.time_codes.to(loop.work)  # (B, S, H)
+    input_gates = products["prior_gates"](inputs.flatten(0, 1)).view(*inputs.shape[:2], -1)
+    prior, steps, states = state, loop.time_codes.shape[1], []
+    prior_gates = products["prior_reader"](prior)
+    for i in range(steps):
+        prior, saved = _gru_forward(input_gates[:, i], prior_gates, prior)
+        kept["gru_prior"].append(saved)
+        states.append(prior)
+        if i + 1 < steps:
+            read.append(prior)
+            prior_gates = products["prior_reader"](prior)
+    return states
+
+
 class _Recurrence(torch.autograd.Function):
     """The training loop of :func:`fast_forward` as one autograd node. The forward runs the
     steps without recording a graph and keeps what the backward needs; the backward runs them
@@ -162,24 +213,8 @@ class _Recurrence(torch.autograd.Function):
         keys, values = keys.to(work) * attention_size**-0.5, values.to(work)  # keys scaled
         hidden, steps = states[0].shape[-1], loop.time_codes.shape[1]
         latent_size, gate_size = loop.noise.shape[-1], 3 * hidden
-        products = {
-            name: StepProduct(w[name], None, dtype, work) for name in ("attention", "latent")
-        }
-        for name in ("gates", "reader"):
-            for block in BLOCKS:
-                key = f"{block}_{name}"
-                products[key] = StepProduct(w[key], w[key + "_bias"], dtype, work)
-        norms = {
-            block: [w[f"{block}_norm"].to(work), w[f"{block}_norm_bias"].to(work)]
-            for block in (*BLOCKS, "output")
-            if w[f"{block}_norm"] is not None
-        }
+        products, norms = _step_products(w, dtype, work, forced)
         generator_parts = [attention_size, gate_size] + ([] if forced else [hidden])
-        if not forced:
-            products["previous"] = StepProduct(
-                w["previous"], w["input_bias"], dtype, work, backward=False
-            )
-            products["last"] = StepProduct(w["last"], w["last_bias"], dtype, work, backward=False)
         time_codes = loop.time_codes.to(work).unbind(1)
         noise = loop.noise.to(work).unbind(1)
         current = current.to(work).unbind(1)
@@ -262,22 +297,10 @@ class _Recurrence(torch.autograd.Function):
                 kept["head_inputs"].append(head)
                 previous = products["last"](head)
                 outputs["second"].append(previous)
-        # the prior: nothing in the loop reads it. Its input path for all steps at once, then
-        # its GRU over the steps
-        inputs, kept["norm_prior"] = _norm_forward(
-            torch.stack(prior_inputs, dim=1), *norms["prior"], loop.norm_eps[0]
+        # the prior: nothing in the loop reads it
+        outputs["prior"] = _prior_forward(
+            torch.stack(prior_inputs, dim=1), states[0], loop, products, norms, kept, read["prior"]
         )
-        kept["inputs_prior"] = inputs = inputs + loop.time_codes.to(work)  # (B, S, H)
-        input_gates = products["prior_gates"](inputs.flatten(0, 1)).view(*inputs.shape[:2], -1)
-        prior = states[0]
-        prior_gates = products["prior_reader"](prior)
-        for i in range(steps):
-            prior, saved = _gru_forward(input_gates[:, i], prior_gates, prior)
-            kept["gru_prior"].append(saved)
-            outputs["prior"].append(prior)
-            if i + 1 < steps:
-                read["prior"].append(prior)
-                prior_gates = products["prior_reader"](prior)
         ctx.loop, ctx.products, ctx.kept, ctx.read, ctx.norms = loop, products, kept, read, norms
         ctx.keys, ctx.values = keys, values
         ctx.present = [t is not None for t in tensors[3:]]
