@@ -365,6 +365,56 @@ def _parts(item: Item, motion) -> list[np.ndarray]:
     return [motion.features[a:b]]
 
 
+def _real_row(dataset: Path, sources: list[str], fps: float, rng: np.random.Generator) -> dict:
+    """Seam (at a random frame) and skating figures of the real source clips."""
+    real_seams, real_skate = [], []
+    for name in sources:
+        joints = humanml3d.read_joints(humanml3d.joints_path(dataset, name))
+        real_skate.append(skating_ratio(joints, fps))
+        if len(joints) > 8:
+            real_seams.append(seam_statistics(joints, int(rng.integers(3, len(joints) - 4)), fps))
+    return {
+        "seam_acc": float(np.median([s[0] for s in real_seams])),
+        "seam_jerk": float(np.median([s[1] for s in real_seams])),
+        "skate": float(np.mean(real_skate)),
+    }
+
+
+def _plain_row(
+    pipe, items: list[Item], config: EditBenchConfig, fps: float, rng: np.random.Generator
+) -> tuple[dict, list]:
+    """Plain generation of every item's captions at its parts' lengths: its figures (seams at a
+    random frame, labels found, skating) and the motions."""
+    plain_texts, plain_frames, plain_labels = [], [], []
+    for item in items:
+        frames = _part_frames(item, fps)
+        for caption, label in zip(item.texts, _label_rows(item)):
+            plain_texts.append(caption.text)
+            plain_frames.append(frames)
+            plain_labels.append(label)
+    plain = pipe.generate(plain_texts, lengths=plain_frames, seed=config.seed)
+    plain_motions = [row[0] for row in plain]
+    if config.edit in ("path", "keys"):  # the source's own caption and labels (segments)
+        found = [
+            all(clip_matches(m.joints, fps, lab)) if lab else None
+            for m, lab in zip(plain_motions, plain_labels)
+        ]
+    else:
+        found = [_labels_found(m.joints, lab, fps) for m, lab in zip(plain_motions, plain_labels)]
+    found = [f for f in found if f is not None]
+    plain_seams = [
+        seam_statistics(m.joints, int(rng.integers(3, len(m.joints) - 4)), fps)
+        for m in plain_motions
+    ]
+    row = {
+        "seam_acc": float(np.median([s[0] for s in plain_seams])),
+        "seam_jerk": float(np.median([s[1] for s in plain_seams])),
+        "semantic": float(np.mean(found)) if found else None,
+        "skate": float(np.mean([skating_ratio(m.joints, fps) for m in plain_motions])),
+    }
+    return row, plain_motions
+
+
 def run_benchmark(config: EditBenchConfig) -> dict:
     from t2m.pipeline import TextToMotion
     from t2m.train.runtime import inference_device
@@ -388,48 +438,11 @@ def run_benchmark(config: EditBenchConfig) -> dict:
     except (ValueError, OSError) as error:
         logger.warning("no evaluator (%s): R-precision and FID are n/a", error)
     results: dict = {"mode": config.edit, "items": len(items), "config": _jsonable(asdict(config))}
-    # real reference
+    # real reference, then plain generation of the same captions and lengths (one draw order)
     rng = np.random.default_rng(config.seed + 1)
-    real_seams, real_skate = [], []
     sources = [item.source or item.donors[0] for item in items]
-    for name in sources:
-        joints = humanml3d.read_joints(humanml3d.joints_path(config.dataset, name))
-        real_skate.append(skating_ratio(joints, fps))
-        if len(joints) > 8:
-            real_seams.append(seam_statistics(joints, int(rng.integers(3, len(joints) - 4)), fps))
-    results["real"] = {
-        "seam_acc": float(np.median([s[0] for s in real_seams])),
-        "seam_jerk": float(np.median([s[1] for s in real_seams])),
-        "skate": float(np.mean(real_skate)),
-    }
-    # plain generation of the same captions and lengths
-    plain_texts, plain_frames, plain_labels = [], [], []
-    for item in items:
-        frames = _part_frames(item, fps)
-        for caption, label in zip(item.texts, _label_rows(item)):
-            plain_texts.append(caption.text)
-            plain_frames.append(frames)
-            plain_labels.append(label)
-    plain = pipe.generate(plain_texts, lengths=plain_frames, seed=config.seed)
-    plain_motions = [row[0] for row in plain]
-    if config.edit in ("path", "keys"):  # the source's own caption and labels (segments)
-        found = [
-            all(clip_matches(m.joints, fps, lab)) if lab else None
-            for m, lab in zip(plain_motions, plain_labels)
-        ]
-    else:
-        found = [_labels_found(m.joints, lab, fps) for m, lab in zip(plain_motions, plain_labels)]
-    found = [f for f in found if f is not None]
-    plain_seams = [
-        seam_statistics(m.joints, int(rng.integers(3, len(m.joints) - 4)), fps)
-        for m in plain_motions
-    ]
-    results["plain"] = {
-        "seam_acc": float(np.median([s[0] for s in plain_seams])),
-        "seam_jerk": float(np.median([s[1] for s in plain_seams])),
-        "semantic": float(np.mean(found)) if found else None,
-        "skate": float(np.mean([skating_ratio(m.joints, fps) for m in plain_motions])),
-    }
+    results["real"] = _real_row(config.dataset, sources, fps, rng)
+    results["plain"], plain_motions = _plain_row(pipe, items, config, fps, rng)
     captions = [c for item in items for c in item.texts]
     real_features = [
         _real_features(config.dataset, donor) for item in items for donor in item.donors
