@@ -50,10 +50,14 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 import torch.nn.functional as F
+
+if TYPE_CHECKING:
+    from t2m.config import Config
 
 PROMPT = "a person walks forward and waves with the right hand"
 FRAMES, SNIPPETS, FEATURES, WORD_DIM = 196, 49, 263, 300
@@ -298,19 +302,27 @@ def _sides(ours: Callable[[bool], None], original: Callable[[], None]) -> dict:
 
 
 def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], object]]]:
+    from t2m.presets import paper
+
+    config = paper()
+    generator = torch.Generator().manual_seed(2)
+    torch.manual_seed(0)
+    return {
+        "autoencoder_step": _autoencoder_sides(orig, config, generator),
+        "length_step": _length_sides(orig, config, generator),
+        "evaluator_step": _evaluator_sides(orig, config, generator),
+    }
+
+
+def _autoencoder_sides(
+    orig: SimpleNamespace, config: Config, generator: torch.Generator
+) -> dict[str, Callable[[], object]]:
+    """The autoencoder's step, batch 128 x 24 frames."""
     from t2m.accel import accelerate
     from t2m.models.autoencoder import MovementAutoencoder, autoencoder_loss
-    from t2m.models.evaluator import Evaluator, contrastive_loss
-    from t2m.models.length import LengthEstimator, length_loss
-    from t2m.presets import paper
     from t2m.train.runtime import adam
 
-    config, m = paper(), orig.modules
-    generator = torch.Generator().manual_seed(2)
-    rows: dict[str, dict[str, Callable[[], object]]] = {}
-    torch.manual_seed(0)
-
-    # autoencoder, batch 128 x 24 frames
+    m = orig.modules
     windows = torch.randn(128, 24, FEATURES, generator=generator)
     ae = accelerate(MovementAutoencoder(FEATURES, config.autoencoder.model)).train()
     ae_opt = adam(ae.parameters(), lr=1e-4)
@@ -334,9 +346,18 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
         decomp.forward(windows)
         decomp.update()
 
-    rows["autoencoder_step"] = _sides(ours_ae, original_ae)
+    return _sides(ours_ae, original_ae)
 
-    # length estimator, batch 64
+
+def _length_sides(
+    orig: SimpleNamespace, config: Config, generator: torch.Generator
+) -> dict[str, Callable[[], object]]:
+    """The length estimator's step, batch 64."""
+    from t2m.accel import accelerate
+    from t2m.models.length import LengthEstimator, length_loss
+    from t2m.train.runtime import adam
+
+    m = orig.modules
     text64 = random_text(64, generator)
     classes = torch.randint(10, 50, (64,), generator=generator)
     estimator = accelerate(LengthEstimator(WORD_DIM, config.length.model)).train()
@@ -362,9 +383,18 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
         length_trainer.clip_norm([original_estimator])
         length_trainer.step([length_trainer.opt_estimator])
 
-    rows["length_step"] = _sides(ours_length, original_length)
+    return _sides(ours_length, original_length)
 
-    # evaluator, batch 32, 196 frames
+
+def _evaluator_sides(
+    orig: SimpleNamespace, config: Config, generator: torch.Generator
+) -> dict[str, Callable[[], object]]:
+    """The evaluator's step, batch 32, 196 frames."""
+    from t2m.accel import accelerate
+    from t2m.models.evaluator import Evaluator, contrastive_loss
+    from t2m.train.runtime import adam
+
+    m = orig.modules
     words, pos, lengths = random_text(32, generator)
     motion = torch.randn(32, FRAMES, FEATURES, generator=generator)
     motion_lengths = torch.randint(10, 50, (32,), generator=generator) * 4
@@ -396,8 +426,7 @@ def small_step_rows(orig: SimpleNamespace) -> dict[str, dict[str, Callable[[], o
         match.forward(data)
         match.update()
 
-    rows["evaluator_step"] = _sides(ours_evaluator, original_evaluator)
-    return rows
+    return _sides(ours_evaluator, original_evaluator)
 
 
 # -- peak memory (child processes) ----------------------------------------------------------
