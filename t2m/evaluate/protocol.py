@@ -421,6 +421,44 @@ def _item_counts(num_clips: int, config: EvalConfig) -> tuple[int, int]:
     return available, num_items
 
 
+def _generated_row(
+    backend: Backend,
+    captions: list[Caption],
+    lengths: np.ndarray | None,
+    reference: metrics.GaussianStats,
+    config: EvalConfig,
+    stream: tuple[int, int],
+    metric_rng: np.random.Generator,
+    timed: _Timer,
+) -> tuple[dict[str, float], list]:
+    """One generated row of a replication: motions for ``captions`` (at ``lengths``, or at
+    lengths the model draws), their metrics against ``reference`` and their multimodality;
+    ``stream`` is (replication, row) of their generation seeds. Returns the row's values and
+    the motions."""
+    rep, variant = stream
+    generated = timed(
+        "generate_s",
+        backend.generate,
+        captions,
+        lengths,
+        stream_seed(GenerationStream.MOTIONS, config.seed, rep, variant),
+    )
+    text = timed("embed_s", backend.embed_texts, captions)
+    motion = timed("embed_s", backend.embed_motions, generated)
+    row = timed("metrics_s", _row_metrics, text, motion, reference, config, metric_rng)
+    row["multimodality"] = _multimodality(
+        backend,
+        captions,
+        lengths,
+        motion,
+        config,
+        stream_seed(GenerationStream.MULTIMODALITY, config.seed, rep, variant),
+        metric_rng,
+        timed,
+    )
+    return row, generated
+
+
 def run_protocol(
     clips: Sequence[Clip],
     backend: Backend,
@@ -494,25 +532,13 @@ def run_protocol(
 
         for variant, row_name in enumerate((GT_LENGTH, SAMPLED_LENGTH)):
             draw = new_draw()
-            captions = draw.caption_list(clips)
-            lengths = draw.lengths if row_name == GT_LENGTH else None
-            generated = timed(
-                "generate_s",
-                backend.generate,
-                captions,
-                lengths,
-                stream_seed(GenerationStream.MOTIONS, config.seed, rep, variant),
-            )
-            text = timed("embed_s", backend.embed_texts, captions)
-            motion = timed("embed_s", backend.embed_motions, generated)
-            row = timed("metrics_s", _row_metrics, text, motion, reference, config, metric_rng)
-            row["multimodality"] = _multimodality(
+            row, generated = _generated_row(
                 backend,
-                captions,
-                lengths,
-                motion,
+                draw.caption_list(clips),
+                draw.lengths if row_name == GT_LENGTH else None,
+                reference,
                 config,
-                stream_seed(GenerationStream.MULTIMODALITY, config.seed, rep, variant),
+                (rep, variant),
                 metric_rng,
                 timed,
             )
