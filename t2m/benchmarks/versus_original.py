@@ -5,11 +5,11 @@ ratios ours / original (below 1: ours is faster).
     python -m t2m.benchmarks.versus_original --original PATH [--rounds N] [--threads 2] [--out JSON]
 
 ``PATH`` is a checkout of github.com/EricGuo5513/text-to-motion; its own modules are imported
-from there (``networks/modules.py``, ``networks/trainers.py``, ``scripts/motion_process.py``)
-and driven through its trainers' methods. Nothing of it is copied here; the one accommodation
-is ``np.float`` (removed in numpy 1.24, read by its ``common/quaternion.py``), set to ``float``
-before the import. Both sides get random
-weights at the paper's sizes and the same inputs. What each row times:
+from there (``networks/modules.py``, ``networks/trainers.py``, ``scripts/motion_process.py``:
+:mod:`t2m.benchmarks.original`) and driven through its trainers' methods. Nothing of it is
+copied here; the one accommodation is ``np.float`` (removed in numpy 1.24, read by its
+``common/quaternion.py``), set to ``float`` before the import. Both sides get random weights at
+the paper's sizes and the same inputs. What each row times:
 
 * ``features``: one 200-frame joint array -> 263-d features (ours ``process_motion``: retarget,
   canonicalise, features; the original's ``process_file``), one thread.
@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import json
 import os
 import platform
@@ -56,52 +55,19 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from t2m.benchmarks.original import (
+    FEATURES,
+    WORD_DIM,
+    import_original,
+    original_generation_models,
+    original_options,
+)
+
 if TYPE_CHECKING:
     from t2m.config import Config
 
 PROMPT = "a person walks forward and waves with the right hand"
-FRAMES, SNIPPETS, FEATURES, WORD_DIM = 196, 49, 263, 300
-
-
-# -- the original's code ---------------------------------------------------------------------
-
-
-def import_original(path: Path) -> SimpleNamespace:
-    """The original's modules, imported from its checkout (put first on ``sys.path``)."""
-    if not (path / "networks" / "modules.py").is_file():
-        raise SystemExit(f"{path}: not a checkout of EricGuo5513/text-to-motion")
-    sys.path.insert(0, str(path))
-    # its common/quaternion.py reads np.float, removed in numpy 1.24 (it was the builtin float)
-    if "float" not in np.__dict__:
-        setattr(np, "float", float)  # noqa: B010 (ruff would rewrite np.float itself)
-    return SimpleNamespace(
-        modules=importlib.import_module("networks.modules"),
-        trainers=importlib.import_module("networks.trainers"),
-        motion_process=importlib.import_module("scripts.motion_process"),
-        param=importlib.import_module("utils.paramUtil"),
-        skeleton=importlib.import_module("common.skeleton"),
-    )
-
-
-def _options(**values) -> SimpleNamespace:
-    base = dict(device=torch.device("cpu"), is_train=True, log_dir="", unit_length=4)
-    base.update(values)
-    return SimpleNamespace(**base)
-
-
-def original_generation_models(orig: SimpleNamespace) -> dict:
-    """The original's generation networks at the paper's sizes (``train_comp_v6.build_models``)."""
-    m = orig.modules
-    text_size = 1024
-    return dict(
-        text_enc=m.TextEncoderBiGRU(WORD_DIM, 15, 512, "cpu"),
-        seq_pri=m.TextDecoder(text_size, 512 + 512, 128, 1024, 1),
-        seq_post=m.TextDecoder(text_size, 512 + 1024, 128, 1024, 1),
-        seq_dec=m.TextVAEDecoder(text_size, 512 + 128 + 512, 512, 1024, 1),
-        att_layer=m.AttLayer(1024, text_size, 512),
-        mov_enc=m.MovementConvEncoder(FEATURES - 4, 512, 512),
-        mov_dec=m.MovementConvDecoder(512, 512, FEATURES),
-    )
+FRAMES, SNIPPETS = 196, 49
 
 
 # -- inputs --------------------------------------------------------------------------------
@@ -196,7 +162,7 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
     for module in models.values():
         module.eval()
     trainer = orig.trainers.CompTrainerV6(
-        _options(is_train=False), **{k: v for k, v in models.items() if k != "seq_post"}
+        original_options(is_train=False), **{k: v for k, v in models.items() if k != "seq_post"}
     )
     recover = orig.motion_process.recover_from_ric
     mean_t, std_t = torch.from_numpy(mean), torch.from_numpy(std)
@@ -258,7 +224,9 @@ def vae_step_rows(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
 
     # the original
     models = original_generation_models(orig)
-    opts = _options(text_enc_mod="bigru", lambda_rec_mov=1.0, lambda_rec_mot=1.0, lambda_kld=0.01)
+    opts = original_options(
+        text_enc_mod="bigru", lambda_rec_mov=1.0, lambda_rec_mot=1.0, lambda_kld=0.01
+    )
     trainer = orig.trainers.CompTrainerV6(opts, **models)
     for name in ("text_enc", "seq_pri", "seq_dec", "seq_post", "att_layer"):
         setattr(trainer, f"opt_{name}", torch.optim.Adam(models[name].parameters(), lr=2e-4))
@@ -337,7 +305,7 @@ def _autoencoder_sides(
 
     enc, dec = m.MovementConvEncoder(FEATURES - 4, 512, 512), m.MovementConvDecoder(512, 512, 263)
     decomp = orig.trainers.DecompTrainerV3(
-        _options(lambda_sparsity=0.001, lambda_smooth=0.001), enc.train(), dec.train()
+        original_options(lambda_sparsity=0.001, lambda_smooth=0.001), enc.train(), dec.train()
     )
     decomp.opt_movement_enc = torch.optim.Adam(enc.parameters(), lr=1e-4)
     decomp.opt_movement_dec = torch.optim.Adam(dec.parameters(), lr=1e-4)
@@ -372,7 +340,7 @@ def _length_sides(
         length_opt.step()
 
     original_estimator = m.MotionLenEstimatorBiGRU(WORD_DIM, 15, 512, 200).train()
-    length_trainer = orig.trainers.LengthEstTrainer(_options(), original_estimator)
+    length_trainer = orig.trainers.LengthEstTrainer(original_options(), original_estimator)
     length_trainer.opt_estimator = torch.optim.Adam(original_estimator.parameters(), lr=1e-4)
 
     def original_length() -> None:  # the body of LengthEstTrainer.train's loop
@@ -416,7 +384,7 @@ def _evaluator_sides(
     motion_encoder = m.MotionEncoderBiGRUCo(512, 1024, 512, "cpu").train()
     movement_encoder = m.MovementConvEncoder(FEATURES - 4, 512, 512).eval()
     match = orig.trainers.TextMotionMatchTrainer(
-        _options(negative_margin=10.0), text_encoder, motion_encoder, movement_encoder
+        original_options(negative_margin=10.0), text_encoder, motion_encoder, movement_encoder
     )
     match.opt_text_encoder = torch.optim.Adam(text_encoder.parameters(), lr=1e-4)
     match.opt_motion_encoder = torch.optim.Adam(motion_encoder.parameters(), lr=1e-4)
@@ -456,7 +424,7 @@ def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[],
         for module in models.values():
             module.eval()
         trainer = orig.trainers.CompTrainerV6(
-            _options(is_train=False), **{k: v for k, v in models.items() if k != "seq_post"}
+            original_options(is_train=False), **{k: v for k, v in models.items() if k != "seq_post"}
         )
         words, pos, lengths = text_batch(vectorizer_300d(), 1)
 
