@@ -561,6 +561,36 @@ def _stacked(layers: Sequence[nn.Module]) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.cat(weights), torch.cat(biases)
 
 
+def _loop_weights(
+    vae: TemporalVAE, weights: dict[str, torch.Tensor], teacher_forcing: bool
+) -> dict[str, torch.Tensor | None]:
+    """The tensors :class:`_Recurrence` reads, by the names of :data:`WEIGHTS` (None where
+    unused): the split input weights, the LayerNorms', the GRUs' input gates and the stacked
+    state readers."""
+    free = not teacher_forcing
+    tensors = dict.fromkeys(WEIGHTS)
+    tensors.update(attention=weights["attention"], latent=weights["latent"])
+    if free:
+        tensors.update(previous=weights["previous"], input_bias=weights["bias"])
+    _, output_norm, _, last = vae.output
+    norms = {
+        "prior": vae.prior.norm,
+        "posterior": vae.posterior.norm,
+        "generator": vae.generator.norm,
+    }
+    if free:
+        norms["output"] = output_norm
+        tensors.update(last=last.weight, last_bias=last.bias)
+    for name, norm in norms.items():
+        tensors[f"{name}_norm"], tensors[f"{name}_norm_bias"] = norm.weight, norm.bias
+    blocks = {"prior": vae.prior, "posterior": vae.posterior, "generator": vae.generator}
+    for name, layers in _readers(vae, teacher_forcing).items():
+        cell = blocks[name].cell
+        tensors[f"{name}_gates"], tensors[f"{name}_gates_bias"] = cell.weight_ih, cell.bias_ih
+        tensors[f"{name}_reader"], tensors[f"{name}_reader_bias"] = _stacked(layers)
+    return tensors
+
+
 def fast_forward(
     vae: TemporalVAE,
     word_features: torch.Tensor,
@@ -586,31 +616,12 @@ def fast_forward(
         snippets_left = torch.full((batch,), steps, dtype=torch.long, device=codes.device)
         time_codes = vae.time_codes(snippets_left, steps)  # (B, S, H)
     current = F.linear(codes, weights["current"])  # (B, S, H)
-    free = not teacher_forcing
-    tensors = dict.fromkeys(WEIGHTS)
-    tensors.update(attention=weights["attention"], latent=weights["latent"])
     previous_all = None
     if teacher_forcing:
         previous_codes = torch.cat([state.previous_code[:, None], codes[:, :-1]], dim=1)
         previous_all = F.linear(previous_codes, weights["previous"], weights["bias"])  # (B, S, 3H)
-    else:
-        tensors.update(previous=weights["previous"], input_bias=weights["bias"])
-    first, output_norm, _, last = vae.output
-    norms = {
-        "prior": vae.prior.norm,
-        "posterior": vae.posterior.norm,
-        "generator": vae.generator.norm,
-    }
-    if free:
-        norms["output"] = output_norm
-        tensors.update(last=last.weight, last_bias=last.bias)
-    for name, norm in norms.items():
-        tensors[f"{name}_norm"], tensors[f"{name}_norm_bias"] = norm.weight, norm.bias
-    blocks = {"prior": vae.prior, "posterior": vae.posterior, "generator": vae.generator}
-    for name, layers in _readers(vae, teacher_forcing).items():
-        cell = blocks[name].cell
-        tensors[f"{name}_gates"], tensors[f"{name}_gates_bias"] = cell.weight_ih, cell.bias_ih
-        tensors[f"{name}_reader"], tensors[f"{name}_reader_bias"] = _stacked(layers)
+    tensors = _loop_weights(vae, weights, teacher_forcing)
+    output_norm = vae.output[1]
     device_type = codes.device.type
     dtype = vae.query.weight.dtype
     work = dtype
