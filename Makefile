@@ -1,4 +1,4 @@
-# The user's verbs; README.md says what each one does and writes.
+# The user's verbs; README.md and docs/ say what each one does and writes.
 #
 # The values a user gives (TEXT, the paths, ARGS ...) reach the commands as data, never as code:
 # - make does not expand them: a value given on the command line or in the environment is used

@@ -25,7 +25,7 @@ features and writes the cleaned joints back into them (the root and the model's 
 channels kept), so features and joints stay consistent. Input and output joints (T, J, 3) are
 metres, y-up, the floor at y = 0, SMPL (22) or KIT (21) joints.
 
-Measured on the demo model (README, *Evaluation*): foot skating, penetration and floating go
+Measured on the demo model (the evaluation's physical-quality table, docs/evaluation.md): foot skating, penetration and floating go
 down, jerk up by a few percent, semantic accuracy unchanged within its interval.
 """
 

@@ -129,8 +129,7 @@ class TemporalVAEConfig:
     """K > 0: each step also reads how much of its motion (or clause) is done, f in [0, 1): the
     last 2K dimensions of its time code hold sin and cos of 2 pi k f for k = 1..K instead of the
     time-to-arrival table's slowest frequencies (near constant over a motion). 0: the paper's
-    time codes (the original release's models). Measured on the demo corpus (README, "Counts:
-    where the remaining misses come from"): no gain across seeds, so off in every preset."""
+    time codes (the original release's models). Measured on the demo corpus: no gain across seeds, so off in every preset."""
     count_clock: bool = False
     """Each step also reads a clock that turns N times over a clause that says its action
     happens N times ("claps five times": :func:`t2m.clauses.repetition_count`): sin and cos of
@@ -141,7 +140,7 @@ class TemporalVAEConfig:
     one clause, and of captions whose clauses pair up with the clip's labelled segments
     (``labels.json``, the demo corpus; :func:`t2m.data.dataset.count_clocks`). Counting then
     needs no division of a count by a duration: one repetition a turn. Measured on the demo
-    corpus (README, "A count clock"): with the margin, claps 0.44 -> 0.78 on the whole test split;
+    corpus: with the margin, claps 0.44 -> 0.78 on the whole test split;
     without it the generator ignored the clock. False: the paper's time codes."""
     count_clock_margin: int = 0
     """Snippets at each end of a clause where the count clock stands still: the wind-up and

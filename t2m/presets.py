@@ -50,8 +50,8 @@ original scripts'. Normalisation as the release trained: root and foot-contact s
 
 
 def demo() -> Config:
-    """Small models that train all four stages on the demo corpus (``make demo``: about 12
-    minutes on 2 cores)."""
+    """Small models that train all four stages on the demo corpus (``make demo``; its time per
+    CPU class: docs/performance.md)."""
     # One thread: these sizes are dominated by per-op overhead, where a second thread gains
     # little and loses a lot whenever another process wants the core (--num_threads=2 to try).
     cfg = Config(preset="demo", num_threads=1)

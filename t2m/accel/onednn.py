@@ -7,7 +7,7 @@ in place of the plain layers of the models (``__class__`` swapped, parameters un
 
 Why: torch's float32 matrix products on the CPU go to MKL, which runs its AVX2 code on AMD
 processors; oneDNN's products use AVX-512 there and took 0.41-0.52x of ``F.linear``'s time on the
-development machine (AMD EPYC, Zen 5, one thread, 32-6,000 rows; README "oneDNN products"). A
+development machine (AMD EPYC, Zen 5, one thread, 32-6,000 rows). A
 packed ``nn.GRU`` also records about fifteen autograd nodes per step; :class:`FusedGRU` is one
 node:
 

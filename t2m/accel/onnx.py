@@ -24,7 +24,7 @@ int8 is made from the float32 model before it is quantised (:class:`OnnxGenerati
 holds no float32 weights): the products' weights, and the per-sequence tables' as torch int8
 Linears (the tables run once per motion, in torch).
 
-Measured against the torch plan in ``README.md`` ("ONNX Runtime generation"). Needs the
+Its speed beside the torch plan and the original code: ``docs/performance.md``. Needs the
 ``onnx`` and ``onnxruntime`` packages (the ``onnx`` extra of ``setup.cfg``);
 :func:`available` says whether they are installed.
 """

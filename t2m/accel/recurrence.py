@@ -27,8 +27,7 @@ The rearrangements, each the same sums in another order:
 
 Measured (one process, interleaved with the previous version, CPU time, one thread): 1 and 4
 with per-product autograd nodes took 0.79-0.82x of the plain step at paper size; 2, 3 and the
-prior's loop of its own took 0.78-0.85x of that at demo size (README, "Demo-size generator
-step").
+prior's loop of its own took 0.78-0.85x of that at demo size.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 A generate request is a :class:`t2m.request.GenerationRequest` read by its schema's JSON reader
 (:func:`dataset_tools.command.fields_from_dict`: the fields :data:`WEB_FIELDS`, file names
 refused) plus the precision it runs at (the type of :class:`t2m.options.OutputOptions`'s field);
-this module adds only the web's limits (:class:`Limits`, stated in the README) and the model's
+this module adds only the web's limits (:class:`Limits`, stated in docs/webapp.md) and the model's
 length range, checked before any work. A bad value raises ``UsageError`` with one sentence
 naming the field, which the page shows as it is.
 """
@@ -95,7 +95,7 @@ def parse_generate(
     payload: object, spec: DatasetSpec, has_length_model: bool, limits: Limits, device_type: str
 ) -> CheckedGeneration:
     """Check a generate request's JSON object (keys: prompts, seconds, samples, seed,
-    precision; see the README) and return it with lengths in frames."""
+    precision; see docs/webapp.md) and return it with lengths in frames."""
     if not isinstance(payload, dict):
         raise UsageError("the request must be a JSON object")
     if isinstance(payload.get("prompts"), str):  # one text, one prompt a line

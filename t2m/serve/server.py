@@ -213,7 +213,7 @@ class Handler(BaseHTTPRequestHandler):
     timeout = 60  # seconds a connection may sit idle or trickle (each holds a thread)
     app: App  # set on the subclass made by make_server
 
-    def log_message(self, format: str, *args) -> None:  # noqa: A002 (the base class's name)
+    def log_message(self, format: str, *args) -> None:  # "format": the base class's name
         logger.debug("%s %s", self.address_string(), format % args)
 
     # -- answers -----------------------------------------------------------------------------
@@ -342,13 +342,13 @@ class Handler(BaseHTTPRequestHandler):
         except (UnicodeDecodeError, ValueError):
             raise UsageError("the request body is not valid JSON") from None
 
-    def do_GET(self) -> None:  # noqa: N802 (http.server's names)
+    def do_GET(self) -> None:  # http.server's names
         self._route("GET")
 
-    def do_HEAD(self) -> None:  # noqa: N802
+    def do_HEAD(self) -> None:
         self._route("HEAD")
 
-    def do_POST(self) -> None:  # noqa: N802
+    def do_POST(self) -> None:
         self._route("POST")
 
 
