@@ -28,7 +28,7 @@ from dataset_tools.sources import ClipError, ClipTask, Motion, fps_problem
 from dataset_tools.spec import HUMANML3D
 
 if TYPE_CHECKING:
-    from dataset_tools.build import BuildConfig
+    from dataset_tools.build_config import BuildConfig
 
 DATASET_FPS = HUMANML3D.fps
 """The rate every built dataset is written at (HumanML3D's)."""

@@ -3,7 +3,7 @@
 A :class:`Config` nests everything a run needs: the data settings, then one section per training
 stage (``autoencoder``, ``length``, ``generator``, ``evaluator``), each holding its model config
 and its optimisation settings. Presets (``paper``, ``demo``, ``tiny``, in :mod:`t2m.presets`)
-are named functions returning a full Config, built by :func:`preset`; command-line overrides
+are named functions returning a full Config, built by :func:`t2m.presets.preset`; command-line overrides
 such as ``--generator.model.hidden_size=256`` are applied with :func:`apply_overrides`, which
 refuses unknown keys and values of the wrong type. The resolved Config is written as JSON into
 every stage folder and stored in every checkpoint, so models can be rebuilt from it alone. The
@@ -129,7 +129,8 @@ class TemporalVAEConfig:
     """K > 0: each step also reads how much of its motion (or clause) is done, f in [0, 1): the
     last 2K dimensions of its time code hold sin and cos of 2 pi k f for k = 1..K instead of the
     time-to-arrival table's slowest frequencies (near constant over a motion). 0: the paper's
-    time codes (the original release's models). Measured on the demo corpus: no gain across seeds, so off in every preset."""
+    time codes (the original release's models). Measured on the demo corpus: no gain across
+    seeds, so off in every preset."""
     count_clock: bool = False
     """Each step also reads a clock that turns N times over a clause that says its action
     happens N times ("claps five times": :func:`t2m.clauses.repetition_count`): sin and cos of
@@ -290,15 +291,6 @@ class Config:
             for f in dataclasses.fields(self)
             if isinstance(getattr(self, f.name), StageConfig)
         }
-
-
-def preset(name: str) -> Config:
-    """The Config of a named preset (:data:`t2m.presets.PRESETS`: ``paper``, ``demo``, ``tiny``);
-    UsageError (a ValueError) for an unknown name. The presets live in :mod:`t2m.presets`; this
-    is the documented way to build one (``from t2m.config import preset``)."""
-    from t2m.presets import preset as build  # t2m.presets imports this module's dataclasses
-
-    return build(name)
 
 
 # ----------------------------------------------------------------------------------------------
