@@ -38,7 +38,6 @@ from dataset_tools.command import (
 )
 from t2m.options import OutputOptions
 from t2m.outputs import sample_to_folder
-from t2m.prompts import Prompt as Prompt  # re-exported: t2m.sample's Python users import it here
 from t2m.request import GenerationRequest
 
 logger = logging.getLogger("t2m.sample")

@@ -131,8 +131,9 @@ def test_a_kit_dataset_is_read_at_its_rate(kit_dataset):
 
 
 def test_a_kit_run_stores_its_spec_and_samples_at_its_frame_rate(kit_dataset, tmp_path):
+    from t2m.outputs import sample_to_folder
     from t2m.pipeline import TextToMotion
-    from t2m.sample import Prompt, sample_to_folder
+    from t2m.prompts import Prompt
     from t2m.train import STAGE_NAMES, load_stage, train_stage
     from t2m.train.checkpoint import atomic_save, checkpoint_spec, read_checkpoint
 
