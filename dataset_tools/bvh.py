@@ -297,6 +297,13 @@ def read_bvh(path: str | Path) -> tuple[list[str], list[int], np.ndarray, np.nda
 # ----------------------------------------------------------------------------- writing
 
 UNITS = {"m": 1.0, "cm": 100.0}
+MIN_FPS, MAX_FPS = 1.0, 1000.0
+"""The frame rates the writers take (BVH and glTF): a BVH frame time has 8 decimals and glTF key
+times are float32 seconds, so far faster rates lose the timing (1e9 fps prints a frame time of
+0); under one frame a second is no motion clip."""
+MAX_COORDINATE = 1e4
+"""The largest |coordinate| (metres) of a joint the writers take: 10 km from the origin is beyond
+any captured or generated clip, and the inverse kinematics' squared lengths stay finite."""
 EULER_ORDER = "ZXY"
 _EPS = 1e-9
 
@@ -623,15 +630,18 @@ def motion_from_joints(
     """Solve the BVH motion of joints (T, 22, 3) (metres, y-up).
 
     Offsets have the target bone lengths of ``SMPL``; see the module docstring for the rest pose
-    and the rotations. Raises ValueError on a wrong shape, non-finite values or fps <= 0.
+    and the rotations. Raises ValueError on a wrong shape, non-finite values or values beyond
+    :data:`MAX_COORDINATE`, or fps outside [:data:`MIN_FPS`, :data:`MAX_FPS`].
     """
     joints = np.asarray(joints, dtype=np.float64)
     if joints.ndim != 3 or joints.shape[1:] != (SMPL.num_joints, 3) or len(joints) < 1:
         raise ValueError(f"BVH export needs joints (T, 22, 3) with T >= 1, got {joints.shape}")
     if not np.isfinite(joints).all():
         raise ValueError("joints contain NaN or infinite values")
-    if not fps > 0:
-        raise ValueError(f"fps must be positive, got {fps}")
+    if not np.abs(joints).max() <= MAX_COORDINATE:
+        raise ValueError(f"joints lie beyond {MAX_COORDINATE:g} m of the origin (not metres?)")
+    if not MIN_FPS <= fps <= MAX_FPS:
+        raise ValueError(f"fps must be positive, from {MIN_FPS:g} to {MAX_FPS:g}, got {fps}")
     directions = rest_directions(joints if fit_rest_pose else None)
     offsets = directions * SMPL.bone_lengths[:, None]
     return BvhMotion(

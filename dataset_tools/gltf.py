@@ -273,7 +273,8 @@ def write_glb(
     """Write joints (T, 22, 3) (metres, y-up) as an animated glTF binary, atomically; returns the
     solved skeleton motion (its ``joints()`` are what the file's node animation reproduces).
 
-    Raises ValueError on a wrong shape, non-finite values or fps <= 0.
+    Raises ValueError on a wrong shape, non-finite or farther values, or an fps out of range
+    (:func:`dataset_tools.bvh.motion_from_joints`).
     """
     motion = motion_from_joints(joints, fps=fps, fit_rest_pose=fit_rest_pose)
     document, binary = gltf_document(motion, name)

@@ -3,17 +3,23 @@ animated glTF binary of the SMPL skeleton.
 
 The writers are :mod:`dataset_tools.bvh` (IK with its twist choice, the file text) and
 :mod:`dataset_tools.gltf` (the same skeleton motion as glTF nodes); this module is only their
-command.
+command. It refuses, before writing, what no body does: joints beyond
+:data:`dataset_tools.bvh.MAX_COORDINATE` metres, a bone shorter than :data:`MIN_BONE_LENGTH`
+(all-zero joints would export a rest pose), a frame rate outside
+[:data:`dataset_tools.bvh.MIN_FPS`, :data:`dataset_tools.bvh.MAX_FPS`]; and an existing output
+file unless ``--overwrite``.
 """
 
 from __future__ import annotations
 
-import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from dataset_tools.bvh import write_bvh
+import numpy as np
+
+from dataset_tools.bvh import MAX_COORDINATE, MAX_FPS, MIN_FPS, write_bvh
 from dataset_tools.command import (
     CommandParser,
     UsageError,
@@ -37,19 +43,55 @@ class ExportCommandConfig:
     output: Path = field(metadata=option(positional=True))
     """.bvh or .glb file to write"""
     fps: float | None = None
-    """frames per second of the motion (the file's frame time is 1 / fps); default: HumanML3D's
-    20"""
+    """frames per second of the motion (the file's frame time is 1 / fps), from 1 to 1000;
+    default: HumanML3D's 20"""
     units: Literal["cm", "m"] = "cm"
     """length unit of the BVH file's offsets and root positions (glTF is always in metres)"""
     template_rest_pose: bool = False
     """use the template hips / collars instead of fitting them to the motion"""
+    overwrite: bool = False
+    """replace an existing output file (otherwise it is refused)"""
 
     def __post_init__(self) -> None:
         if self.output.suffix.lower() not in (".bvh", ".glb"):
             raise UsageError(f"output must end in .bvh or .glb, got {self.output.name!r}")
-        if self.fps is not None and not 0 < self.fps < math.inf:
-            raise UsageError(f"--fps must be positive and finite, got {self.fps}")
+        if self.fps is not None and not MIN_FPS <= self.fps <= MAX_FPS:
+            raise UsageError(
+                f"--fps must be positive, from {MIN_FPS:g} to {MAX_FPS:g} frames per second, "
+                f"got {self.fps:g}"
+            )
         check_output_file(self.output, "output")
+        if os.path.lexists(self.output) and not self.overwrite:
+            raise UsageError(
+                f"output {self.output} exists (choose another name or add --overwrite)"
+            )
+
+
+MIN_BONE_LENGTH = 1e-3
+"""The shortest bone (metres) a motion may have in any frame: a bone of no length has no
+direction, so its rotation is made up (all-zero joints would export a rest pose)."""
+
+
+def check_motion(joints: np.ndarray, path: Path) -> None:
+    """Raise UsageError (one line naming ``path``) unless joints (T, 22, 3) are finite, within
+    :data:`MAX_COORDINATE` metres of the origin and every bone is at least
+    :data:`MIN_BONE_LENGTH` long in every frame."""
+    farthest = float(np.abs(joints).max()) if np.isfinite(joints).all() else np.inf
+    if not farthest <= MAX_COORDINATE:
+        raise UsageError(
+            f"{path}: joints {farthest:.3g} m from the origin; export takes joints in metres "
+            f"within {MAX_COORDINATE:g} m"
+        )
+    parents = np.asarray(SMPL.parents[1:])
+    bones = np.linalg.norm(joints[:, 1:] - joints[:, parents], axis=-1)  # (T, J - 1)
+    frame, bone = np.unravel_index(np.argmin(bones), bones.shape)
+    if bones[frame, bone] < MIN_BONE_LENGTH:
+        child = bone + 1
+        name = f"{SMPL.joint_names[parents[bone]]}-{SMPL.joint_names[child]}"
+        raise UsageError(
+            f"{path}: bone {name} has length {bones[frame, bone]:.2g} m at frame {frame} "
+            f"(under {MIN_BONE_LENGTH * 1000:g} mm): not a body's motion"
+        )
 
 
 @command
@@ -69,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{config.input}: export needs the {SMPL.num_joints}-joint SMPL skeleton, "
             f"got {joints.shape[1]} joints"
         )
+    check_motion(joints, config.input)
     if config.output.suffix.lower() == ".glb":
         write_glb(
             joints,
