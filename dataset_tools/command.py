@@ -391,7 +391,7 @@ def _json_value(hint: Any, value: Any, files: Path | None) -> Any:
             if isinstance(value, list):
                 item = typing.get_args(member)[0]
                 return tuple(_json_scalar(item, one, files) for one in value)
-        except (ValueError, TypeError):
+        except (ValueError, TypeError, OverflowError):  # OverflowError: a 400-digit number
             continue
     raise ValueError
 

@@ -46,7 +46,7 @@ def read_prompt_file(path: str | Path) -> list[Prompt]:
     """Prompts, one a line; ``text#frames`` fixes that prompt's length. Blank lines are skipped."""
     path = Path(path)
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()  # a BOM is no prompt
     except OSError as error:
         raise UsageError(f"cannot read --text-file {path}: {error.strerror or error}") from None
     except UnicodeDecodeError:

@@ -184,7 +184,19 @@ def compose(
             chunks.append((segment.text, size))
             left -= size
     features: list[np.ndarray] = []  # per sample, what is made so far (T, D)
+    total = sum(size for _, size in chunks)
+    made_frames = 0
     for index, (text, size) in enumerate(chunks):
+        if len(chunks) > 1:
+            logger.info(
+                "compose: window %d/%d (%.1f of %.1f s made): %s",
+                index + 1,
+                len(chunks),
+                made_frames / spec.fps,
+                total / spec.fps,
+                text,
+            )
+        made_frames += size
         if index == 0:
             target = np.full((size, spec.num_joints, 3), np.nan)
             plans = [EditPlan(text, size, target, np.zeros(target.shape[:2], bool))] * num_samples

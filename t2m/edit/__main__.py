@@ -36,11 +36,24 @@ from dataset_tools.command import (
 )
 from t2m.config import check_seed
 from t2m.edit.core import Method, SearchSettings
+from t2m.edit.modes import MAX_SECONDS
 from t2m.edit.request import EditRequest
 from t2m.options import OutputOptions
 from t2m.outputs import write_motions
 
 logger = logging.getLogger("t2m.edit")
+
+MAX_CANDIDATES = 4096
+"""The most noise draws per result (--candidates)."""
+MAX_STEPS = 10_000
+"""The most optimisation steps (--steps)."""
+MAX_BATCH_EDITS = 10_000
+"""The most edits of one --batch file."""
+MAX_BATCH_BYTES = 256 * 2**20
+"""The largest --batch file read."""
+SEARCH_BYTES_PER_FRAME = 32 * 1024
+"""Memory one candidate's frame takes during the search, generously: the decoded features and
+joints, the targets, and the activations the optimisation keeps for its gradient."""
 
 
 @dataclass
@@ -64,12 +77,27 @@ class EditConfig(OutputOptions):
     """noise draws per result, the closest to the constraints kept"""
     steps: int = field(default=20, metadata=option(metavar="N"))
     """optimisation steps of --method optimize (and auto)"""
+    max_timeline_lines: int = field(default=100, metadata=option(metavar="N"))
+    """compose: the most timeline lines taken (each is at least one generation pass)"""
+    max_timeline_seconds: float = field(default=600.0, metadata=option(metavar="S"))
+    """compose: the longest timeline taken (a pass per 7.8 s window)"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default outputs/edit-<timestamp>/)"""
 
     def __post_init__(self) -> None:
         if self.num_samples < 1 or self.candidates < 1 or self.steps < 0:
             raise UsageError("--num-samples and --candidates must be >= 1, --steps >= 0")
+        if self.candidates > MAX_CANDIDATES:
+            raise UsageError(
+                f"--candidates {self.candidates}: at most {MAX_CANDIDATES} noise draws per result"
+            )
+        if self.steps > MAX_STEPS:
+            raise UsageError(f"--steps {self.steps}: at most {MAX_STEPS} optimisation steps")
+        if self.max_timeline_lines < 1 or not 0 < self.max_timeline_seconds <= MAX_SECONDS:
+            raise UsageError(
+                "--max-timeline-lines must be >= 1, --max-timeline-seconds from 0 to "
+                f"{MAX_SECONDS:g}"
+            )
         check_seed(self.seed)
         super().__post_init__()
 
@@ -94,11 +122,20 @@ def read_batch(path: Path) -> list[EditRequest]:
     :class:`EditRequest`, read by the schema's JSON reader; relative file names are taken from
     the file's folder, arrays may be given inline. UsageError (one line) for anything else."""
     try:
-        entries = json.loads(path.read_text(encoding="utf-8"))
+        if path.stat().st_size > MAX_BATCH_BYTES:
+            raise UsageError(f"--batch {path} is larger than {MAX_BATCH_BYTES // 2**20} MiB")
+        entries = json.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, ValueError) as error:
         raise UsageError(f"cannot read --batch {path}: {error}") from None
+    except RecursionError:
+        raise UsageError(f"cannot read --batch {path}: JSON nested too deep") from None
     if not isinstance(entries, list) or not entries:
         raise UsageError(f"--batch {path}: give a non-empty JSON list of edits")
+    if len(entries) > MAX_BATCH_EDITS:
+        raise UsageError(
+            f"--batch {path} holds {len(entries)} edits; at most {MAX_BATCH_EDITS} a run "
+            "(split the file)"
+        )
     requests = []
     for number, entry in enumerate(entries):
         try:
@@ -106,6 +143,28 @@ def read_batch(path: Path) -> list[EditRequest]:
         except UsageError as error:
             raise UsageError(f"--batch {path}: {error}") from None
     return requests
+
+
+def check_search_memory(
+    requests: list[EditRequest], frames: list[int], config: EditConfig, window: int
+) -> None:
+    """Refuse, before generating, a search that cannot fit in memory: at worst every plain edit's
+    results are searched in one batch of ``--candidates`` draws each, every frame taking
+    :data:`SEARCH_BYTES_PER_FRAME`; compose searches one ``window`` (the model's longest motion)
+    at a time."""
+    from t2m.train.runtime import available_memory
+
+    plain = [f for r, f in zip(requests, frames) if r.mode != "compose"]
+    composed = [f for r, f in zip(requests, frames) if r.mode == "compose"]
+    window = max([sum(plain)] + [min(f, window) for f in composed])
+    need = config.num_samples * config.candidates * window * SEARCH_BYTES_PER_FRAME
+    available = available_memory()
+    if available is not None and need > available:
+        raise UsageError(
+            f"the search holds {config.num_samples} results x {config.candidates} candidates of "
+            f"{window} frames, about {need / 2**30:.1f} GiB of memory; {available / 2**30:.1f} GiB "
+            "is available: lower --candidates or --num-samples, or give fewer edits per run"
+        )
 
 
 @command(interrupted="interrupted; nothing was written")
@@ -132,14 +191,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from t2m.edit.modes import read_timeline
 
+        limits = config.max_timeline_lines, config.max_timeline_seconds
         frames = [
-            read_timeline(r.timeline, pipe.spec)[-1].stop
+            read_timeline(r.timeline, pipe.spec, *limits)[-1].stop
             if r.mode == "compose"
             else r.plan(pipe.spec).num_frames
             for r in requests
         ]
     except ValueError as error:
         raise UsageError(str(error)) from None
+    check_search_memory(requests, frames, config, pipe.spec.max_frames)
     # 3. edit and write
     write_motions(
         lambda: edit_batch(pipe, requests, config.num_samples, config.seed, settings),

@@ -49,11 +49,43 @@ MAX_ROOT_SPEED = 6.0
 """Metres per second between path points or kept poses beyond which the body cannot get there
 in time (a sprint is about 10, the HumanML3D captures stay under 5)."""
 
+MAX_SECONDS = 3600.0
+"""The latest time any edit option, path point or timeline line may name (an hour): beyond it a
+request is refused before any work (its frame counts would not fit in memory)."""
+
+MAX_PATH_POINTS = 10_000
+"""The most rows a path may hold."""
+
+MAX_INPUT_BYTES = 64 * 2**20
+"""The largest path or timeline file read."""
+
+
+def check_seconds(seconds: float, what: str) -> float:
+    """``seconds`` as a float from 0 to :data:`MAX_SECONDS`; UsageError (one line) otherwise."""
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.floating, np.integer)):
+        raise UsageError(f"{what} must be a number of seconds, got {seconds!r}")
+    try:
+        value = float(seconds)
+    except OverflowError:
+        value = math.inf
+    if not (math.isfinite(value) and 0 <= value <= MAX_SECONDS):
+        raise UsageError(f"{what} must be from 0 to {MAX_SECONDS:g} seconds, got {seconds:g}")
+    return value
+
 
 def _frames(seconds: float, spec: DatasetSpec, what: str) -> int:
-    if not math.isfinite(seconds):
-        raise UsageError(f"{what} must be a finite number of seconds, got {seconds}")
-    return int(round(seconds * spec.fps))
+    return int(round(check_seconds(seconds, what) * spec.fps))
+
+
+def _read_text(file: Path, what: str) -> str:
+    """A path or timeline file's text: UsageError (one line) when it is missing, unreadable, not
+    UTF-8 or larger than :data:`MAX_INPUT_BYTES`."""
+    try:
+        if file.stat().st_size > MAX_INPUT_BYTES:
+            raise UsageError(f"{what} {file} is larger than {MAX_INPUT_BYTES // 2**20} MiB")
+        return file.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as error:
+        raise UsageError(f"cannot read {what} {file}: {error}") from None
 
 
 def _whole_snippets(frames: int, spec: DatasetSpec, what: str) -> int:
@@ -230,10 +262,7 @@ def read_path(path: str | Path | np.ndarray | Sequence) -> np.ndarray:
     or a JSON file (a list of ``[seconds, x, z]`` or of ``{"t": .., "x": .., "z": ..}``)."""
     if isinstance(path, (str, Path)):
         file = Path(path)
-        try:
-            text = file.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as error:
-            raise UsageError(f"cannot read --path {file}: {error}") from None
+        text = _read_text(file, "--path")
         try:
             if file.suffix.lower() == ".json":
                 data = json.loads(text)
@@ -241,20 +270,39 @@ def read_path(path: str | Path | np.ndarray | Sequence) -> np.ndarray:
                 rows = [[p["t"], p["x"], p["z"]] if isinstance(p, dict) else p for p in data]
             else:
                 lines = [ln for ln in text.splitlines() if ln.strip()]
-                if lines and re.search(r"[A-Za-z]", lines[0]):
-                    lines = lines[1:]  # a header
-                rows = [[float(v) for v in re.split(r"[,;\s]+", ln.strip())] for ln in lines]
+                if len(lines) > MAX_PATH_POINTS + 1:
+                    raise UsageError(
+                        f"--path {file} has {len(lines)} rows; at most {MAX_PATH_POINTS}"
+                    )
+                rows = [[float(v) for v in re.split(r"[,;\s]+", ln.strip())] for ln in lines[1:]]
+                try:
+                    rows.insert(0, [float(v) for v in re.split(r"[,;\s]+", lines[0].strip())])
+                except (ValueError, IndexError):  # a header ("t,x,z"), not a row like "1e-2,0,0"
+                    pass
+            if len(rows) > MAX_PATH_POINTS:
+                raise UsageError(f"--path {file} has {len(rows)} rows; at most {MAX_PATH_POINTS}")
             points = np.asarray(rows, dtype=np.float64)
-        except (ValueError, KeyError, TypeError):
+        except UsageError:
+            raise
+        except RecursionError:  # JSON nested deeper than the parser goes
+            raise UsageError(f"--path {file}: nested too deep; give rows 'seconds,x,z'") from None
+        except (ValueError, KeyError, TypeError, OverflowError, AttributeError):
             raise UsageError(f"--path {file}: give rows 'seconds,x,z'") from None
     else:
-        points = np.asarray(path, dtype=np.float64)
+        try:
+            points = np.asarray(path, dtype=np.float64)
+        except (ValueError, TypeError, OverflowError):
+            raise UsageError("a path is rows of (seconds, x, z) numbers") from None
     if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
         raise UsageError(f"a path is rows of (seconds, x, z), got shape {points.shape}")
+    if len(points) > MAX_PATH_POINTS:
+        raise UsageError(f"a path has {len(points)} rows; at most {MAX_PATH_POINTS}")
     if not np.all(np.isfinite(points)):
         raise UsageError("the path contains NaN or infinite values")
     if np.any(np.diff(points[:, 0]) <= 0) or points[0, 0] < 0:
         raise UsageError("path times must be >= 0 and increasing")
+    if points[-1, 0] > MAX_SECONDS:
+        raise UsageError(f"path times must be at most {MAX_SECONDS:g} s, got {points[-1, 0]:g}")
     return points
 
 
@@ -312,20 +360,31 @@ class Segment:
     stop: int
 
 
-def read_timeline(lines: str | Path | Sequence[str], spec: DatasetSpec) -> list[Segment]:
+def read_timeline(
+    lines: str | Path | Sequence[str],
+    spec: DatasetSpec,
+    max_lines: int | None = None,
+    max_seconds: float | None = None,
+) -> list[Segment]:
     """Timeline lines ``text#start#end`` (seconds) or ``text#seconds`` (starting where the
     previous one ends), or a file of them; blank lines skipped. Segments must follow each other
     without gaps or overlaps (within half a frame) from 0 s; boundaries are rounded to whole
-    snippets."""
+    snippets. ``max_lines`` / ``max_seconds``: the most segments and the longest timeline
+    accepted (None: :data:`MAX_SECONDS` only); the message names the command's options that
+    raise them (``--max-timeline-lines``, ``--max-timeline-seconds``)."""
     if isinstance(lines, Path) or (
         isinstance(lines, str) and "\n" not in lines and "#" not in lines
     ):
-        try:
-            lines = Path(lines).read_text(encoding="utf-8").splitlines()
-        except (OSError, UnicodeDecodeError) as error:
-            raise UsageError(f"cannot read --timeline {lines}: {error}") from None
+        lines = _read_text(Path(lines), "--timeline").splitlines()
     elif isinstance(lines, str):
         lines = lines.splitlines()
+    if max_lines is not None:
+        count = sum(1 for line in lines if line.strip())
+        if count > max_lines:
+            raise UsageError(
+                f"the timeline has {count} lines, more than the {max_lines} allowed "
+                "(--max-timeline-lines raises the limit)"
+            )
     entries: list[tuple[str, float, float]] = []
     cursor = 0.0
     for number, line in enumerate(lines, start=1):
@@ -346,12 +405,21 @@ def read_timeline(lines: str | Path | Sequence[str], spec: DatasetSpec) -> list[
             ) from None
         if not text or not (math.isfinite(start) and math.isfinite(end)) or end <= start:
             raise UsageError(f"timeline line {number}: an empty prompt or end <= start")
+        if end > MAX_SECONDS:
+            raise UsageError(
+                f"timeline line {number}: ends at {end:g} s; a timeline ends by {MAX_SECONDS:g} s"
+            )
         half = 0.5 / spec.fps
         if abs(start - cursor) > half:
             kind = "a gap" if start > cursor else "an overlap"
             raise UsageError(
                 f"timeline line {number}: starts at {start:g} s, the previous ends at "
                 f"{cursor:g} s ({kind}); segments must follow each other"
+            )
+        if max_seconds is not None and end > max_seconds:
+            raise UsageError(
+                f"timeline line {number}: ends at {end:g} s, past the {max_seconds:g} s allowed "
+                "(--max-timeline-seconds raises the limit)"
             )
         entries.append((text, start, end))
         cursor = end

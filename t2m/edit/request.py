@@ -22,6 +22,7 @@ from t2m.edit.modes import (
     MODES,
     Mode,
     Part,
+    check_seconds,
     plan_body,
     plan_continue,
     plan_inbetween,
@@ -33,6 +34,9 @@ from t2m.edit.source import PreparedSource, load_source, prepare_source
 
 NEEDS_SOURCE = ("continue", "inbetween", "body")
 """The modes that edit a source motion (the others make a new one)."""
+
+MAX_SOURCE_FPS = 1000.0
+"""The highest ``source_fps`` taken (motion capture runs at up to a few hundred)."""
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,7 @@ class EditRequest:
         if self.mode not in MODES:
             raise UsageError(f"unknown mode {self.mode!r}; choose one of {', '.join(MODES)}")
         self._check_inputs()
+        self._check_numbers()
         if self.mode == "body" and self.part not in BODY_PARTS:
             raise UsageError(f"unknown --part {self.part!r}; choose one of {', '.join(BODY_PARTS)}")
 
@@ -88,6 +93,24 @@ class EditRequest:
             raise UsageError("--mode path needs --path (rows 'seconds,x,z')")
         if self.mode == "keys" and self.keys is None:
             raise UsageError("--mode keys needs --keys (a (T, 22, 3) .npy with NaN for free)")
+
+    def _check_numbers(self) -> None:
+        """Every time from 0 to :data:`t2m.edit.modes.MAX_SECONDS`, the frame rate above 0 (a source at 0 fps
+        is not one at the model's rate) and at most :data:`MAX_SOURCE_FPS`."""
+        for name in ("seconds", "keep_seconds", "keep_start", "keep_end"):
+            value = getattr(self, name)
+            if value is not None:
+                check_seconds(value, "--" + name.replace("_", "-"))
+        fps = self.source_fps
+        if fps is not None and not (
+            isinstance(fps, (int, float))
+            and 0 < fps <= MAX_SOURCE_FPS
+            and not isinstance(fps, bool)
+        ):
+            raise UsageError(
+                f"--source-fps must be above 0 and at most {MAX_SOURCE_FPS:g} frames per second, "
+                f"got {fps!r} (leave it out for the model's rate)"
+            )
 
     def prepared_source(self, spec) -> PreparedSource:
         joints = self.source

@@ -12,6 +12,7 @@ result is in.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,10 @@ from dataset_tools.representation import process_motion
 from dataset_tools.spec import HUMANML3D, DatasetSpec
 
 logger = logging.getLogger(__name__)
+
+MAX_SOURCE_SECONDS = 3600.0
+"""The longest source read (an hour; edits use its first seconds): longer ones, or a frame rate
+that makes them so, are refused before resampling."""
 
 
 @dataclass(frozen=True)
@@ -75,7 +80,9 @@ def load_source(
         joints, source_fps = motion.joints, motion.fps
     elif suffix == ".npy":
         joints = load_npy(path, finite=False)
-        source_fps = fps or spec.fps
+        source_fps = spec.fps if fps is None else fps
+        if not 0 < source_fps < math.inf:
+            raise UsageError(f"--source-fps must be above 0, got {source_fps}")
     else:
         raise UsageError(f"--source {path}: give a joints .npy (T, {spec.num_joints}, 3) or a .bvh")
     joints = np.asarray(joints)
@@ -83,6 +90,12 @@ def load_source(
         raise UsageError(
             f"--source {path}: joints must be (T, {spec.num_joints}, 3), got {joints.shape} "
             "(other skeletons: export a BVH and read it with --mapping)"
+        )
+    seconds = len(joints) / source_fps
+    if seconds > MAX_SOURCE_SECONDS:
+        raise UsageError(
+            f"--source {path} lasts {seconds:.0f} s ({len(joints)} frames at {source_fps:g} fps); "
+            f"an edit reads at most {MAX_SOURCE_SECONDS:g} s: trim it or check --source-fps"
         )
     if not np.all(np.isfinite(joints)):
         raise UsageError(f"--source {path} contains NaN or infinite values")
