@@ -47,7 +47,9 @@ MAX_PATH_POINTS = 100
 MAX_TIMELINE_LINES = 8
 MAX_TIMELINE_SECONDS = 30.0
 MAX_EDIT_SECONDS = 30.0
-"""keep / result lengths given in seconds are at most this"""
+"""keep / result lengths and path times given in seconds are at most this"""
+MAX_PATH_METRES = 1000.0
+"""path points lie at most this far from the start along x and z"""
 
 
 def edit_available() -> bool:
@@ -171,6 +173,16 @@ def _web_shapes(fields: dict) -> dict:
             for row in points
         ):
             raise UsageError("path must be rows of three numbers [seconds, x, z]")
+        for number, (seconds, x, z) in enumerate(points, start=1):
+            if not (_within(seconds, MAX_EDIT_SECONDS) and seconds >= 0):
+                raise UsageError(
+                    f"path row {number}: the time must be from 0 to {MAX_EDIT_SECONDS:g} seconds"
+                )
+            if not (_within(x, MAX_PATH_METRES) and _within(z, MAX_PATH_METRES)):
+                raise UsageError(
+                    f"path row {number}: x and z must be from -{MAX_PATH_METRES:g} to "
+                    f"{MAX_PATH_METRES:g} metres"
+                )
     if mode == "compose" or "timeline" in fields:
         lines = fields.get("timeline")
         if isinstance(lines, str):
@@ -182,6 +194,15 @@ def _web_shapes(fields: dict) -> dict:
             raise UsageError(f"the timeline needs 1 to {MAX_TIMELINE_LINES} lines")
         fields = {**fields, "timeline": lines}  # a list: never read as a file
     return fields
+
+
+def _within(value: int | float, bound: float) -> bool:
+    """Whether a JSON number lies in [-bound, bound] (a 400-digit integer does not: it has no
+    float, and NaN or infinity never do)."""
+    try:
+        return abs(float(value)) <= bound
+    except OverflowError:
+        return False
 
 
 def _read_uploads(app, values: dict, uploads: dict, folder: Path) -> str | None:

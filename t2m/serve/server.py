@@ -210,6 +210,9 @@ class App:
 
 class Handler(BaseHTTPRequestHandler):
     server_version = "t2m-serve"
+    # a request line without a version (HTTP/0.9, or malformed) is answered with a status line and
+    # headers too: an HTTP/0.9 answer is a bare body, without the security headers
+    default_request_version = "HTTP/1.0"
     timeout = 60  # seconds a connection may sit idle or trickle (each holds a thread)
     app: App  # set on the subclass made by make_server
 
@@ -262,6 +265,11 @@ class Handler(BaseHTTPRequestHandler):
         return name in LOOPBACK_NAMES or is_loopback(name)
 
     def _route(self, method: str) -> None:
+        if (
+            len(self.headers.get_all("Host", [])) > 1
+        ):  # which one a proxy or the page meant is unknown
+            self._error(HTTPStatus.BAD_REQUEST, "the request has more than one Host header")
+            return
         if not self._host_allowed():
             self._error(HTTPStatus.FORBIDDEN, "this server answers requests to localhost only")
             return
@@ -329,8 +337,8 @@ class Handler(BaseHTTPRequestHandler):
     def _read_json(self, limit: int | None = None) -> object:
         limit = limit or self.app.limits.max_body_bytes
         length = self.headers.get("Content-Length")
-        if length is None or not length.isdigit():
-            raise UsageError("the request needs a Content-Length")
+        if length is None or not (length.isascii() and length.isdigit()):  # not '²' nor '١٢'
+            raise UsageError("the request needs a Content-Length (a number of bytes in 0-9)")
         if int(length) > limit:
             raise UsageError(f"the request is {int(length)} bytes; at most {limit}")
         content_type = self.headers.get("Content-Type", "").split(";")[0].strip()
@@ -341,6 +349,33 @@ class Handler(BaseHTTPRequestHandler):
             return json.loads(body.decode("utf-8"))
         except (UnicodeDecodeError, ValueError):
             raise UsageError("the request body is not valid JSON") from None
+        except RecursionError:  # arrays or objects nested deeper than the parser goes
+            raise UsageError("the request body is not valid JSON: nested too deep") from None
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None):
+        """http.server's own errors (a malformed request line or header, an unsupported method,
+        a request line too long) as this server's: JSON with the security headers; the
+        connection closes, since what follows the bad request cannot be trusted."""
+        self.close_connection = True
+        try:
+            short, _ = self.responses[code]
+        except KeyError:
+            short = "error"
+        if code == HTTPStatus.NOT_IMPLEMENTED and self.command:
+            message = f"{self.command[:20]} is not a method of this server (GET, HEAD, POST)"
+        message = " ".join((message or short).split())[:200]  # one line
+        self.log_error("code %d, message %s", code, message)
+        body = json.dumps({"error": message}, separators=(",", ":")).encode("utf-8")
+        self.send_response(code)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("Connection", "close")
+        for key, value in SECURITY_HEADERS.items():
+            self.send_header(key, value)
+        self.end_headers()
+        if self.command != "HEAD" and code >= 200 and code not in (204, 304):
+            self.wfile.write(body)
 
     def do_GET(self) -> None:  # http.server's names
         self._route("GET")
