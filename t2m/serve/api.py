@@ -52,6 +52,9 @@ class Limits:
     """seeds are 0 .. this"""
     max_edit_body_bytes: int = 6 * 2**20
     """bytes of one edit request's JSON body (it may carry an uploaded motion)"""
+    max_source_frames: int = 1200
+    """frames of an edit's uploaded source at the model's frame rate (60 s at 20 fps), checked
+    before it is read: a BVH is resampled from its frame time, so a few KB can imply hours"""
 
 
 class Busy(RuntimeError):

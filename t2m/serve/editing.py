@@ -26,7 +26,9 @@ from __future__ import annotations
 import base64
 import binascii
 import importlib.util
+import math
 import queue
+import re
 import secrets
 from pathlib import Path
 
@@ -132,11 +134,37 @@ def _source(app, value: object, folder: Path) -> tuple[np.ndarray, str]:
         return flat[index].joints, f"motion {index + 1} of an earlier request"
     path, name = _upload(value, "source", (".bvh", ".npy"), folder)
     try:
-        return load_source(path, app.pipe.spec), name
+        limit, fps = app.limits.max_source_frames, app.pipe.spec.fps
+        if path.suffix == ".bvh" and _bvh_seconds(path) * fps + 1 > limit:  # resampled to fps
+            raise UsageError(
+                f"source: the uploaded {name} lasts {_bvh_seconds(path):.4g} s by its Frames and "
+                f"Frame Time; at most {limit} frames ({limit / fps:g} s at {fps:g} fps)"
+            )
+        joints = load_source(path, app.pipe.spec)
+        if len(joints) > limit:
+            raise UsageError(
+                f"source: the uploaded {name} has {len(joints)} frames; at most {limit}"
+            )
+        return joints, name
     except UsageError as error:
         raise UsageError(_named(str(error), path, name)) from None
     finally:
         path.unlink(missing_ok=True)
+
+
+def _bvh_seconds(path: Path) -> float:
+    """How long a BVH file lasts by its MOTION header (``Frames: T``, ``Frame Time: dt``), read
+    before the file is; 0 when the header is malformed (the importer then says so)."""
+    header = re.search(rb"Frames:\s*(\d{1,12})\s+Frame\s+Time:\s*(\S{1,40})", path.read_bytes())
+    if header is None:
+        return 0.0
+    try:
+        frames, frame_time = int(header[1]), float(header[2])
+    except ValueError:
+        return 0.0
+    if not (math.isfinite(frame_time) and frame_time > 0):
+        return 0.0
+    return (frames - 1) * frame_time  # a float: 1e300 s is inf, never an OverflowError
 
 
 def parse_edit(app, payload: object, folder: Path) -> tuple:

@@ -8,18 +8,25 @@ Cases per area:
   nested 100,000 levels deep, a Content-Length of non-ASCII digits;
 * every answer carries the security headers (5 cases): OPTIONS, PUT, DELETE, an invented
   method, a malformed request line;
-* a request with two Host headers is refused (1 case).
+* a request with two Host headers is refused (1 case);
+* sizes a tiny request implies are bounded before work (1 case): a 7 KB BVH whose frame time
+  makes it hours long at the model's frame rate.
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import socket
 
+import numpy as np
 import pytest
+from conftest import synth_joints  # tests/ is on the path (it has no __init__.py)
 from test_serve import call
 
+from dataset_tools.bvh import write_bvh
 from t2m.pipeline import TextToMotion
+from t2m.serve import api
 from t2m.serve.server import SECURITY_HEADERS, make_server
 
 
@@ -124,3 +131,21 @@ def test_two_host_headers_are_refused(server):
     assert status == 400, body
     assert b"Host" in body
     assert headers.get("x-content-type-options") == "nosniff"
+
+
+# -- sizes a tiny request implies ---------------------------------------------------------------
+
+
+def test_a_bvh_hours_long_at_the_model_rate_is_refused_before_work(server, tmp_path):
+    walk = synth_joints("walk_forward", 10, np.random.default_rng(3))
+    write_bvh(walk, tmp_path / "walk.bvh")
+    text = (tmp_path / "walk.bvh").read_text()
+    head, _, frames = text.partition("Frame Time:")
+    slow = head + "Frame Time: 100000" + "\n" + frames.split("\n", 1)[1]
+    assert len(slow) < 16_000
+    upload = {"upload": {"name": "slow.bvh", "base64": base64.b64encode(slow.encode()).decode()}}
+    body = {"mode": "body", "text": "a person waves", "part": "lower", "source": upload}
+    status, answer, _ = call(server, "POST", "/api/edit", body)
+    assert status == 400, answer
+    limit = api.Limits().max_source_frames
+    assert "slow.bvh" in answer["error"] and f"{limit}" in answer["error"]
