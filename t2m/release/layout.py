@@ -136,10 +136,16 @@ def read_opt(path: str | Path) -> dict[str, str]:
     """The ``key: value`` lines of a release ``opt.txt`` (between its banner lines), as text:
     callers convert the values they use (the original's reader turned "False" into True)."""
     path = Path(path)
+    if path.is_dir():
+        raise UsageError(f"{path} is a folder, not an options file")
     if not path.is_file():
         raise UsageError(f"no such file: {path}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise UsageError(f"{path}: not UTF-8 text (byte {error.start})") from None
     options: dict[str, str] = {}
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
         if not line or line in (OPT_BANNER, OPT_END):
             continue

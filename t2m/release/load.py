@@ -1,7 +1,10 @@
 """Load the original T2M release: generator, length estimator, evaluator, meta/, GloVe subset.
 
 Every size comes from the tensors' shapes; every file is read without running code (``.tar``
-with ``torch.load(weights_only=True)``, the vocabulary pickles with every global refused). The
+with ``torch.load(weights_only=True)``, the vocabulary pickles with every global refused), and
+checked before use: every weight a finite floating-point tensor of the shape its role needs, the
+vocabulary's rows whole numbers, ``meta/`` two equal vectors; what fails is a UsageError, one line
+naming the file (a crafted release never ends in a traceback). The
 release's arithmetic where ours differs is set as recorded model options: the generator's text
 encoder flips the backward word features (``TextEncoderConfig.flip_backward_words``); the
 normalisation is ``meta/`` as stored (the dataset std / 25 on the root and contact dimensions,
@@ -20,7 +23,7 @@ from pathlib import Path
 import torch
 
 from dataset_tools.command import UsageError
-from dataset_tools.io import load_npy
+from dataset_tools.io import load_npy, read_plain_pickle
 from dataset_tools.spec import DatasetSpec, spec_for_dim
 from t2m.config import (
     AutoencoderConfig,
@@ -30,7 +33,7 @@ from t2m.config import (
     TextEncoderConfig,
 )
 from t2m.data.normalization import Normalizer
-from t2m.data.words import WordVectors, read_glove_folder
+from t2m.data.words import GLOVE_FOLDER_FILES, WordVectors, read_glove_folder
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
     SNIPPET_FRAMES,
@@ -113,7 +116,40 @@ def read_release_checkpoint(path: Path, entries: tuple[str, ...]) -> dict[str, W
     missing = [e for e in entries if not isinstance(checkpoint, dict) or e not in checkpoint]
     if missing:
         raise UsageError(f"{path}: no {', '.join(missing)} (not a T2M release checkpoint)")
+    for entry in entries:
+        check_weights(checkpoint[entry], entry, path)
     return {entry: checkpoint[entry] for entry in entries}
+
+
+def check_weights(state: object, entry: str, path: Path) -> None:
+    """UsageError (one line naming ``path``) unless ``state`` is a state dict: names to finite
+    floating-point tensors (no integers, booleans, complex numbers, NaN or inf)."""
+    if not isinstance(state, dict):
+        raise UsageError(f"{path}: {entry} is a {type(state).__name__}, not a dict of weights")
+    for key, value in state.items():
+        where = f"{path}: {entry}.{key}"
+        if not isinstance(key, str):
+            raise UsageError(f"{path}: {entry} holds a weight named {key!r}, not a string")
+        if not isinstance(value, torch.Tensor):
+            raise UsageError(f"{where} is a {type(value).__name__}, not a weight tensor")
+        if value.layout != torch.strided or not value.is_floating_point():
+            raise UsageError(f"{where} holds {value.dtype} ({value.layout}), not float weights")
+        if not torch.isfinite(value).all():
+            raise UsageError(f"{where} holds NaN or infinite values")
+
+
+def weight_size(weights: Weights, key: str, dim: int, ndim: int, path: Path) -> int:
+    """``weights[key].shape[dim]``, where the layer's weight must have ``ndim`` dimensions (a
+    linear layer 2, a convolution 3) and a non-zero size; UsageError naming ``path``
+    otherwise (a crafted 0-d tensor made an IndexError)."""
+    if key not in weights:
+        raise UsageError(f"{path}: no weight {key!r} (not the T2M release's layout)")
+    shape = tuple(weights[key].shape)
+    if len(shape) != ndim or not all(shape):
+        raise UsageError(
+            f"{path}: weight {key!r} has shape {shape}, expected {ndim} non-zero sizes"
+        )
+    return shape[dim]
 
 
 def file_sha256(path: Path) -> str:
@@ -127,7 +163,30 @@ def file_sha256(path: Path) -> str:
 def read_normalizer(layout: ReleaseLayout) -> Normalizer:
     """``meta/mean.npy`` and ``meta/std.npy`` as stored (no further weighting)."""
     meta = layout.meta_dir
-    return Normalizer(load_npy(meta / "mean.npy"), load_npy(meta / "std.npy"))
+    mean, std = load_npy(meta / "mean.npy"), load_npy(meta / "std.npy")
+    try:
+        return Normalizer(mean, std)
+    except ValueError as error:  # its checks of shape and values, each one line
+        raise UsageError(f"{meta}: {error}") from None
+
+
+def check_glove_index(folder: Path) -> None:
+    """UsageError (one line naming the file) unless the index pickle maps its words to whole
+    numbers and the words hold sos, eos and unk, before :func:`read_glove_folder` sorts the rows
+    (mixed int and str made a TypeError). Missing files are its to name."""
+    words_file, index_file = (folder / name for name in GLOVE_FOLDER_FILES[1:])
+    if not index_file.is_file() or not words_file.is_file():
+        return
+    rows = read_plain_pickle(index_file)
+    if isinstance(rows, dict):
+        for word, row in rows.items():
+            if type(row) is not int:
+                raise UsageError(f"{index_file}: row {row!r} of {word!r} is not a whole number")
+    words = read_plain_pickle(words_file)
+    if isinstance(words, list):
+        for required in ("sos", "eos", "unk"):
+            if required not in words:
+                raise UsageError(f"{words_file}: no {required!r} entry (every caption needs it)")
 
 
 def read_vocabulary(layout: ReleaseLayout, glove_dir: str | Path | None) -> WordVectors:
@@ -137,6 +196,7 @@ def read_vocabulary(layout: ReleaseLayout, glove_dir: str | Path | None) -> Word
         raise UsageError(
             f"no GloVe folder {folder} (the release's glove/ with our_vab_*: pass --glove DIR)"
         )
+    check_glove_index(folder)
     return read_glove_folder(folder)
 
 
@@ -144,11 +204,14 @@ def read_generator_options(model_dir: Path) -> bool:
     """Check the generator's ``opt.txt`` (snippet length) and return whether its text encoder
     flips the backward word features (the release's always do; an export of ours says)."""
     opt_file = model_dir / "opt.txt"
-    options = read_opt(opt_file) if opt_file.is_file() else {}
+    options = read_opt(opt_file) if opt_file.exists() else {}
     unit = options.get("unit_length", str(SNIPPET_FRAMES))
-    if not unit.isdigit():
+    if not (unit.isascii() and unit.isdigit()):
         raise UsageError(f"{opt_file}: unit_length {unit!r} is not a number")
-    check_snippet_length(int(unit))
+    try:
+        check_snippet_length(int(unit))
+    except ValueError as error:
+        raise UsageError(f"{opt_file}: {error}") from None
     flip = options.get(FLIP_OPTION, "True")
     if flip not in ("True", "False"):
         raise UsageError(f"{opt_file}: {FLIP_OPTION} must be True or False, got {flip!r}")
@@ -166,9 +229,11 @@ def _load(module: torch.nn.Module, weights: Weights, where: Path) -> None:
 # -- models ------------------------------------------------------------------------------------
 
 
-def _text_config(weights: Weights, prefix: str, flip: bool = False) -> TextEncoderConfig:
+def _text_config(
+    weights: Weights, prefix: str, path: Path, flip: bool = False
+) -> TextEncoderConfig:
     return TextEncoderConfig(
-        hidden_size=weights[f"{prefix}input_projection.weight"].shape[0],
+        hidden_size=weight_size(weights, f"{prefix}input_projection.weight", 0, 2, path),
         flip_backward_words=flip,
     )
 
@@ -178,41 +243,53 @@ def build_generator(
 ) -> tuple[TemporalVAE, MovementDecoder, MovementEncoder]:
     """Our modules holding the release generator's weights (``release_to_ours`` output);
     ``flip``: the text encoder flips the backward word features (the release's does)."""
-    vae_w, encoder_w, decoder_w = models["vae"], models["encoder"], models["decoder"]
-    hidden = vae_w["generator.input.weight"].shape[0]
+    vae_w, encoder_w, decoder_w = (models.get(name, {}) for name in ("vae", "encoder", "decoder"))
+    hidden = weight_size(vae_w, "generator.input.weight", 0, 2, path)
     for block in ("prior", "posterior"):
-        if vae_w[f"{block}.input.weight"].shape[0] != hidden:
+        if weight_size(vae_w, f"{block}.input.weight", 0, 2, path) != hidden:
             raise UsageError(f"{path}: prior, posterior and generator sizes differ (unsupported)")
     for block in ("prior", "posterior", "generator"):
-        if vae_w[f"{block}.initial.weight"].shape[0] != hidden:
+        if weight_size(vae_w, f"{block}.initial.weight", 0, 2, path) != hidden:
             raise UsageError(f"{path}: recurrent blocks with several GRU layers (unsupported)")
     tables = models.get("tables", {})
+    for entry, table in tables.items():
+        if table.dim() != 2 or not all(table.shape):
+            raise UsageError(
+                f"{path}: {entry}'s time encoding has shape {tuple(table.shape)}, expected "
+                "(steps, size)"
+            )
     rows = {table.shape[0] for table in tables.values()} or {300}
     if len(rows) != 1:
         raise UsageError(f"{path}: time-encoding tables of different lengths {sorted(rows)}")
-    code_size = encoder_w["out.weight"].shape[0]
+    code_size = weight_size(encoder_w, "out.weight", 0, 2, path)
     config = TemporalVAEConfig(
-        text=_text_config(vae_w, "text_encoder.", flip=flip),
+        text=_text_config(vae_w, "text_encoder.", path, flip=flip),
         hidden_size=hidden,
-        latent_size=vae_w["prior_gaussian.mean.weight"].shape[0],
-        attention_size=vae_w["query.weight"].shape[0],
+        latent_size=weight_size(vae_w, "prior_gaussian.mean.weight", 0, 2, path),
+        attention_size=weight_size(vae_w, "query.weight", 0, 2, path),
         max_snippets=rows.pop(),
     )
-    word_dim = vae_w["text_encoder.pos_embedding.weight"].shape[0]
+    word_dim = weight_size(vae_w, "text_encoder.pos_embedding.weight", 0, 2, path)
     vae = TemporalVAE(word_dim, code_size, config)
     for entry, table in tables.items():
         # float32 sin/cos of positions up to ~300 round differently on different CPUs' vector
         # code (1.5e-5 apart at row 290 between an Intel Xeon and the release's numbers)
         if not torch.allclose(table.float(), sinusoidal_table(*table.shape), atol=1e-4):
             raise UsageError(f"{path}: {entry}'s time encoding is not the sinusoidal table")
-    feature_dim = decoder_w["out.weight"].shape[0]
+    feature_dim = weight_size(decoder_w, "out.weight", 0, 2, path)
+    if feature_dim <= CONTACT_DIMS:
+        raise UsageError(f"{path}: the decoder writes {feature_dim} features, no motion")
     decoder = MovementDecoder(
         feature_dim,
-        AutoencoderConfig(hidden_size=decoder_w["net.0.weight"].shape[1], code_size=code_size),
+        AutoencoderConfig(
+            hidden_size=weight_size(decoder_w, "net.0.weight", 1, 3, path), code_size=code_size
+        ),
     )
     encoder = MovementEncoder(
         feature_dim - CONTACT_DIMS,
-        AutoencoderConfig(hidden_size=encoder_w["net.0.weight"].shape[0], code_size=code_size),
+        AutoencoderConfig(
+            hidden_size=weight_size(encoder_w, "net.0.weight", 0, 3, path), code_size=code_size
+        ),
     )
     for module, weights in ((vae, vae_w), (decoder, decoder_w), (encoder, encoder_w)):
         _load(module, weights, path)
@@ -221,18 +298,25 @@ def build_generator(
 
 def build_length(path: Path, weights: Weights) -> LengthEstimator:
     """Our LengthEstimator holding the release estimator's weights (ours, renamed)."""
+    heads = [key.split(".") for key in weights if key.startswith("head.")]
+    if any(len(parts) != 3 or not (parts[1].isascii() and parts[1].isdigit()) for parts in heads):
+        raise UsageError(f"{path}: estimator output weights not named 'output.<number>.<name>'")
     linear = sorted(
-        int(key.split(".")[1])
-        for key, value in weights.items()
-        if key.startswith("head.") and key.endswith(".weight") and value.dim() == 2
+        int(index)
+        for _, index, name in heads
+        if name == "weight" and weights[f"head.{index}.weight"].dim() == 2
     )
+    if not linear:
+        raise UsageError(f"{path}: the estimator has no linear output layer")
     sizes = [weights[f"head.{index}.weight"].shape[0] for index in linear]
     config = LengthModelConfig(
-        text=_text_config(weights, "text_encoder."),
+        text=_text_config(weights, "text_encoder.", path),
         mlp_sizes=tuple(sizes[:-1]),
         num_classes=sizes[-1],
     )
-    model = LengthEstimator(weights["text_encoder.pos_embedding.weight"].shape[0], config)
+    model = LengthEstimator(
+        weight_size(weights, "text_encoder.pos_embedding.weight", 0, 2, path), config
+    )
     _load(model, weights, path)
     return model.eval()
 
@@ -240,16 +324,16 @@ def build_length(path: Path, weights: Weights) -> LengthEstimator:
 def build_evaluator(path: Path, weights: Weights) -> Evaluator:
     """Our Evaluator holding the release evaluator's weights (ours, renamed)."""
     movement = AutoencoderConfig(
-        hidden_size=weights["movement_encoder.net.0.weight"].shape[0],
-        code_size=weights["movement_encoder.out.weight"].shape[0],
+        hidden_size=weight_size(weights, "movement_encoder.net.0.weight", 0, 3, path),
+        code_size=weight_size(weights, "movement_encoder.out.weight", 0, 2, path),
     )
     config = EvaluatorConfig(
-        text=_text_config(weights, "text.encoder."),
-        motion_hidden_size=weights["motion.input_projection.weight"].shape[0],
-        embedding_size=weights["motion.head.3.weight"].shape[0],
+        text=_text_config(weights, "text.encoder.", path),
+        motion_hidden_size=weight_size(weights, "motion.input_projection.weight", 0, 2, path),
+        embedding_size=weight_size(weights, "motion.head.3.weight", 0, 2, path),
     )
-    feature_dim = weights["movement_encoder.net.0.weight"].shape[1] + CONTACT_DIMS
-    word_dim = weights["text.encoder.pos_embedding.weight"].shape[0]
+    feature_dim = weight_size(weights, "movement_encoder.net.0.weight", 1, 3, path) + CONTACT_DIMS
+    word_dim = weight_size(weights, "text.encoder.pos_embedding.weight", 0, 2, path)
     model = Evaluator(word_dim, feature_dim, movement, config)
     _load(model, weights, path)
     return model.eval()

@@ -2,31 +2,47 @@
 (:mod:`t2m.release`). Each bad input ends in exit status 2 (or a UsageError) with one line naming
 the option or file, before anything is written; nothing the user made is lost.
 
-Export: 5 cases (an existing output file, frame rates, joints beyond a physical bound, bones of
-no length, no traceback in a real process).
+Export (issue 31, cases 7 and 8): 6 tests, 19 cases: an existing output file (refused without
+``--overwrite``), frame rates outside 1..1000 fps (10) and the range in ``--help``, joints beyond
+1e4 m (4), bones of no length (2), no traceback in a real process.
+
+Release loading (issue 31, case 6): 9 tests, 34 cases, each a crafted copy of the reference
+release (``../shared/reference/t2m-original``; skipped without it): a vocabulary index of other
+than whole numbers (3) or without ``unk`` (1); generator weights of 0-d, wrong shape, missing,
+non-float or non-finite, or not tensors at all (15); the length estimator's (3) and the
+evaluator's (3); ``opt.txt``'s unit_length (3), ``opt.txt`` not UTF-8 or a folder (1); ``meta/``
+statistics of wrong shape or zero std (4); one line from ``t2m.sample`` in a real process (1).
 """
 
 from __future__ import annotations
 
 import os
+import pickle
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from dataset_tools.bvh import read_bvh, write_bvh
+from dataset_tools.command import UsageError
 from dataset_tools.gltf import write_glb
 from dataset_tools.skeleton import SMPL
 from t2m import export
+from t2m.release import load_release, load_release_evaluator
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def one_line(err: str, *needles: str) -> None:
-    """``err`` is exactly one ``error: ...`` line holding every needle."""
+    """``err`` is exactly one ``error: ...`` line holding every needle (after any progress bar
+    that cleared itself with a carriage return)."""
     assert err.count("\n") == 1 and err.endswith("\n"), err
+    err = err.rsplit("\r", 1)[-1]
     assert err.startswith("error: ") and "Traceback" not in err, err
     assert all(needle in err for needle in needles), err
 
@@ -134,3 +150,226 @@ def test_export_refusals_have_no_traceback_in_a_real_process(tmp_path):
     assert done.returncode == 2
     one_line(done.stderr, str(source))
     assert not out.exists()
+
+
+# ------------------------------------------------------------------------------------ release
+
+REFERENCE = ROOT.parent / "shared" / "reference" / "t2m-original"
+needs_reference = pytest.mark.skipif(not REFERENCE.is_dir(), reason="reference release absent")
+GENERATOR = Path("checkpoints/t2m/Comp_v6_KLD01")
+LENGTH_TAR = Path("checkpoints/t2m/length_est_bigru/model/latest.tar")
+EVALUATOR_TAR = Path("checkpoints/t2m/text_mot_match/model/finest.tar")
+
+
+@pytest.fixture
+def release_copy(tmp_path) -> Path:
+    """A copy of the reference release (random weights at small sizes) to spoil."""
+    copy = tmp_path / "release"
+    shutil.copytree(REFERENCE, copy, ignore=shutil.ignore_patterns("expected.npz"))
+    return copy
+
+
+def refused(load, folder: Path, spoiled: Path, *needles: str) -> None:
+    """``load(folder)`` raises a UsageError of one line naming ``spoiled`` and every needle;
+    the spoiled file is left as it was."""
+    before = spoiled.read_bytes() if spoiled.is_file() else None
+    with pytest.raises(UsageError) as error:
+        load(folder)
+    message = str(error.value)
+    assert "\n" not in message and str(spoiled) in message, message
+    assert all(needle in message for needle in needles), message
+    assert (spoiled.read_bytes() if spoiled.is_file() else None) == before
+
+
+def spoil_checkpoint(path: Path, change) -> None:
+    checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    change(checkpoint)
+    torch.save(checkpoint, path)
+
+
+def spoil_pickle(path: Path, change) -> None:
+    path.write_bytes(pickle.dumps(change(pickle.loads(path.read_bytes()))))
+
+
+def _mixed_rows(rows: dict) -> dict:
+    return {word: str(row) if row % 2 else row for word, row in rows.items()}
+
+
+def _without_unk(words: list) -> list:
+    return ["zzz-not-unk" if word == "unk" else word for word in words]
+
+
+@needs_reference
+@pytest.mark.parametrize(
+    ("name", "change", "needle"),
+    [
+        ("our_vab_idx.pkl", _mixed_rows, "not a whole number"),  # was TypeError
+        ("our_vab_idx.pkl", lambda rows: {w: float(r) for w, r in rows.items()}, "whole number"),
+        ("our_vab_idx.pkl", lambda rows: {w: r == 1 for w, r in rows.items()}, "whole number"),
+    ],
+)
+def test_release_vocabulary_index_of_other_than_whole_numbers(release_copy, name, change, needle):
+    spoiled = release_copy / "glove" / name
+    spoil_pickle(spoiled, change)
+    refused(load_release, release_copy, spoiled, needle)
+
+
+@needs_reference
+def test_release_vocabulary_without_unk(release_copy):
+    # a ValueError traceback from WordVectors
+    spoiled = release_copy / "glove" / "our_vab_words.pkl"
+    index = release_copy / "glove" / "our_vab_idx.pkl"
+    spoil_pickle(spoiled, _without_unk)
+    spoil_pickle(
+        index, lambda rows: {("zzz-not-unk" if w == "unk" else w): r for w, r in rows.items()}
+    )
+    refused(load_release, release_copy, spoiled, "'unk'")
+
+
+def _set(entry: str, key: str, value):
+    return lambda checkpoint: checkpoint[entry].__setitem__(key, value)
+
+
+def _as(entry: str, key: str, convert):
+    return lambda checkpoint: checkpoint[entry].__setitem__(key, convert(checkpoint[entry][key]))
+
+
+@needs_reference
+@pytest.mark.parametrize(
+    ("change", "needles"),
+    [
+        # 0-d tensors where a size is read (IndexError before)
+        (_set("text_enc", "pos_emb.weight", torch.tensor(1.0)), ("shape ()",)),
+        (_set("seq_pri", "emb.0.weight", torch.tensor(1.0)), ("prior.input.weight",)),
+        (_set("mov_dec", "main.0.weight", torch.tensor(1.0)), ("expected 3",)),
+        (_set("mov_enc", "out_net.weight", torch.tensor(1.0)), ("expected 2",)),
+        (_set("seq_pri", "positional_encoder.pe", torch.tensor(1.0)), ("time encoding",)),
+        # wrong shapes (IndexError, or a table of 0 steps loaded)
+        (_as("mov_dec", "main.0.weight", torch.flatten), ("shape (",)),
+        (_as("seq_dec", "positional_encoder.pe", lambda t: t[:0]), ("(0, ",)),
+        # a weight missing where a size is read (KeyError before)
+        (lambda c: c["text_enc"].pop("input_emb.weight"), ("no weight",)),
+        (lambda c: c["mov_dec"].pop("main.0.weight"), ("no weight 'net.0.weight'",)),
+        # wrong dtypes, silently converted before
+        (_as("text_enc", "pos_emb.weight", lambda t: t.long()), ("int64",)),
+        (_as("text_enc", "pos_emb.weight", lambda t: t > 0), ("bool",)),
+        (_as("text_enc", "pos_emb.weight", lambda t: t.to(torch.complex64)), ("complex64",)),
+        (_as("text_enc", "pos_emb.weight", lambda t: t * float("nan")), ("NaN",)),
+        # not weights at all (AttributeError before)
+        (_set("text_enc", "pos_emb.weight", 3), ("not a weight tensor",)),
+        (lambda c: c.__setitem__("text_enc", [1, 2]), ("not a dict of weights",)),
+    ],
+)
+def test_release_generator_weights_of_wrong_shape_or_dtype(release_copy, change, needles):
+    spoiled = release_copy / GENERATOR / "model" / "latest.tar"
+    spoil_checkpoint(spoiled, change)
+    refused(load_release, release_copy, spoiled, *needles)
+
+
+def _rename_output_layer(checkpoint) -> None:
+    estimator = checkpoint["estimator"]
+    estimator["output.x.weight"] = estimator.pop("output.0.weight")
+
+
+def _drop_output_layers(checkpoint) -> None:
+    for key in [k for k in checkpoint["estimator"] if k.startswith("output.")]:
+        del checkpoint["estimator"][key]
+
+
+@needs_reference
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [
+        (_rename_output_layer, "output.<number>"),  # ValueError from int('x') before
+        (_drop_output_layers, "no linear output layer"),  # IndexError before
+        (_set("estimator", "pos_emb.weight", torch.tensor(1.0)), "shape ()"),
+    ],
+)
+def test_release_length_estimator_crafted(release_copy, change, needle):
+    spoiled = release_copy / LENGTH_TAR
+    spoil_checkpoint(spoiled, change)
+    refused(load_release, release_copy, spoiled, needle)
+
+
+@needs_reference
+@pytest.mark.parametrize(
+    ("change", "needle"),
+    [
+        (_set("motion_encoder", "input_emb.weight", torch.tensor(1.0)), "shape ()"),
+        (lambda c: c["motion_encoder"].pop("output_net.3.weight"), "no weight"),
+        (_set("movement_encoder", "main.0.weight", torch.zeros(5)), "shape (5,)"),
+    ],
+)
+def test_release_evaluator_crafted(release_copy, change, needle):
+    spoiled = release_copy / EVALUATOR_TAR
+    spoil_checkpoint(spoiled, change)
+    refused(load_release_evaluator, release_copy, spoiled, needle)
+
+
+@needs_reference
+@pytest.mark.parametrize(
+    ("unit", "needle"),
+    [("²", "not a number"), ("٣", "not a number"), ("3", "snippets of 4 frames")],
+)
+def test_release_opt_unit_length(release_copy, unit, needle):
+    # int('²') raised ValueError; '3' the autoencoder's ValueError, both with a traceback
+    spoiled = release_copy / GENERATOR / "opt.txt"
+    text = spoiled.read_text(encoding="utf-8")
+    spoiled.write_text(re.sub(r"unit_length: .*", f"unit_length: {unit}", text), encoding="utf-8")
+    refused(load_release, release_copy, spoiled, needle)
+
+
+@needs_reference
+def test_release_opt_not_text_or_a_folder(release_copy):
+    spoiled = release_copy / GENERATOR / "opt.txt"
+    spoiled.write_bytes(b"\xff\xfe not UTF-8")  # UnicodeDecodeError before
+    refused(load_release, release_copy, spoiled, "UTF-8")
+    spoiled.unlink()
+    spoiled.mkdir()  # read as no options before
+    refused(load_release, release_copy, spoiled, "is a folder")
+
+
+@needs_reference
+@pytest.mark.parametrize(
+    ("name", "array", "needle"),
+    [
+        ("mean.npy", np.zeros((2, 263), np.float32), "(2, 263)"),
+        ("std.npy", np.array(1.0, np.float32), "std ()"),
+        ("std.npy", np.zeros(263, np.float32), "std is zero"),
+        ("mean.npy", np.zeros(200, np.float32), "(200,)"),
+    ],
+)
+def test_release_meta_statistics(release_copy, name, array, needle):
+    # Normalizer's ValueError, with a traceback, before
+    meta = release_copy / GENERATOR / "meta"
+    np.save(meta / name, array)
+    refused(load_release, release_copy, meta, needle)
+
+
+@needs_reference
+def test_release_refusal_is_one_line_from_the_command(release_copy):
+    spoiled = release_copy / "glove" / "our_vab_idx.pkl"
+    spoil_pickle(spoiled, _mixed_rows)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "t2m.sample",
+            "--checkpoints",
+            str(release_copy),
+            "--text",
+            "a person walks",
+            "--render",
+            "none",
+            "--out",
+            str(release_copy.parent / "out"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr
+    one_line(done.stderr, str(spoiled))
+    assert not (release_copy.parent / "out").exists()
