@@ -123,7 +123,8 @@ def read_release_checkpoint(path: Path, entries: tuple[str, ...]) -> dict[str, W
 
 def check_weights(state: object, entry: str, path: Path) -> None:
     """UsageError (one line naming ``path``) unless ``state`` is a state dict: names to finite
-    floating-point tensors (no integers, booleans, complex numbers, NaN or inf)."""
+    floating-point tensors (no integers, booleans, complex numbers, NaN or inf) holding every
+    value they claim."""
     if not isinstance(state, dict):
         raise UsageError(f"{path}: {entry} is a {type(state).__name__}, not a dict of weights")
     for key, value in state.items():
@@ -134,6 +135,13 @@ def check_weights(state: object, entry: str, path: Path) -> None:
             raise UsageError(f"{where} is a {type(value).__name__}, not a weight tensor")
         if value.layout != torch.strided or not value.is_floating_point():
             raise UsageError(f"{where} holds {value.dtype} ({value.layout}), not float weights")
+        if value.numel() * value.element_size() > value.untyped_storage().nbytes():
+            # a view with zero strides: a huge shape over a few stored numbers, which would
+            # size a model beyond any memory
+            raise UsageError(
+                f"{where} has shape {tuple(value.shape)} but stores "
+                f"{value.untyped_storage().nbytes() // value.element_size()} values"
+            )
         if not torch.isfinite(value).all():
             raise UsageError(f"{where} holds NaN or infinite values")
 
@@ -183,7 +191,7 @@ def check_glove_index(folder: Path) -> None:
             if type(row) is not int:
                 raise UsageError(f"{index_file}: row {row!r} of {word!r} is not a whole number")
     words = read_plain_pickle(words_file)
-    if isinstance(words, list):
+    if isinstance(words, list) and all(isinstance(word, str) for word in words):
         for required in ("sos", "eos", "unk"):
             if required not in words:
                 raise UsageError(f"{words_file}: no {required!r} entry (every caption needs it)")

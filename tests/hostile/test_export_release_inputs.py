@@ -6,12 +6,13 @@ Export (issue 31, cases 7 and 8): 6 tests, 19 cases: an existing output file (re
 ``--overwrite``), frame rates outside 1..1000 fps (10) and the range in ``--help``, joints beyond
 1e4 m (4), bones of no length (2), no traceback in a real process.
 
-Release loading (issue 31, case 6): 9 tests, 34 cases, each a crafted copy of the reference
+Release loading (issue 31, case 6): 9 tests, 35 cases, each a crafted copy of the reference
 release (``../shared/reference/t2m-original``; skipped without it): a vocabulary index of other
 than whole numbers (3) or without ``unk`` (1); generator weights of 0-d, wrong shape, missing,
-non-float or non-finite, or not tensors at all (15); the length estimator's (3) and the
-evaluator's (3); ``opt.txt``'s unit_length (3), ``opt.txt`` not UTF-8 or a folder (1); ``meta/``
-statistics of wrong shape or zero std (4); one line from ``t2m.sample`` in a real process (1).
+non-float or non-finite, claiming more values than stored, or not tensors at all (16); the length
+estimator's (3) and the evaluator's (3); ``opt.txt``'s unit_length (3), ``opt.txt`` not UTF-8 or
+a folder (1); ``meta/`` statistics of wrong shape or zero std (4); one line from ``t2m.sample``
+in a real process (1).
 """
 
 from __future__ import annotations
@@ -255,6 +256,8 @@ def _as(entry: str, key: str, convert):
         (_as("text_enc", "pos_emb.weight", lambda t: t > 0), ("bool",)),
         (_as("text_enc", "pos_emb.weight", lambda t: t.to(torch.complex64)), ("complex64",)),
         (_as("text_enc", "pos_emb.weight", lambda t: t * float("nan")), ("NaN",)),
+        # a zero-stride view claiming 3e8 values over one stored number (a model sized by it)
+        (_set("text_enc", "input_emb.weight", torch.zeros(1).expand(10**6, 300)), ("stores 1",)),
         # not weights at all (AttributeError before)
         (_set("text_enc", "pos_emb.weight", 3), ("not a weight tensor",)),
         (lambda c: c.__setitem__("text_enc", [1, 2]), ("not a dict of weights",)),
