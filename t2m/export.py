@@ -76,8 +76,10 @@ def check_motion(joints: np.ndarray, path: Path) -> None:
     """Raise UsageError (one line naming ``path``) unless joints (T, 22, 3) are finite, within
     :data:`MAX_COORDINATE` metres of the origin and every bone is at least
     :data:`MIN_BONE_LENGTH` long in every frame."""
-    farthest = float(np.abs(joints).max()) if np.isfinite(joints).all() else np.inf
-    if not farthest <= MAX_COORDINATE:
+    if not np.isfinite(joints).all():  # features whose recovery overflowed
+        raise UsageError(f"{path}: its joints are not finite (NaN or infinite values)")
+    farthest = float(np.abs(joints).max())
+    if farthest > MAX_COORDINATE:
         raise UsageError(
             f"{path}: joints {farthest:.3g} m from the origin; export takes joints in metres "
             f"within {MAX_COORDINATE:g} m"
@@ -105,7 +107,9 @@ def main(argv: list[str] | None = None) -> int:
         "skeleton.",
     )
     config = parse_config(parser, ExportCommandConfig, argv)
-    joints = read_joints(config.input)
+    # features that overflow when recovered are refused by check_motion, in one line
+    with np.errstate(over="ignore", invalid="ignore"):
+        joints = read_joints(config.input)
     if joints.shape[1] != SMPL.num_joints:
         raise UsageError(
             f"{config.input}: export needs the {SMPL.num_joints}-joint SMPL skeleton, "

@@ -2,9 +2,10 @@
 (:mod:`t2m.release`). Each bad input ends in exit status 2 (or a UsageError) with one line naming
 the option or file, before anything is written; nothing the user made is lost.
 
-Export (issue 31, cases 7 and 8): 6 tests, 19 cases: an existing output file (refused without
+Export (issue 31, cases 7 and 8): 7 tests, 20 cases: an existing output file (refused without
 ``--overwrite``), frame rates outside 1..1000 fps (10) and the range in ``--help``, joints beyond
-1e4 m (4), bones of no length (2), no traceback in a real process.
+1e4 m (4), bones of no length (2), features whose joints overflow, no traceback in a real
+process.
 
 Release loading (issue 31, case 6): 9 tests, 35 cases, each a crafted copy of the reference
 release (``../shared/reference/t2m-original``; skipped without it): a vocabulary index of other
@@ -137,17 +138,32 @@ def test_export_refuses_bones_of_no_length(tmp_path, capsys, case):
     assert sorted(os.listdir(tmp_path)) == ["in.npy"]
 
 
-def test_export_refusals_have_no_traceback_in_a_real_process(tmp_path):
-    source = saved(tmp_path, walk() * 1e300)
-    out = tmp_path / "out.bvh"
-    done = subprocess.run(
-        [sys.executable, "-m", "t2m.export", str(source), str(out)],
+def run_export(*argv: str) -> subprocess.CompletedProcess:
+    """``python -m t2m.export`` in a real process (warnings print to its stderr)."""
+    return subprocess.run(
+        [sys.executable, "-m", "t2m.export", *argv],
         capture_output=True,
         text=True,
         cwd=ROOT,
         env={**os.environ, "PYTHONPATH": str(ROOT)},
         timeout=120,
     )
+
+
+def test_export_refuses_features_whose_joints_overflow(tmp_path):
+    # features of 1e308 recover to infinite joints: four numpy warnings and "joints inf m from
+    # the origin" before; one line now
+    source = saved(tmp_path, np.full((10, 263), 1e308))
+    done = run_export(str(source), str(tmp_path / "out.bvh"))
+    assert done.returncode == 2
+    one_line(done.stderr, str(source), "not finite")
+    assert sorted(os.listdir(tmp_path)) == ["in.npy"]
+
+
+def test_export_refusals_have_no_traceback_in_a_real_process(tmp_path):
+    source = saved(tmp_path, walk() * 1e300)
+    out = tmp_path / "out.bvh"
+    done = run_export(str(source), str(out))
     assert done.returncode == 2
     one_line(done.stderr, str(source))
     assert not out.exists()
