@@ -151,8 +151,8 @@ def run_export(*argv: str) -> subprocess.CompletedProcess:
 
 
 def test_export_refuses_features_whose_joints_overflow(tmp_path):
-    # features of 1e308 recover to infinite joints: four numpy warnings and "joints inf m from
-    # the origin" before; one line now
+    # features of 1e308 recover to infinite joints: numpy's overflow warnings and a ValueError
+    # traceback (exit 1) before; one line now
     source = saved(tmp_path, np.full((10, 263), 1e308))
     done = run_export(str(source), str(tmp_path / "out.bvh"))
     assert done.returncode == 2
