@@ -61,6 +61,12 @@ class Busy(RuntimeError):
     """The queue is full or the wait too long (HTTP 503)."""
 
 
+RESULTS_FULL = (
+    "the server's space for results is full of motions not yet sent; try again in a moment"
+)
+"""Busy's sentence when requests whose answers are not sent yet fill the results' disk cap."""
+
+
 @dataclass(frozen=True)
 class CheckedGeneration:
     """A generate request checked against the web's limits and the model: the request, its

@@ -284,7 +284,7 @@ def edit(app, payload: object) -> dict:
     if not edit_available():
         raise UsageError(UNAVAILABLE)
     from t2m.edit import edit_batch
-    from t2m.serve.api import Busy, prompt_json
+    from t2m.serve.api import RESULTS_FULL, Busy, prompt_json
     from t2m.serve.worker import ModelCall
 
     request, source_name, samples, seed, precision = parse_edit(app, payload, app.store.root)
@@ -296,6 +296,8 @@ def edit(app, payload: object) -> dict:
         motions = edit_batch(pipe, [request], num_samples=samples, seed=seed)[0]
         return motions, prepared
 
+    if app.store.full():
+        raise Busy(RESULTS_FULL)
     call = ModelCall(work, precision)
     try:
         app.worker.submit(call)
@@ -309,7 +311,7 @@ def edit(app, payload: object) -> dict:
         raise call.error
     motions, prepared = call.result
     extra = {"precision": precision, "mode": mode, "source": source_name}
-    stored = app.store.add([list(motions)], seed, extra)
+    stored = app.store.add([list(motions)], seed, extra, held=True)
     stored.prompts = [prompt_json(item, None) for item in prepared] or [
         {
             "text": motions[0].text,
@@ -318,6 +320,10 @@ def edit(app, payload: object) -> dict:
             "dropped_words": [],
         }
     ]
-    answer = app.answer(stored.id)
+    try:
+        answer = app.answer(stored.id)
+    except BaseException:
+        app.store.release(stored.id)
+        raise
     answer["edit"] = {"mode": mode, "source": source_name}
     return answer

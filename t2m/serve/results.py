@@ -11,7 +11,10 @@ or when the folder grows past a set size.
   motions are made; BVH, glTF and the mp4 / gif animation on the first download (they take
   longer: BVH and glTF ~0.1 s, a video seconds), once, under the request's lock.
 * Cleanup: requests older than ``keep_seconds`` are removed, then the oldest ones until the
-  files take at most ``max_bytes`` (never the newest request).
+  files take at most ``max_bytes`` (never the newest request, and never one still *held*: added
+  with ``held=True`` by the server, whose answer has not been sent yet; :meth:`release` ends
+  the hold). The server asks :meth:`ResultStore.full` before any work and refuses a request
+  while held requests alone fill ``max_bytes``, rather than removing fresh results after.
 """
 
 from __future__ import annotations
@@ -61,6 +64,7 @@ class StoredResult:
     prompts: list[dict] = field(default_factory=list)  # what the model made of each prompt
     created: float = field(default_factory=time.time)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    held: bool = False  # made for a request whose answer is not sent yet: never cleaned for size
 
     def size(self) -> int:
         return sum(p.stat().st_size for p in self.folder.iterdir() if p.is_file())
@@ -99,18 +103,35 @@ class ResultStore:
         self._expired: set[str] = set()
         self._lock = threading.Lock()
 
-    def add(self, motions: list[list[GeneratedMotion]], seed: int, extra: dict) -> StoredResult:
-        """Write the request's joints and summaries into a new folder; returns its record."""
+    def add(
+        self, motions: list[list[GeneratedMotion]], seed: int, extra: dict, held: bool = False
+    ) -> StoredResult:
+        """Write the request's joints and summaries into a new folder; returns its record.
+        ``held``: the size clean-up leaves it until :meth:`release` (its answer is not sent)."""
         request_id = secrets.token_urlsafe(16)
         folder = self.root / request_id
         folder.mkdir()
         files = [write_motion_file(m, folder, "npy", self.fps) for row in motions for m in row]
         summary = write_summaries(motions, folder, seed, self.fps, files, extra)
-        result = StoredResult(request_id, folder, motions, summary)
+        result = StoredResult(request_id, folder, motions, summary, held=held)
         with self._lock:
             self._results[request_id] = result
         self.clean()
         return result
+
+    def release(self, request_id: str) -> None:
+        """End the hold of :meth:`add` (the request's answer was sent, or could not be)."""
+        with self._lock:
+            result = self._results.get(request_id)
+            if result is not None:
+                result.held = False
+
+    def full(self) -> bool:
+        """Whether requests still held fill ``max_bytes`` by themselves: the clean-up could make
+        no room, so new work is refused until their answers go out."""
+        with self._lock:
+            held = [r for r in self._results.values() if r.held]
+        return sum(r.size() for r in held) >= self.max_bytes
 
     def get(self, request_id: str) -> StoredResult:
         """The live request ``request_id``; KeyError when unknown, Expired when removed."""
@@ -157,7 +178,7 @@ class ResultStore:
 
     def clean(self) -> list[str]:
         """Remove requests past their time, then the oldest while the files take more than
-        ``max_bytes`` (the newest request stays); returns the removed ids."""
+        ``max_bytes`` (the newest request and held ones stay); returns the removed ids."""
         now = time.time()
         removed = []
         with self._lock:
@@ -166,7 +187,7 @@ class ResultStore:
             total = sum(sizes.values())
             for result in ordered:
                 too_old = now - result.created > self.keep_seconds
-                too_big = total > self.max_bytes and result is not ordered[-1]
+                too_big = total > self.max_bytes and not (result.held or result is ordered[-1])
                 if not (too_old or too_big):
                     continue
                 total -= sizes[result.id]

@@ -151,6 +151,8 @@ class App:
             self.limits,
             self.pipe.device.type,
         )
+        if self.store.full():
+            raise api.Busy(api.RESULTS_FULL)
         job = GenerationJob(
             texts=[p.text for p in checked.prompts],
             frames=[p.frames for p in checked.prompts],
@@ -173,11 +175,15 @@ class App:
         motions, prepared = job.result
         generated = time.perf_counter()
         extra = {"precision": checked.precision, "checkpoints": Path(self.checkpoints).name}
-        stored = self.store.add(motions, checked.request.seed, extra)
+        stored = self.store.add(motions, checked.request.seed, extra, held=True)
         stored.prompts = [
             api.prompt_json(item, prompt.frames) for item, prompt in zip(prepared, checked.prompts)
         ]
-        answer = self.answer(stored.id)
+        try:
+            answer = self.answer(stored.id)
+        except BaseException:
+            self.store.release(stored.id)
+            raise
         answer["timing"] = {
             "queued_and_generated_s": round(generated - started, 4),
             "total_s": round(time.perf_counter() - started, 4),
@@ -321,11 +327,19 @@ class Handler(BaseHTTPRequestHandler):
         self._json(HTTPStatus.OK, self.app.info())
 
     def post_generate(self) -> None:
-        self._json(HTTPStatus.OK, self.app.generate(self._read_json()))
+        self._answer_held(self.app.generate(self._read_json()))
 
     def post_edit(self) -> None:
         payload = self._read_json(self.app.limits.max_edit_body_bytes)
-        self._json(HTTPStatus.OK, edit(self.app, payload))
+        self._answer_held(edit(self.app, payload))
+
+    def _answer_held(self, answer: dict) -> None:
+        """Send the answer of a request whose files are held in the store, then release them
+        to the clean-up (sent or not: a client that left does not hold the disk)."""
+        try:
+            self._json(HTTPStatus.OK, answer)
+        finally:
+            self.app.store.release(answer["id"])
 
     def get_result(self, request_id: str) -> None:
         self._json(HTTPStatus.OK, self.app.answer(request_id))

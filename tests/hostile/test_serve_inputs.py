@@ -10,7 +10,10 @@ Cases per area:
   method, a malformed request line;
 * a request with two Host headers is refused (1 case);
 * sizes a tiny request implies are bounded before work (1 case): a 7 KB BVH whose frame time
-  makes it hours long at the model's frame rate.
+  makes it hours long at the model's frame rate;
+* a fresh result is never answered 410 (3 cases): concurrent requests at the disk cap all get
+  their motions, the clean-up leaves results whose answers are not sent, and a server full of
+  those refuses new work with a 503 instead.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import base64
 import json
 import socket
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -27,6 +31,7 @@ from test_serve import call
 from dataset_tools.bvh import write_bvh
 from t2m.pipeline import TextToMotion
 from t2m.serve import api
+from t2m.serve.results import ResultStore
 from t2m.serve.server import SECURITY_HEADERS, make_server
 
 
@@ -149,3 +154,53 @@ def test_a_bvh_hours_long_at_the_model_rate_is_refused_before_work(server, tmp_p
     assert status == 400, answer
     limit = api.Limits().max_source_frames
     assert "slow.bvh" in answer["error"] and f"{limit}" in answer["error"]
+
+
+# -- a fresh result is never answered 410 -------------------------------------------------------
+
+
+def test_concurrent_requests_at_the_disk_cap_all_get_their_motions(pipe, tiny_run, tmp_path):
+    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path, max_bytes=1)
+    server.start_in_thread()
+    try:
+        body = {"prompts": ["a person walks forward#40"], "seed": 3}
+        with ThreadPoolExecutor(12) as pool:
+            answers = list(
+                pool.map(lambda _: call(server, "POST", "/api/generate", body), range(12))
+            )
+        statuses = [status for status, _, _ in answers]
+        assert statuses == [200] * 12, [a for s, a, _ in answers if s != 200][:2]
+        assert all(len(answer["motions"]) == 1 for _, answer, _ in answers)
+    finally:
+        server.shutdown_app()
+
+
+def test_the_clean_up_leaves_results_whose_answers_are_not_sent(pipe, tmp_path):
+    motions = pipe.generate("a person walks", 1, 40, seed=0)
+    store = ResultStore(tmp_path / "work", 20.0, keep_seconds=60, max_bytes=1)
+    first = store.add(motions, 0, {}, held=True)
+    second = store.add(motions, 0, {}, held=True)
+    assert store.clean() == [] and first.folder.exists() and store.full()
+    store.release(first.id)  # its answer went out: the size clean-up may take it now
+    assert store.clean() == [first.id] and second.folder.exists() and store.full()
+    store.release(second.id)
+    assert not store.full() and store.clean() == [] and second.folder.exists()  # the newest
+    store.close()
+
+
+def test_a_server_full_of_unsent_results_refuses_work_with_a_503(pipe, tiny_run, tmp_path):
+    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path, max_bytes=1)
+    server.start_in_thread()
+    try:
+        held = server.app.store.add(pipe.generate("a person walks", 1, 40, seed=0), 0, {}, True)
+        body = {"prompts": ["a person walks forward#40"]}
+        status, answer, _ = call(server, "POST", "/api/generate", body)
+        assert status == 503 and answer["error"] == api.RESULTS_FULL
+        edit = {"mode": "compose", "timeline": ["a person walks#2"]}
+        status, answer, _ = call(server, "POST", "/api/edit", edit)
+        assert status == 503 and answer["error"] == api.RESULTS_FULL
+        assert call(server, "GET", f"/api/results/{held.id}")[0] == 200  # nothing was removed
+        server.app.store.release(held.id)
+        assert call(server, "POST", "/api/generate", body)[0] == 200
+    finally:
+        server.shutdown_app()
