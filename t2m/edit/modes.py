@@ -126,9 +126,10 @@ def check_reachable(times: np.ndarray, points: np.ndarray, what: str) -> None:
     than :data:`MAX_ROOT_SPEED`."""
     if len(times) < 2:
         return
-    gaps = np.diff(times)
-    distances = np.linalg.norm(np.diff(points, axis=0), axis=-1)
-    speeds = distances / np.maximum(gaps, 1e-9)
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e308 metres: an infinite speed
+        gaps = np.diff(times)
+        distances = np.linalg.norm(np.diff(points, axis=0), axis=-1)
+        speeds = np.nan_to_num(distances / np.maximum(gaps, 1e-9), nan=np.inf, posinf=np.inf)
     worst = int(np.argmax(speeds))
     if speeds[worst] > MAX_ROOT_SPEED:
         raise UsageError(

@@ -5,7 +5,7 @@ nothing. Built on the tiny run of ``tests/conftest.py``.
 Cases per area (issue 31, second round):
 
 * tracebacks (overflowing times, JSON nested too deep or with 400-digit numbers, batch values
-  out of range): 11 cases;
+  out of range, coordinates whose distances overflow): 13 cases;
 * memory exhaustion (a source resampled without bound, a million candidates, a search larger
   than memory, a path of too many rows): 4 cases;
 * silent fixes and needless refusals (``--source-fps 0`` taken as 20 fps, a byte-order mark kept
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +90,22 @@ def test_hostile_path_files_are_refused(tiny_run, tmp_path, capsys, name, conten
     argv = ["--mode", "path", "--text", "a person walks", "--path", str(tmp_path / name),
             "--checkpoints", str(tiny_run)]  # fmt: skip
     refused(capsys, argv, tmp_path / "out", "--path" if name != "late.csv" else "path", needle)
+
+
+@pytest.mark.parametrize("mode", ["path", "keys"])
+def test_huge_coordinates_are_one_line_without_warnings(tiny_run, tmp_path, capsys, mode):
+    if mode == "path":
+        np.savetxt(tmp_path / "far.csv", [[1.0, 1e308, 0.0], [2.0, -1e308, 0.0]], delimiter=",")
+        given = ["--path", str(tmp_path / "far.csv")]
+    else:
+        keys = np.full((20, 22, 3), np.nan)
+        keys[5, 0] = [1e308, 0.0, 1e308]
+        np.save(tmp_path / "far.npy", keys)
+        given = ["--keys", str(tmp_path / "far.npy")]
+    argv = ["--mode", mode, "--text", "a person walks", *given, "--checkpoints", str(tiny_run)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflow warning would be a second stderr line
+        refused(capsys, argv, tmp_path / "out", "inf m/s", "cannot get there in time")
 
 
 @pytest.mark.parametrize(
