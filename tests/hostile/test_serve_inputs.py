@@ -4,8 +4,9 @@ the security headers, a request accepted that should not be, or memory without b
 
 Cases per area:
 
-* no input gives a 500 (4 cases): a path time of 1e308, a 400-digit integer in a path, JSON
-  nested 100,000 levels deep, a Content-Length of non-ASCII digits;
+* no input gives a 500 (6 cases): a path time of 1e308, a 400-digit integer in a path, JSON
+  nested 100,000 levels deep, a Content-Length of non-ASCII digits or of 5,000 digits, a Host
+  header no URL has ("[::1");
 * every answer carries the security headers (5 cases): OPTIONS, PUT, DELETE, an invented
   method, a malformed request line;
 * a request with two Host headers is refused (1 case);
@@ -105,6 +106,22 @@ def test_a_content_length_of_non_ascii_digits_is_a_400(server, length):
     status, headers, body = raw_request(server, data)
     assert status == 400, body
     assert b"Content-Length" in body
+
+
+def test_a_content_length_of_5000_digits_is_a_400(server):
+    data = (
+        b"POST /api/generate HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+        b"Content-Length: " + b"1" * 5000 + b"\r\n\r\n{}"
+    )
+    status, headers, body = raw_request(server, data)
+    assert status == 400, body
+    assert b"at most" in body
+
+
+def test_a_host_header_no_url_has_is_refused(server):
+    status, headers, body = raw_request(server, b"GET /api/info HTTP/1.1\r\nHost: [::1\r\n\r\n")
+    assert status == 403, body
+    assert headers.get("x-content-type-options") == "nosniff"
 
 
 # -- every answer carries the security headers --------------------------------------------------
