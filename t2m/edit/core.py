@@ -154,7 +154,16 @@ def generate_plans(
         )
         steps = settings.steps if optimise else 0
         groups.setdefault((plan.num_frames, prefixes[index], steps), []).append(index)
-    for (frames, known, steps), members in groups.items():
+    for group, ((frames, known, steps), members) in enumerate(groups.items(), start=1):
+        logger.info(
+            "search %d/%d: %d results of %.1f s, %d candidates each, %d optimisation steps",
+            group,
+            len(groups),
+            len(members),
+            frames / pipe.spec.fps,
+            settings.candidates,
+            steps,
+        )
         found = _search(
             pipe, [plans[i] for i in members], frames, known, generator, settings, steps
         )
@@ -252,7 +261,12 @@ def _optimise(noise: torch.Tensor, decode, steps: int, settings: SearchSettings)
     eps = noise.clone()
     first = torch.zeros_like(eps)
     second = torch.zeros_like(eps)
-    for step in range(1, steps + 1):
+    from tqdm import tqdm
+
+    # a bar on a terminal only (disable=None), for searches long enough to wait for
+    for step in tqdm(
+        range(1, steps + 1), "optimising", unit="step", disable=None if steps >= 10 else True
+    ):
         eps.requires_grad_(True)
         with torch.enable_grad():
             _, error = decode(eps)

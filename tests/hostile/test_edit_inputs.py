@@ -10,8 +10,8 @@ Cases per area (issue 31, second round):
   than memory, a path of too many rows): 4 cases;
 * silent fixes and needless refusals (``--source-fps 0`` taken as 20 fps, a byte-order mark kept
   as a prompt's first character, a ``--batch`` file with one refused): 3 cases;
-* long runs (a compose timeline of too many lines or seconds, no progress while composing):
-  3 cases.
+* long runs (a compose timeline of too many lines or seconds, no progress while composing or searching):
+  4 cases.
 """
 
 from __future__ import annotations
@@ -212,6 +212,18 @@ def test_compose_logs_its_progress(tiny_run, caplog):
              settings=SearchSettings(candidates=1, steps=0))  # fmt: skip
     windows = [r.getMessage() for r in caplog.records if "compose: window" in r.getMessage()]
     assert len(windows) == 2 and windows[0].startswith("compose: window 1/2"), windows
+
+
+def test_edits_log_their_search(tiny_run, caplog):
+    from t2m.edit import SearchSettings, edit
+    from t2m.pipeline import TextToMotion
+
+    pipe = TextToMotion.from_checkpoints(tiny_run, need_length_model=False)
+    with caplog.at_level(logging.INFO, logger="t2m.edit"):
+        edit(pipe, "a person walks", "path", path=[[1.0, 0.2, 0.8]],
+             settings=SearchSettings(method="optimize", candidates=2, steps=2))  # fmt: skip
+    searches = [r.getMessage() for r in caplog.records if r.getMessage().startswith("search ")]
+    assert searches == ["search 1/1: 1 results of 1.2 s, 2 candidates each, 2 optimisation steps"]
 
 
 def test_batch_file_byte_order_mark_is_dropped(tmp_path):
