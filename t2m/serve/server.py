@@ -363,11 +363,10 @@ class Handler(BaseHTTPRequestHandler):
             raise UsageError("send the request as JSON (Content-Type: application/json)")
         body = self.rfile.read(int(length))
         try:
-            return json.loads(body.decode("utf-8"))
-        except (UnicodeDecodeError, ValueError):
-            raise UsageError("the request body is not valid JSON") from None
-        except RecursionError:  # arrays or objects nested deeper than the parser goes
-            raise UsageError("the request body is not valid JSON: nested too deep") from None
+            text = body.decode("utf-8")
+        except UnicodeDecodeError:
+            raise UsageError("the request body is not valid JSON (UTF-8)") from None
+        return api.read_json(text)
 
     def send_error(self, code: int, message: str | None = None, explain: str | None = None):
         """http.server's own errors (a malformed request line or header, an unsupported method,

@@ -4,8 +4,9 @@ the security headers, a request accepted that should not be, or memory without b
 
 Cases per area:
 
-* no input gives a 500 (6 cases): a path time of 1e308, a 400-digit integer in a path, JSON
-  nested 100,000 levels deep, a Content-Length of non-ASCII digits or of 5,000 digits, a Host
+* no input gives a 500 (7 cases): a path time of 1e308, a 400-digit integer in a path or
+  elsewhere (and 1e400, NaN, Infinity, which Python's JSON reader takes), JSON nested 100,000
+  levels deep, a Content-Length of non-ASCII digits or of 5,000 digits, a Host
   header no URL has ("[::1");
 * every answer carries the security headers (5 cases): OPTIONS, PUT, DELETE, an invented
   method, a malformed request line;
@@ -87,7 +88,15 @@ def test_a_400_digit_integer_in_a_path_is_a_400(server):
     raw = json.dumps(_path_edit([[1, 0, 0.5], [2, 12345, 1]])).replace("12345", "9" * 400)
     status, answer, _ = call(server, "POST", "/api/edit", raw=raw.encode())
     assert status == 400, answer
-    assert answer["error"].startswith("path row 2: x and z must be from")
+    assert answer["error"] == "a number in the request has 400 digits; at most 30"
+
+
+@pytest.mark.parametrize("number", ["9" * 400, "1e400", "NaN", "-Infinity"])
+def test_numbers_no_field_can_mean_are_400s(server, number):
+    raw = f'{{"prompts": ["a person walks"], "seconds": {number}}}'.encode()
+    status, answer, _ = call(server, "POST", "/api/generate", raw=raw)
+    assert status == 400, answer
+    assert "number" in answer["error"] and "\n" not in answer["error"]
 
 
 def test_json_nested_100000_levels_is_a_400(server):
