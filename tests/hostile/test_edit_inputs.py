@@ -1,17 +1,18 @@
-"""Hostile inputs to ``python -m t2m.edit`` (and the prompt file of ``t2m.sample``): each must end
-in exit status 2 with one ``error:`` line and no traceback, before any generation, and write
-nothing. Built on the tiny run of ``tests/conftest.py``.
+"""Hostile inputs to ``python -m t2m.edit`` (and the prompt file of ``t2m.sample``): a bad one must
+end in exit status 2 with one ``error:`` line and no traceback, before any generation, and write
+nothing; a good one that runs long must say how far it is. Built on the tiny run of
+``tests/conftest.py``.
 
 Cases per area (issue 31, second round):
 
 * tracebacks (overflowing times, JSON nested too deep or with 400-digit numbers, batch values
   out of range, coordinates whose distances overflow): 13 cases;
 * memory exhaustion (a source resampled without bound, a million candidates, a search larger
-  than memory, a path of too many rows): 4 cases;
+  than memory, a path of too many rows, a batch of too many edits): 5 cases;
 * silent fixes and needless refusals (``--source-fps 0`` taken as 20 fps, a byte-order mark kept
   as a prompt's first character, a ``--batch`` file with one refused): 3 cases;
-* long runs (a compose timeline of too many lines or seconds, no progress while composing or searching):
-  4 cases.
+* long runs (a compose timeline of too many lines or seconds, no progress while composing or
+  searching): 4 cases.
 """
 
 from __future__ import annotations
@@ -159,6 +160,13 @@ def test_a_path_of_too_many_rows_is_refused(tmp_path):
     np.savetxt(tmp_path / "long.csv", rows, delimiter=",")
     with pytest.raises(UsageError, match="at most 10000"):
         read_path(tmp_path / "long.csv")
+
+
+def test_a_batch_of_too_many_edits_is_refused(tiny_run, tmp_path, capsys):
+    edit = {"mode": "path", "text": "a person walks", "path": [[1.0, 0.2, 0.8]]}
+    (tmp_path / "edits.json").write_text(json.dumps([edit] * 10_001))
+    argv = ["--batch", str(tmp_path / "edits.json"), "--checkpoints", str(tiny_run)]
+    refused(capsys, argv, tmp_path / "out", "10001 edits; at most 10000", "split the file")
 
 
 # ------------------------------------------------------------------------- silent fixes
