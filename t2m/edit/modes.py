@@ -69,7 +69,12 @@ def check_seconds(seconds: float, what: str) -> float:
     except OverflowError:
         value = math.inf
     if not (math.isfinite(value) and 0 <= value <= MAX_SECONDS):
-        raise UsageError(f"{what} must be from 0 to {MAX_SECONDS:g} seconds, got {seconds:g}")
+        shown = (
+            f"{seconds:g}"
+            if math.isfinite(value) or isinstance(seconds, float)
+            else "a huge number"
+        )
+        raise UsageError(f"{what} must be from 0 to {MAX_SECONDS:g} seconds, got {shown}")
     return value
 
 

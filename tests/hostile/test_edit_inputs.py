@@ -6,7 +6,7 @@ nothing; a good one that runs long must say how far it is. Built on the tiny run
 Cases per area (issue 31, second round):
 
 * tracebacks (overflowing times, JSON nested too deep or with 400-digit numbers, batch values
-  out of range, coordinates whose distances overflow): 13 cases;
+  out of range, coordinates whose distances overflow, a 400-digit time from Python): 14 cases;
 * memory exhaustion (a source resampled without bound, a million candidates, a search larger
   than memory, a path of too many rows, a batch of too many edits): 5 cases;
 * silent fixes and needless refusals (``--source-fps 0`` taken as 20 fps, a byte-order mark kept
@@ -126,6 +126,13 @@ def test_huge_coordinates_are_one_line_without_warnings(tiny_run, tmp_path, caps
 def test_hostile_batch_files_are_refused(tmp_path, capsys, content, needle):
     (tmp_path / "edits.json").write_text(content)
     refused(capsys, ["--batch", str(tmp_path / "edits.json")], tmp_path / "out", needle)
+
+
+def test_a_huge_integer_time_from_python_is_refused():
+    from t2m.edit import EditRequest
+
+    with pytest.raises(UsageError, match="--seconds must be from 0 to 3600 seconds, got a huge"):
+        EditRequest(mode="path", text="a person walks", path=[[1.0, 0.0, 0.0]], seconds=10**400)
 
 
 # ------------------------------------------------------------------------- memory
