@@ -1,6 +1,8 @@
 """Hostile inputs to the web app's server (issue 31, second round), against a real server on a
-free port of 127.0.0.1 with the tiny checkpoints. Each case once failed: a 500, an answer without
-the security headers, a request accepted that should not be, or memory without bound.
+free port of 127.0.0.1 with the tiny checkpoints. Each case failed before its fix: a 500, an
+answer without the security headers, a request accepted that should not be, memory without
+bound, or a fresh result answered 410. Three parameters only guard what was already refused
+(a Content-Length '١٢', which http.server reads as Latin-1 non-digits; 1e400, NaN, Infinity).
 
 Cases per area:
 
