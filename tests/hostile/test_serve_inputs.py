@@ -17,7 +17,11 @@ Cases per area:
   makes it hours long at the model's frame rate;
 * a fresh result is never answered 410 (3 cases): concurrent requests at the disk cap all get
   their motions, the clean-up leaves results whose answers are not sent, and a server full of
-  those refuses new work with a 503 instead.
+  those refuses new work with a 503 instead;
+* the server stays available to others (1 case): under forty trickling connections and a
+  flood of the largest generate requests, `GET /api/info` answers within 1 s (this one held
+  before; it guards the design: one model thread, a bounded queue, a thread per connection
+  with an idle timeout).
 """
 
 from __future__ import annotations
@@ -232,3 +236,68 @@ def test_a_server_full_of_unsent_results_refuses_work_with_a_503(pipe, tiny_run,
         assert call(server, "POST", "/api/generate", body)[0] == 200
     finally:
         server.shutdown_app()
+
+
+# -- the server stays available under a hostile client ---------------------------------------
+
+
+def test_info_answers_within_a_second_while_a_client_trickles_and_floods(server, pipe, monkeypatch):
+    """Forty connections that send a request head and then trickle nothing (each holds a
+    thread until its 60 s idle timeout), and four clients that keep the model busy with the
+    largest generate requests the limits allow, each batch made to take 1.5 s (the tiny model
+    alone is too fast to be busy): `GET /api/info` still answers within 1 s each time (it
+    never waits for the model)."""
+    import threading
+    import time
+
+    generate_features = pipe.generate_features
+
+    def slow_generate_features(*args, **kwargs):
+        time.sleep(1.5)
+        return generate_features(*args, **kwargs)
+
+    monkeypatch.setattr(pipe, "generate_features", slow_generate_features)
+    host, port = server.server_address[:2]
+    head = (
+        b"POST /api/generate HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+        b"Content-Type: application/json\r\nContent-Length: 60000\r\n\r\n{"
+    )
+    trickling = []
+    for _ in range(40):
+        connection = socket.create_connection((host, port), timeout=10)
+        connection.sendall(head)
+        trickling.append(connection)
+    limits = api.Limits()
+    largest = {
+        "prompts": ["a person walks forward and then jumps"] * limits.max_prompts,
+        "samples": limits.max_motions // limits.max_prompts,
+        "seconds": 9.6,
+    }
+    stop = threading.Event()
+    statuses: list[int] = []
+
+    def flood() -> None:
+        while not stop.is_set():
+            statuses.append(call(server, "POST", "/api/generate", largest)[0])
+
+    flooders = [threading.Thread(target=flood) for _ in range(4)]
+    for thread in flooders:
+        thread.start()
+    try:
+        time.sleep(1.0)  # the model busy, the queue filling
+        waits = []
+        for _ in range(5):
+            start = time.perf_counter()
+            status, info, _ = call(server, "GET", "/api/info")
+            waits.append(time.perf_counter() - start)
+            assert status == 200 and info["limits"]["max_prompts"] == limits.max_prompts
+            time.sleep(0.2)
+        assert max(waits) < 1.0, waits
+    finally:
+        stop.set()
+        for connection in trickling:
+            connection.close()
+        for thread in flooders:
+            thread.join(timeout=300)
+    # the flood itself was served or refused as busy, never failed
+    assert statuses and set(statuses) <= {200, 503}, statuses
