@@ -1,0 +1,17 @@
+"""Hostile and careless inputs, by area (collected test cases, parameters counted):
+
+* ``test_code_execution.py`` (32): nothing runs code from data (pickle payloads in checkpoints,
+  dataset arrays and release files; Makefile variables as text);
+* ``test_dataset_inputs.py`` (52): ``python -m dataset_tools`` (arrays, paths, options, names,
+  killed runs and workers, locks, malformed index and mapping files);
+* ``test_model_inputs.py`` (49): sample, train, evaluate, render, export and demo (options out of
+  range, paths, killed runs, resources);
+* ``test_edit_inputs.py`` (26): ``python -m t2m.edit`` (times that overflow, hostile path and
+  batch JSON, sizes bounded before work, byte-order marks, timelines without bound);
+* ``test_serve_inputs.py`` (22): the web server (no 500, security headers on every answer, Host
+  headers, sizes bounded before work, fresh results kept, availability under a hostile client);
+* ``test_export_release_inputs.py`` (55): ``t2m.export`` (overwrites, frame rates, coordinates,
+  degenerate bones) and the original release's files (vocabularies, tensors, options, statistics).
+
+Each file's docstring lists its cases.
+"""
