@@ -486,6 +486,12 @@ def read_glove_folder(folder: str | Path, max_tokens: int = 20) -> WordVectors:
         raise UsageError(
             f"{index_file}: expected a dict from each word of {words_file.name} to a row"
         )
+    for word, row in rows.items():  # before sorting them (int beside str: a TypeError)
+        if type(row) is not int:
+            raise UsageError(f"{index_file}: row {row!r} of {word!r} is not a whole number")
+    for required in ("sos", "eos", "unk"):
+        if required not in rows:
+            raise UsageError(f"{words_file}: no {required!r} entry (every caption needs it)")
     if sorted(rows.values()) != list(range(len(vectors))):
         raise UsageError(f"{index_file}: rows must number the {len(vectors)} vectors once each")
     by_row = sorted(rows, key=rows.__getitem__)

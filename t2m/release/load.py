@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from dataset_tools.command import UsageError
-from dataset_tools.io import load_npy, read_plain_pickle
+from dataset_tools.io import load_npy
 from dataset_tools.spec import DatasetSpec, spec_for_dim
 from t2m.config import (
     AutoencoderConfig,
@@ -33,7 +33,7 @@ from t2m.config import (
     TextEncoderConfig,
 )
 from t2m.data.normalization import Normalizer
-from t2m.data.words import GLOVE_FOLDER_FILES, WordVectors, read_glove_folder
+from t2m.data.words import WordVectors, read_glove_folder
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
     SNIPPET_FRAMES,
@@ -178,25 +178,6 @@ def read_normalizer(layout: ReleaseLayout) -> Normalizer:
         raise UsageError(f"{meta}: {error}") from None
 
 
-def check_glove_index(folder: Path) -> None:
-    """UsageError (one line naming the file) unless the index pickle maps its words to whole
-    numbers and the words hold sos, eos and unk, before :func:`read_glove_folder` sorts the rows
-    (mixed int and str made a TypeError). Missing files are its to name."""
-    words_file, index_file = (folder / name for name in GLOVE_FOLDER_FILES[1:])
-    if not index_file.is_file() or not words_file.is_file():
-        return
-    rows = read_plain_pickle(index_file)
-    if isinstance(rows, dict):
-        for word, row in rows.items():
-            if type(row) is not int:
-                raise UsageError(f"{index_file}: row {row!r} of {word!r} is not a whole number")
-    words = read_plain_pickle(words_file)
-    if isinstance(words, list) and all(isinstance(word, str) for word in words):
-        for required in ("sos", "eos", "unk"):
-            if required not in words:
-                raise UsageError(f"{words_file}: no {required!r} entry (every caption needs it)")
-
-
 def read_vocabulary(layout: ReleaseLayout, glove_dir: str | Path | None) -> WordVectors:
     """The GloVe subset: ``glove_dir``, or ``glove/`` beside the release's ``checkpoints/``."""
     folder = Path(glove_dir).expanduser() if glove_dir else layout.default_glove_dir
@@ -204,7 +185,6 @@ def read_vocabulary(layout: ReleaseLayout, glove_dir: str | Path | None) -> Word
         raise UsageError(
             f"no GloVe folder {folder} (the release's glove/ with our_vab_*: pass --glove DIR)"
         )
-    check_glove_index(folder)
     return read_glove_folder(folder)
 
 

@@ -10,7 +10,7 @@
   batch JSON, sizes bounded before work, byte-order marks, timelines without bound);
 * ``test_serve_inputs.py`` (22): the web server (no 500, security headers on every answer, Host
   headers, sizes bounded before work, fresh results kept, availability under a hostile client);
-* ``test_export_release_inputs.py`` (55): ``t2m.export`` (overwrites, frame rates, coordinates,
+* ``test_export_release_inputs.py`` (56): ``t2m.export`` (overwrites, frame rates, coordinates,
   degenerate bones) and the original release's files (vocabularies, tensors, options, statistics).
 
 Each file's docstring lists its cases.

@@ -7,9 +7,9 @@ Export (issue 31, cases 7 and 8): 7 tests, 20 cases: an existing output file (re
 1e4 m (4), bones of no length (2), features whose joints overflow, no traceback in a real
 process.
 
-Release loading (issue 31, case 6): 9 tests, 35 cases, each a crafted copy of the reference
+Release loading (issue 31, case 6): 10 tests, 36 cases, each a crafted copy of the reference
 release (``../shared/reference/t2m-original``; skipped without it): a vocabulary index of other
-than whole numbers (3) or without ``unk`` (1); generator weights of 0-d, wrong shape, missing,
+than whole numbers (3, and once read alone by ``t2m.data.words``) or without ``unk`` (1); generator weights of 0-d, wrong shape, missing,
 non-float or non-finite, claiming more values than stored, or not tensors at all (16); the length
 estimator's (3) and the evaluator's (3); ``opt.txt``'s unit_length (3), ``opt.txt`` not UTF-8 or
 a folder (1); ``meta/`` statistics of wrong shape or zero std (4); one line from ``t2m.sample``
@@ -241,6 +241,18 @@ def test_release_vocabulary_without_unk(release_copy):
         index, lambda rows: {("zzz-not-unk" if w == "unk" else w): r for w, r in rows.items()}
     )
     refused(load_release, release_copy, spoiled, "'unk'")
+
+
+@needs_reference
+def test_a_glove_folder_read_alone_refuses_a_mixed_index(release_copy):
+    # the same folder read by t2m.data.words (training on the release's vocabulary), not
+    # through the release loader: a TypeError from sorting int beside str before
+    from t2m.data.words import read_glove_folder
+
+    folder = release_copy / "glove"
+    spoil_pickle(folder / "our_vab_idx.pkl", _mixed_rows)
+    with pytest.raises(UsageError, match="not a whole number"):
+        read_glove_folder(folder)
 
 
 def _set(entry: str, key: str, value):
