@@ -166,3 +166,22 @@ def tiny_run(tiny_dataset: Path, tiny_config, tmp_path_factory: pytest.TempPathF
     for stage in STAGE_NAMES:
         train_stage(stage, tiny_config, tiny_dataset, run_dir)
     return run_dir
+
+
+@pytest.fixture(scope="module")
+def pipe(tiny_run: Path):
+    """The tiny run's pipeline on the CPU (one per test module: a test may patch it)."""
+    from t2m.pipeline import TextToMotion
+
+    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
+
+
+@pytest.fixture(scope="module")
+def server(pipe, tiny_run: Path, tmp_path_factory: pytest.TempPathFactory):
+    """The web app's server for :func:`pipe` on a free port of 127.0.0.1, in a thread."""
+    from t2m.serve.server import make_server
+
+    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path_factory.mktemp("work"))
+    server.start_in_thread()
+    yield server
+    server.shutdown_app()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,16 +11,11 @@ import torch
 from t2m.evaluate.protocol import EvalConfig, deviations
 from t2m.inference.generation import text_batch
 from t2m.models.temporal_vae import StepRollout
-from t2m.pipeline import PLANS, TextToMotion
+from t2m.pipeline import PLANS
 
 TWO = "a person walks forward, then jumps up and down"
 THREE = "a person turns to the left and then walks forward, after that jumps"
 ONE = "a person walks forward"
-
-
-@pytest.fixture(scope="module")
-def pipe(tiny_run: Path) -> TextToMotion:
-    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
 
 
 def test_prepare_finds_the_clauses(pipe):

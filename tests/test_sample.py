@@ -18,11 +18,6 @@ from t2m.prompts import Prompt
 from t2m.request import GenerationRequest
 
 
-@pytest.fixture(scope="module")
-def pipe(tiny_run: Path) -> TextToMotion:
-    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
-
-
 def _run(capsys, *argv: str) -> tuple[int, str]:
     code = sample.main(list(argv))
     return code, capsys.readouterr().err

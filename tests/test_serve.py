@@ -23,26 +23,12 @@ import pytest
 from dataset_tools.bvh import motion_from_joints
 from dataset_tools.skeleton import SMPL
 from dataset_tools.sources.bvh import BvhOptions, load_bvh_motion
-from t2m.pipeline import TextToMotion
 from t2m.serve import api
 from t2m.serve.results import Expired, ResultStore
 from t2m.serve.server import ROUTES, find_route, is_loopback, make_server
 from t2m.serve.worker import GenerationJob, GenerationWorker, generate_jobs
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def pipe(tiny_run: Path) -> TextToMotion:
-    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
-
-
-@pytest.fixture(scope="module")
-def server(pipe, tiny_run, tmp_path_factory):
-    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path_factory.mktemp("work"))
-    server.start_in_thread()
-    yield server
-    server.shutdown_app()
 
 
 def call(server, method: str, path: str, body=None, headers=None, raw: bytes | None = None):

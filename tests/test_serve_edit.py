@@ -16,23 +16,8 @@ from test_serve import call
 from dataset_tools.bvh import write_bvh
 from t2m.edit import edit as library_edit
 from t2m.edit import prepare_source
-from t2m.pipeline import TextToMotion
-from t2m.serve.server import make_server
 
 LOWER = [0, 1, 2, 4, 5, 7, 8, 10, 11]
-
-
-@pytest.fixture(scope="module")
-def pipe(tiny_run):
-    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
-
-
-@pytest.fixture(scope="module")
-def server(pipe, tiny_run, tmp_path_factory):
-    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path_factory.mktemp("work"))
-    server.start_in_thread()
-    yield server
-    server.shutdown_app()
 
 
 @pytest.fixture(scope="module")

@@ -37,23 +37,9 @@ from conftest import synth_joints  # tests/ is on the path (it has no __init__.p
 from test_serve import call
 
 from dataset_tools.bvh import write_bvh
-from t2m.pipeline import TextToMotion
 from t2m.serve import api
 from t2m.serve.results import ResultStore
 from t2m.serve.server import SECURITY_HEADERS, make_server
-
-
-@pytest.fixture(scope="module")
-def pipe(tiny_run):
-    return TextToMotion.from_checkpoints(tiny_run, device="cpu")
-
-
-@pytest.fixture(scope="module")
-def server(pipe, tiny_run, tmp_path_factory):
-    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path_factory.mktemp("work"))
-    server.start_in_thread()
-    yield server
-    server.shutdown_app()
 
 
 def raw_request(server, data: bytes) -> tuple[int, dict[str, str], bytes]:
