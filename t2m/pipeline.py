@@ -686,3 +686,11 @@ class TextToMotion:
         from t2m.edit import edit
 
         return edit(self, text, mode, source, **options)
+
+    def stream(self, text: str, seed: int = 0, **options):
+        """Live generation: a :class:`t2m.live.LiveStream` that yields snippets from a running
+        state without end and takes new prompts (``stream.prompt(text)``) at snippet
+        boundaries. Delegates to :class:`t2m.live.LiveStream`, which documents the options."""
+        from t2m.live import LiveStream
+
+        return LiveStream(self, text, seed, **options)
