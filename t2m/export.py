@@ -1,9 +1,11 @@
-"""``python -m t2m.export IN.npy OUT.bvh|OUT.glb``: joints or features to a BVH file or an
-animated glTF binary of the SMPL skeleton.
+"""``python -m t2m.export IN.npy OUT.bvh|OUT.glb|OUT.npz|OUT.fbx``: joints or features to a BVH
+file, an animated glTF binary, SMPL-H body parameters or an FBX file of the SMPL skeleton.
 
-The writers are :mod:`dataset_tools.bvh` (IK with its twist choice, the file text) and
-:mod:`dataset_tools.gltf` (the same skeleton motion as glTF nodes); this module is only their
-command. It refuses, before writing, what no body does: joints beyond
+The writers are :mod:`dataset_tools.bvh` (IK with its twist choice, the file text),
+:mod:`dataset_tools.gltf` (the same skeleton motion as glTF nodes), :mod:`dataset_tools.smplh`
+(the same rotations as AMASS-style SMPL-H parameters) and :mod:`dataset_tools.fbx` (the same
+skeleton built in Blender and written by Blender's FBX exporter; needs ``bpy``); this module is
+only their command. It refuses, before writing, what no body does: joints beyond
 :data:`dataset_tools.bvh.MAX_COORDINATE` metres, a bone shorter than :data:`MIN_BONE_LENGTH`
 (all-zero joints would export a rest pose), a frame rate outside
 [:data:`dataset_tools.bvh.MIN_FPS`, :data:`dataset_tools.bvh.MAX_FPS`]; and an existing output
@@ -27,11 +29,15 @@ from dataset_tools.command import (
     option,
     parse_config,
 )
+from dataset_tools.fbx import require_bpy, write_fbx
 from dataset_tools.gltf import write_glb
 from dataset_tools.humanml3d import read_joints
 from dataset_tools.io import check_output_file
 from dataset_tools.skeleton import SMPL
+from dataset_tools.smplh import fit_smplh, write_smplh
 from dataset_tools.spec import HUMANML3D
+
+SUFFIXES = (".bvh", ".glb", ".npz", ".fbx")
 
 
 @dataclass
@@ -41,7 +47,8 @@ class ExportCommandConfig:
     input: Path = field(metadata=option(positional=True))
     """.npy joints (T, 22, 3) (metres, y-up) or HumanML3D features (T, 263)"""
     output: Path = field(metadata=option(positional=True))
-    """.bvh or .glb file to write"""
+    """file to write: .bvh, .glb, .npz (SMPL-H parameters, AMASS's layout) or .fbx (needs bpy:
+    pip install -e .[blender])"""
     fps: float | None = None
     """frames per second of the motion (the file's frame time is 1 / fps), from 1 to 1000;
     default: HumanML3D's 20"""
@@ -53,8 +60,11 @@ class ExportCommandConfig:
     """replace an existing output file (otherwise it is refused)"""
 
     def __post_init__(self) -> None:
-        if self.output.suffix.lower() not in (".bvh", ".glb"):
-            raise UsageError(f"output must end in .bvh or .glb, got {self.output.name!r}")
+        if self.output.suffix.lower() not in SUFFIXES:
+            raise UsageError(
+                f"output must end in {', '.join(SUFFIXES[:-1])} or {SUFFIXES[-1]}, "
+                f"got {self.output.name!r}"
+            )
         if self.fps is not None and not MIN_FPS <= self.fps <= MAX_FPS:
             raise UsageError(
                 f"--fps must be positive, from {MIN_FPS:g} to {MAX_FPS:g} frames per second, "
@@ -65,6 +75,11 @@ class ExportCommandConfig:
             raise UsageError(
                 f"output {self.output} exists (choose another name or add --overwrite)"
             )
+        if self.output.suffix.lower() == ".fbx":
+            try:
+                require_bpy()
+            except ValueError as error:
+                raise UsageError(str(error)) from None
 
 
 MIN_BONE_LENGTH = 1e-3
@@ -98,13 +113,14 @@ def check_motion(joints: np.ndarray, path: Path) -> None:
 
 @command
 def main(argv: list[str] | None = None) -> int:
-    """``python -m t2m.export IN.npy OUT.bvh|OUT.glb [--units cm|m]``; returns the exit code (2 on
-    bad input)."""
+    """``python -m t2m.export IN.npy OUT.bvh|OUT.glb|OUT.npz|OUT.fbx [--units cm|m]``; returns the
+    exit code (2 on bad input)."""
     parser = CommandParser(
         prog="python -m t2m.export",
         description="Write joints (T, 22, 3) (metres, y-up) or HumanML3D features (T, 263) from "
-        "a .npy file as a BVH file or an animated glTF binary (.glb) of the 22-joint SMPL "
-        "skeleton.",
+        "a .npy file as a BVH file, an animated glTF binary (.glb), SMPL-H body parameters "
+        "(.npz, AMASS's layout) or an FBX file (through Blender's exporter) of the 22-joint "
+        "SMPL skeleton.",
     )
     config = parse_config(parser, ExportCommandConfig, argv)
     # features that overflow when recovered are refused by check_motion, in one line
@@ -116,21 +132,16 @@ def main(argv: list[str] | None = None) -> int:
             f"got {joints.shape[1]} joints"
         )
     check_motion(joints, config.input)
-    if config.output.suffix.lower() == ".glb":
-        write_glb(
-            joints,
-            config.output,
-            fps=config.fps or HUMANML3D.fps,
-            fit_rest_pose=not config.template_rest_pose,
-        )
-        return 0
-    write_bvh(
-        joints,
-        config.output,
-        fps=config.fps or HUMANML3D.fps,
-        units=config.units,
-        fit_rest_pose=not config.template_rest_pose,
-    )
+    fps, fit_rest_pose = config.fps or HUMANML3D.fps, not config.template_rest_pose
+    suffix = config.output.suffix.lower()
+    if suffix == ".glb":
+        write_glb(joints, config.output, fps=fps, fit_rest_pose=fit_rest_pose)
+    elif suffix == ".npz":
+        write_smplh(fit_smplh(joints, fps=fps, fit_rest_pose=fit_rest_pose), config.output)
+    elif suffix == ".fbx":
+        write_fbx(joints, config.output, fps=fps, fit_rest_pose=fit_rest_pose)
+    else:
+        write_bvh(joints, config.output, fps=fps, units=config.units, fit_rest_pose=fit_rest_pose)
     return 0
 
 

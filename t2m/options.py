@@ -33,6 +33,8 @@ class OutputOptions:
     """also write a BVH file per motion"""
     glb: bool = False
     """also write an animated glTF binary (.glb) per motion"""
+    smpl: bool = False
+    """also write SMPL-H body parameters per motion (sampleNN_repRR_smpl.npz, AMASS's layout)"""
     device: str = "auto"
     """auto, cpu, cuda or cuda:N (auto: CUDA when present)"""
     threads: int = field(default=0, metadata=option(metavar="N"))

@@ -5,7 +5,8 @@ transaction and the resource estimate.
 Per prompt NN and sample RR a folder holds ``sampleNN_repRR.npy`` (joints (T, J, 3), metres,
 y-up, at the dataset's fps), ``sampleNN_repRR_feats.npy`` (de-normalised features (T, D)),
 ``sampleNN_repRR_kept.npy`` for an edit ((T, J) bool: the joints from its source),
-``sampleNN_repRR.mp4|gif|bvh|glb`` as asked; plus ``results.npy`` (the MDM layout: a dict with
+``sampleNN_repRR.mp4|gif|bvh|glb`` and ``sampleNN_repRR_smpl.npz`` (SMPL-H parameters in AMASS's
+layout, :mod:`dataset_tools.smplh`) as asked; plus ``results.npy`` (the MDM layout: a dict with
 ``motion`` (N, J, 3, T_max), ``text``, ``lengths``, ``num_samples``, ``num_repetitions``; motion
 ``i = rep * num_samples + prompt``, padded past its length with its last pose) and
 ``results.json``, each written once.
@@ -62,9 +63,10 @@ def _save_npy(path: Path, array) -> None:
     atomic_write(path, lambda handle: np.save(handle, array, allow_pickle=isinstance(array, dict)))
 
 
-MOTION_FILE_KINDS = ("npy", "feats", "kept", "bvh", "glb", "mp4", "gif")
+MOTION_FILE_KINDS = ("npy", "feats", "kept", "bvh", "glb", "smpl", "mp4", "gif")
 """The per-motion files :func:`write_motion_file` writes (``feats``: ``<stem>_feats.npy``,
-``kept``: ``<stem>_kept.npy``, an edit's (T, J) bool mask of the joints from its source)."""
+``kept``: ``<stem>_kept.npy``, an edit's (T, J) bool mask of the joints from its source;
+``smpl``: ``<stem>_smpl.npz``, SMPL-H parameters)."""
 
 
 def motion_file_name(prompt: int, repetition: int, kind: str) -> str:
@@ -72,6 +74,8 @@ def motion_file_name(prompt: int, repetition: int, kind: str) -> str:
     if kind not in MOTION_FILE_KINDS:
         raise ValueError(f"unknown motion file kind {kind!r}; use one of {MOTION_FILE_KINDS}")
     name = stem(prompt, repetition)
+    if kind == "smpl":
+        return f"{name}_smpl.npz"
     return f"{name}_{kind}.npy" if kind in ("feats", "kept") else f"{name}.{kind}"
 
 
@@ -94,6 +98,10 @@ def write_motion_file(motion: GeneratedMotion, folder: Path, kind: str, fps: flo
         from dataset_tools.gltf import write_glb
 
         write_glb(motion.joints, path, fps=fps, name=motion.text[:200])
+    elif kind == "smpl":
+        from dataset_tools.smplh import fit_smplh, write_smplh
+
+        write_smplh(fit_smplh(motion.joints, fps=fps), path)
     else:
         from dataset_tools.viz import render_animation
 
@@ -289,6 +297,7 @@ def check_resources(
     render: str,
     bvh: bool,
     glb: bool = False,
+    smpl: bool = False,
 ) -> None:
     """Refuse, before generating, a request whose motions cannot fit in memory or on disk.
 
@@ -303,7 +312,7 @@ def check_resources(
     num_motions, total_frames = len(frames) * num_samples, sum(frames) * num_samples
     in_memory = 4 * total_frames * (joint_values + feature_values)
     results = 4 * num_motions * max(frames) * joint_values
-    per_frame_files = RENDER_BYTES_PER_FRAME[render] + BVH_BYTES_PER_FRAME * (bvh + glb)
+    per_frame_files = RENDER_BYTES_PER_FRAME[render] + BVH_BYTES_PER_FRAME * (bvh + glb + smpl)
     memory = in_memory + results
     disk = in_memory + results + total_frames * per_frame_files
     from t2m.train.runtime import available_memory
@@ -352,6 +361,7 @@ def sample_to_folder(
     glb: bool = False,
     clean: bool = True,
     plan: str = "clauses",
+    smpl: bool = False,
 ) -> Path:
     """Generate motions for ``prompts`` with a :class:`t2m.pipeline.TextToMotion` and write every
     file of the output contract into ``out``; returns ``out``. Nothing is left in ``out`` on error.
@@ -381,6 +391,7 @@ def sample_to_folder(
         overwrite=overwrite,
         extra_info=extra_info,
         glb=glb,
+        smpl=smpl,
     )
 
 
@@ -396,6 +407,7 @@ def write_motions(
     overwrite: bool = False,
     extra_info: dict | None = None,
     glb: bool = False,
+    smpl: bool = False,
 ) -> Path:
     """Check ``out`` and the resources, call ``make()`` for ``motions[prompt][sample]`` and write
     every file of the output contract into ``out`` (the writer of ``t2m.sample`` and
@@ -408,12 +420,12 @@ def write_motions(
     if render not in RENDER_CHOICES:
         raise UsageError(f"--render must be one of {', '.join(RENDER_CHOICES)}, got {render!r}")
     fps = spec.fps
-    if (bvh or glb) and spec.num_joints != 22:
-        option = "--bvh" if bvh else "--glb"
+    if (bvh or glb or smpl) and spec.num_joints != 22:
+        option = "--bvh" if bvh else "--glb" if glb else "--smpl"
         raise UsageError(f"{option} needs the 22-joint SMPL skeleton (HumanML3D checkpoints)")
     out = Path(out).resolve()  # "." has no name to put a temp folder beside
     # 1. where to write, and whether it fits (fails early, before any model work)
-    check_resources(frames, num_samples, spec, out, render, bvh, glb)
+    check_resources(frames, num_samples, spec, out, render, bvh, glb, smpl)
     tmp = _prepare_out(out, overwrite)
     try:
         # 2. generate
@@ -425,6 +437,7 @@ def write_motions(
         from tqdm import tqdm
 
         kinds = ["npy", "feats"] + [render] * (render != "none") + ["bvh"] * bvh + ["glb"] * glb
+        kinds += ["smpl"] * smpl
         for motion in tqdm(flat, desc="writing", unit="motion", disable=len(flat) < 2):
             # an edit's motion also has its kept mask: which joints came from the source
             extra = ["kept"] if getattr(motion, "kept", None) is not None else []

@@ -84,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         render=config.render,
         bvh=config.bvh,
         glb=config.glb,
+        smpl=config.smpl,
         overwrite=config.overwrite,
         extra_info={
             "checkpoints": str(config.checkpoints),

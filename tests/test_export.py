@@ -350,7 +350,7 @@ def test_cli_help_lists_the_documented_options_with_their_docstrings(capsys):
         "in metres) (default: cm)",
         "--fps FPS frames per second of the motion",
         "--template-rest-pose, --no-template-rest-pose use the template hips / collars",
-        ".bvh or .glb file to write",
+        "file to write: .bvh, .glb, .npz",
     ):
         assert expected in text, expected
 
@@ -410,7 +410,9 @@ def test_cli_output_must_be_a_bvh_file(tmp_path, capsys):
 
     path = _bad(tmp_path, "good")
     assert main([str(path), str(tmp_path / "x.txt")]) == 2
-    assert capsys.readouterr().err == "error: output must end in .bvh or .glb, got 'x.txt'\n"
+    assert capsys.readouterr().err == (
+        "error: output must end in .bvh, .glb, .npz or .fbx, got 'x.txt'\n"
+    )
     assert not (tmp_path / "x.txt").exists()
 
 

@@ -17,7 +17,6 @@ nothing. Exit status 2 with a one-line message on bad input.
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
 from dataclasses import asdict, dataclass, field
@@ -29,15 +28,16 @@ from dataset_tools.command import (
     add_config_options,
     command,
     config_from_args,
-    config_from_dict,
     configure_logging,
+    fields_from_dict,
     given_fields,
     option,
 )
+from dataset_tools.io import read_json
 from t2m.config import check_seed
 from t2m.edit.core import Method, SearchSettings
 from t2m.edit.modes import MAX_SECONDS
-from t2m.edit.request import EditRequest
+from t2m.edit.request import EditRequest, json_terms
 from t2m.options import OutputOptions
 from t2m.outputs import write_motions
 
@@ -121,14 +121,7 @@ def read_batch(path: Path) -> list[EditRequest]:
     """Edits of a ``--batch`` JSON file: a list of objects with the fields of
     :class:`EditRequest`, read by the schema's JSON reader; relative file names are taken from
     the file's folder, arrays may be given inline. UsageError (one line) for anything else."""
-    try:
-        if path.stat().st_size > MAX_BATCH_BYTES:
-            raise UsageError(f"--batch {path} is larger than {MAX_BATCH_BYTES // 2**20} MiB")
-        entries = json.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError, ValueError) as error:
-        raise UsageError(f"cannot read --batch {path}: {error}") from None
-    except RecursionError:
-        raise UsageError(f"cannot read --batch {path}: JSON nested too deep") from None
+    entries = read_json(path, "--batch", max_bytes=MAX_BATCH_BYTES)
     if not isinstance(entries, list) or not entries:
         raise UsageError(f"--batch {path}: give a non-empty JSON list of edits")
     if len(entries) > MAX_BATCH_EDITS:
@@ -139,10 +132,19 @@ def read_batch(path: Path) -> list[EditRequest]:
     requests = []
     for number, entry in enumerate(entries):
         try:
-            requests.append(config_from_dict(EditRequest, entry, f"edits[{number}]", path.parent))
+            values = fields_from_dict(EditRequest, entry, f"edits[{number}]", path.parent)
+            requests.append(EditRequest(**values))
         except UsageError as error:
-            raise UsageError(f"--batch {path}: {error}") from None
+            raise batch_error(path, number, error) from None
     return requests
+
+
+def batch_error(path: Path, number: int, error: ValueError) -> UsageError:
+    """A refusal of edit ``number`` of the ``--batch`` file ``path``, naming the file, the edit
+    and the JSON keys (not the command's options) of what it refuses."""
+    where = f"edits[{number}]"
+    message = str(error) if str(error).startswith(where) else f"{where}: {error}"
+    return UsageError(f"--batch {path}: {json_terms(message)}")
 
 
 def check_search_memory(
@@ -188,18 +190,21 @@ def main(argv: list[str] | None = None) -> int:
     out = config.output_folder("edit-")
     # 2. the models
     pipe = config.load_pipeline(need_length_model=False)
-    try:
-        from t2m.edit.modes import read_timeline
+    from t2m.edit.modes import read_timeline
 
-        limits = config.max_timeline_lines, config.max_timeline_seconds
-        frames = [
-            read_timeline(r.timeline, pipe.spec, *limits)[-1].stop
-            if r.mode == "compose"
-            else r.plan(pipe.spec).num_frames
-            for r in requests
-        ]
-    except ValueError as error:
-        raise UsageError(str(error)) from None
+    limits = config.max_timeline_lines, config.max_timeline_seconds
+    frames = []
+    for number, r in enumerate(requests):
+        try:
+            frames.append(
+                read_timeline(r.timeline, pipe.spec, *limits)[-1].stop
+                if r.mode == "compose"
+                else r.plan(pipe.spec).num_frames
+            )
+        except ValueError as error:
+            if config.batch is not None:
+                raise batch_error(config.batch, number, error) from None
+            raise UsageError(str(error)) from None
     check_search_memory(requests, frames, config, pipe.spec.max_frames)
     # 3. edit and write
     write_motions(
@@ -212,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         render=config.render,
         bvh=config.bvh,
         glb=config.glb,
+        smpl=config.smpl,
         overwrite=config.overwrite,
         extra_info={
             "modes": [r.mode for r in requests],
