@@ -173,6 +173,11 @@ class StageConfig:
     """Save ``latest.pt`` every this many steps (and at the end of every epoch)."""
     log_every: int = 50
     """Write a training record every this many steps."""
+    epoch_steps: int = 0
+    """Optimiser steps per epoch (0: one pass over the training split, the classic epoch). Set,
+    the stage trains the same number of steps on any dataset size: an epoch takes its batches
+    from consecutive shuffled passes over the split, so a small split is passed over several
+    times an epoch and a large one in part (each batch still within one pass)."""
 
 
 @dataclass
@@ -272,6 +277,10 @@ class Config:
     """bfloat16 autocast for the forward passes (CUDA and CPU)."""
     num_threads: int = 0
     """torch intra-op threads (0: leave torch's default)."""
+    sized_for_clips: int = 0
+    """The training split a preset's schedule was sized on (0: not stated). A stage whose
+    split is under a quarter of it logs a warning: every clip is then seen more than four times
+    as often as there, and models of this size may learn the clips by heart."""
     data: DataConfig = field(default_factory=DataConfig)
     autoencoder: AutoencoderStageConfig = field(default_factory=AutoencoderStageConfig)
     length: LengthStageConfig = field(default_factory=LengthStageConfig)
@@ -487,6 +496,8 @@ def validate(cfg: Config) -> None:
     :func:`validate_for_spec`, the checks against the dataset)."""
     check_seed(cfg.seed, "seed")
     check_threads(cfg.num_threads, "num_threads")
+    if cfg.sized_for_clips < 0:
+        raise ValueError(f"sized_for_clips must not be negative, got {cfg.sized_for_clips}")
     _check_numbers(cfg, "")
     data = cfg.data
     if data.max_text_tokens < 1 or data.trainable_word_dim < 1 or not data.feature_bias > 0:
@@ -545,6 +556,10 @@ def _validate_stage(name: str, section: StageConfig) -> None:
         raise ValueError(f"{name}.max_steps and {name}.grad_clip must not be negative")
     if section.checkpoint_every < 1 or section.log_every < 1:
         raise ValueError(f"{name}.checkpoint_every and {name}.log_every must be at least 1")
+    if section.epoch_steps < 0:
+        raise ValueError(
+            f"{name}.epoch_steps must be 0 (one pass) or more, got {section.epoch_steps}"
+        )
 
 
 def validate_for_spec(cfg: Config, spec: DatasetSpec) -> None:

@@ -153,6 +153,42 @@ class Curriculum:
         return improved
 
 
+def curriculum_lengths(section: GeneratorStageConfig) -> list[int]:
+    """The crop lengths (snippets) the curriculum trains, in order: ``start_snippets`` up by
+    ``curriculum_step`` to ``end_snippets``."""
+    lengths = [section.start_snippets]
+    while lengths[-1] < section.end_snippets:
+        lengths.append(min(section.end_snippets, lengths[-1] + section.curriculum_step))
+    return lengths
+
+
+def announce_curriculum(run: StageRun, data: MotionTextData, spec_min_frames: int) -> None:
+    """Log the steps the curriculum will take at most (every length its ``max_stage_epochs``,
+    the last its ``final_epochs`` more; patience may end a length sooner)."""
+    section, unit = run.config.generator, run.spec.snippet_length
+    lengths = curriculum_lengths(section)
+
+    def items_at(snippets: int) -> int:
+        frames = spec_min_frames if section.whole_clips else snippets * unit
+        return len(data.indices_at_least(frames))
+
+    def steps_at(snippets: int) -> int:
+        if section.epoch_steps:
+            return section.epoch_steps
+        return items_at(snippets) // run.runtime.world_size // section.batch_size
+
+    epochs = len(lengths) * section.max_stage_epochs + section.final_epochs
+    steps = sum(steps_at(n) for n in lengths) * section.max_stage_epochs
+    steps += steps_at(lengths[-1]) * section.final_epochs
+    detail = (
+        f"{len(lengths)} curriculum lengths of {', '.join(map(str, lengths))} snippets, "
+        f"{section.max_stage_epochs} each and {section.final_epochs} more at the last"
+    )
+    if section.patience < section.max_stage_epochs + section.final_epochs:
+        detail += f"; at most: {section.patience} epochs without progress end a length"
+    run.announce(epochs, steps, items_at(lengths[0]), detail)
+
+
 def length_buckets(
     batches: list[np.ndarray], lengths: np.ndarray, rng: np.random.Generator
 ) -> list[np.ndarray]:
@@ -230,6 +266,7 @@ def train_generator(job: StageJob) -> Path:
 
         return losses_of
 
+    announce_curriculum(run, data.train, data.spec.min_frames)
     # 3. the loop: epochs at the current curriculum length
     while not curriculum.done and not run.reached_max_steps():
         snippets = curriculum.snippets

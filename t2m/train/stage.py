@@ -294,16 +294,59 @@ class StageRun:
     # -- the epoch skeleton -------------------------------------------------------------------
 
     def epoch_batches(self, num_items: int) -> list[np.ndarray]:
-        """This process's shuffled batches of the current epoch (indices into ``num_items``)."""
-        runtime = self.runtime
-        return epoch_batches(
+        """This process's shuffled batches of the current epoch (indices into ``num_items``):
+        :func:`step_sized_batches` with the section's ``epoch_steps``."""
+        runtime, section = self.runtime, self.section
+        return step_sized_batches(
             num_items,
-            self.section.batch_size,
+            section.batch_size,
             self.config.seed,
             self.progress.epoch,
+            section.epoch_steps,
             runtime.rank,
             runtime.world_size,
         )
+
+    def announce(self, epochs: int, steps: int, num_items: int, detail: str = "") -> int:
+        """Log how many optimiser steps the stage will take (``steps`` over ``epochs``, capped by
+        ``max_steps``; ``detail`` says more of the epochs) and how often that passes over its
+        ``num_items`` training items; warn when they are under a quarter of the split the preset
+        was sized on (``Config.sized_for_clips``). Returns the steps."""
+        section, name = self.section, self.name
+        if section.max_steps:
+            steps = min(steps, section.max_steps)
+        batch = section.batch_size * self.runtime.world_size
+        passes = steps * batch / max(num_items, 1)
+        per_epoch = (
+            f"{section.epoch_steps} steps an epoch" if section.epoch_steps else "one pass an epoch"
+        )
+        logger.info(
+            "%s will take %d optimiser steps: %d epochs%s, %s, batches of %d from %d training "
+            "items (%.1f passes over them)",
+            name,
+            steps,
+            epochs,
+            f" ({detail})" if detail else "",
+            per_epoch,
+            batch,
+            num_items,
+            passes,
+        )
+        sized_for = self.config.sized_for_clips
+        if sized_for and num_items * 4 < sized_for:
+            logger.warning(
+                "%s: %d training items are under a quarter of the %d the %s preset was sized "
+                "on: each is seen %.1f times (%.1f there), and models of this size may learn "
+                "them by heart; check that the validation loss still falls at the end (%s)",
+                name,
+                num_items,
+                sized_for,
+                self.config.preset,
+                passes,
+                steps * batch / sized_for,
+                self.dir / "curves.png",
+            )
+        return steps
 
     def train_epoch(
         self,
@@ -390,6 +433,7 @@ class StageRun:
         """The loop of a stage trained for ``epochs``: shuffled batches of ``num_items`` training
         items, then validation; best.pt holds the lowest validation loss."""
         epochs = self.section.epochs
+        self.announce(epochs, epochs * len(self.epoch_batches(num_items)), num_items)
         while self.progress.epoch < epochs:
             description = f"{self.name} epoch {self.progress.epoch + 1}/{epochs}"
             batches = self.epoch_batches(num_items)
@@ -439,6 +483,40 @@ class StageRun:
             self.logbook.draw()
             write_json_atomic(self.dir / FINISHED, json_safe(self._stored_progress()))
         return self.dir
+
+
+def step_sized_batches(
+    num_items: int,
+    batch_size: int,
+    seed: int,
+    epoch: int,
+    epoch_steps: int = 0,
+    rank: int = 0,
+    world_size: int = 1,
+) -> list[np.ndarray]:
+    """One process's batches of epoch ``epoch``: one pass over the items
+    (:func:`~t2m.data.dataset.epoch_batches` of the epoch), or with ``epoch_steps`` that many
+    batches: numbers ``epoch x epoch_steps`` on of the sequence of passes 0, 1, 2, ..., each
+    batch within one pass. Where a pass holds exactly ``epoch_steps`` batches, epoch k is pass
+    k, the same batches as without it; empty when the items fill no batch."""
+
+    def one_pass(index: int) -> list[np.ndarray]:
+        return epoch_batches(num_items, batch_size, seed, index, rank, world_size)
+
+    if not epoch_steps:
+        return one_pass(epoch)
+    per_pass = (num_items // world_size) // batch_size
+    if per_pass == 0:
+        return []
+    first = epoch * epoch_steps
+    passes: dict[int, list[np.ndarray]] = {}
+    batches = []
+    for index in range(first, first + epoch_steps):
+        number, position = divmod(index, per_pass)
+        if number not in passes:
+            passes[number] = one_pass(number)
+        batches.append(passes[number][position])
+    return batches
 
 
 def json_safe(record: dict[str, Any]) -> dict[str, Any]:
