@@ -24,6 +24,11 @@ Definitions (per motion; a row of the evaluation averages them over its motions)
   in millimetres (0 when above); the motion's value is the mean over frames.
 - **Floating**: the fraction of frames in which a contact is predicted (any of the four channels)
   while the lowest foot joint is more than 5 cm above the floor.
+- **Bone stretch**: how far a bone's length strays from its own length within the motion. Per
+  bone (every joint but the root, to its parent) and frame, ``|length - median length over the
+  motion|``, in metres, and that divided by the median length (relative); the motion's figures
+  are the maximum and the mean over bones and frames. A rigid body gives 0 (every real clip of a
+  HumanML3D-processed dataset; every output of the finishing step, :mod:`dataset_tools.rigid`).
 """
 
 from __future__ import annotations
@@ -52,6 +57,10 @@ METRIC_NAMES = (
     "jerk_peak",
     "penetration_mm",
     "floating_ratio",
+    "bone_stretch_max_m",
+    "bone_stretch_mean_m",
+    "bone_stretch_max_rel",
+    "bone_stretch_mean_rel",
 )
 """The per-motion figures; a row adds ``jerk_area`` (see :func:`rows_physics`)."""
 ROW_METRIC_NAMES = (*METRIC_NAMES, "jerk_area")
@@ -128,15 +137,33 @@ def floating_ratio(joints: np.ndarray, contacts: np.ndarray) -> float:
     return float(np.mean(in_contact & (lowest > CONTACT_HEIGHT_M)))
 
 
+def bone_stretch(joints: np.ndarray) -> dict[str, float]:
+    """Bone stretch of one motion (T, J, 3) (see the module docstring): ``max_m``, ``mean_m``
+    (metres), ``max_rel``, ``mean_rel`` (shares of each bone's median length)."""
+    joints = _check_joints(joints, 1.0)
+    lengths = skeleton_for(joints.shape[1]).bone_lengths_of(joints)[:, 1:]  # (T, J - 1)
+    median = np.median(lengths, axis=0)
+    stretch = np.abs(lengths - median)
+    relative = stretch / np.maximum(median, 1e-9)
+    return {
+        "max_m": float(stretch.max()),
+        "mean_m": float(stretch.mean()),
+        "max_rel": float(relative.max()),
+        "mean_rel": float(relative.mean()),
+    }
+
+
 def motion_metrics(joints: np.ndarray, contacts: np.ndarray, fps: float) -> dict[str, float]:
     """Every figure of :data:`METRIC_NAMES` for one motion: joints (T, J, 3), contacts (T, 4)."""
     curve = jerk_curve(joints, fps)
+    stretch = bone_stretch(joints)
     return {
         "skating_ratio": skating_ratio(joints, fps),
         "jerk_mean": float(curve.mean()) if curve.size else 0.0,
         "jerk_peak": float(curve.max()) if curve.size else 0.0,
         "penetration_mm": penetration_mm(joints),
         "floating_ratio": floating_ratio(joints, contacts),
+        **{f"bone_stretch_{name}": value for name, value in stretch.items()},
     }
 
 
@@ -211,6 +238,7 @@ __all__ = [
     "SKATE_SPEED_MPS",
     "SKATE_WINDOW",
     "RowPhysics",
+    "bone_stretch",
     "curve_area",
     "floating_ratio",
     "jerk_curve",

@@ -21,8 +21,9 @@ Steps of :meth:`TextToMotion.generate`:
    the length the text2length model expects for it plus a variance-weighted share of the rest
    (:meth:`TextToMotion.clause_snippets`), and continues from the code
    the previous clause ended on; ``plan="whole"`` is the paper's single pass over the prompt;
-4. de-normalise the features with the statistics stored in the checkpoint and recover joints
-   (the spec's number) with ``dataset_tools.representation.recover_from_ric``.
+4. de-normalise the features with the statistics stored in the checkpoint, make the motion
+   rigid on the model's skeleton and clean up its foot contacts (:meth:`TextToMotion.finish`)
+   and recover joints (the spec's number) with ``dataset_tools.representation.recover_from_ric``.
 
 All randomness comes from one ``torch.Generator`` seeded by ``seed``: the same seed, prompts,
 lengths, batch size and precision give the same motions, bit for bit, on the same machine.
@@ -50,9 +51,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from dataset_tools.cleanup import clean_features
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
+from dataset_tools.rigid import finish_features
 from dataset_tools.spec import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.accel import PRECISIONS as PRECISIONS
 from t2m.clauses import clause_captions, clause_targets, share_snippets
@@ -619,9 +620,9 @@ class TextToMotion:
             seed: seeds the one generator all draws come from.
             batch_size: motions generated together.
             progress: show a progress bar.
-            clean: foot-contact clean-up (:func:`t2m.cleanup.clean_features`: planted feet
-                held still and on the floor, legs fixed by IK); False gives the raw model
-                output.
+            clean: foot-contact clean-up (:mod:`dataset_tools.cleanup`: planted feet
+                held still and on the floor, legs fixed by IK); False gives the model's output
+                made rigid only (:meth:`finish`).
             plan: ``"clauses"``: a prompt of several clauses is generated clause by clause
                 (:meth:`generate_features`); ``"whole"``: every prompt in one pass (the paper).
 
@@ -668,12 +669,14 @@ class TextToMotion:
 
     def finish(self, features: np.ndarray, clean: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """One generated motion's de-normalised features (T, D) -> (joints (T, J, 3), features
-        (T, D)), float32, after the foot-contact clean-up when ``clean`` (what :meth:`generate`
-        and the web app return)."""
-        if clean:
-            features = clean_features(features)
+        (T, D)), float32: rigid on the model's skeleton (every bone at the dataset's target
+        length in every frame, hips and collars one rigid piece with the pelvis and spine3:
+        :func:`dataset_tools.rigid.finish_features`), then the foot-contact clean-up when
+        ``clean``. What :meth:`generate` and the web app return; the BVH and glTF writers
+        reproduce these joints exactly."""
+        features = finish_features(features, clean)
         joints = recover_from_ric(features, self.spec.num_joints)
-        return joints.astype(np.float32), features.astype(np.float32)
+        return joints.astype(np.float32), features
 
     def _clamp(self, frames: int) -> int:
         return frames_for(frames, self.spec)

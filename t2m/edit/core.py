@@ -23,7 +23,13 @@ frame 0's root at the origin facing +Z):
 5. hard-keeps (:func:`hard_keep`): kept features are copied, the generated side of every seam is
    offset to meet the kept side and eased back over ``blend_frames`` (positions, facing and
    velocities stay continuous), and the root's heading and floor position are bent smoothly so
-   that every later kept stretch and every root target is met exactly.
+   that every later kept stretch and every root target is met exactly;
+6. makes the result rigid on the model's skeleton (:func:`dataset_tools.rigid.finish_features`,
+   no foot clean-up): every joint not kept from the source is fitted from its parent at the
+   skeleton's bone length, kept joints stay exactly where the source has them (a source is
+   retargeted to that skeleton when it is prepared, so its kept bones already have those
+   lengths; a bone from a regenerated joint to a kept one, as at the edge of a body edit,
+   keeps the length it gets).
 
 Method ``posterior`` skips step 3; ``auto`` (the default) runs it only for plans with targets the
 hard keep cannot guarantee; ``best_of_n`` (the baseline) skips steps 1 and 3: N prior samples, the
@@ -42,6 +48,7 @@ import numpy as np
 import torch
 
 from dataset_tools.representation import FeatureLayout, recover_from_ric
+from dataset_tools.rigid import finish_features
 from t2m.edit.recover import recover_from_ric_torch, yaw_rotate
 from t2m.edit.source import half_yaw_of
 from t2m.inference.generation import text_batch
@@ -169,9 +176,12 @@ def generate_plans(
         )
         for index, (features, error) in zip(members, found):
             plan = plans[index]
-            kept = hard_keep(features, plan, settings.blend_frames)
+            # rigid on the model's skeleton, the joints kept from the source left where they are
+            kept = finish_features(
+                hard_keep(features, plan, settings.blend_frames), False, held=plan.keep
+            )
             joints = recover_from_ric(kept, pipe.spec.num_joints).astype(np.float32)
-            results[index] = PlanResult(kept.astype(np.float32), joints, plan.kept_mask(), error)
+            results[index] = PlanResult(kept, joints, plan.kept_mask(), error)
     return results  # type: ignore[return-value]
 
 

@@ -44,8 +44,8 @@ import numpy as np
 from tqdm import tqdm
 
 from dataset_tools import physical
-from dataset_tools.cleanup import clean_features
 from dataset_tools.command import UsageError, option
+from dataset_tools.rigid import finish_features
 from dataset_tools.spec import HUMANML3D, DatasetSpec
 from t2m.config import check_seed, check_threads
 from t2m.data.dataset import Caption, Clip
@@ -120,9 +120,9 @@ class EvalConfig:
     """how a caption is generated: whole (one pass, as the paper evaluates) or clauses (a
     caption of several clauses clause by clause, as t2m.sample does by default; t2m.clauses)"""
     clean: bool = False
-    """pass generated motions through the foot-contact clean-up (dataset_tools.cleanup, as
-    t2m.sample does by default) before they are embedded and scored; the standard protocol
-    judges the raw model output"""
+    """finish generated motions as t2m.sample does by default (rigid on the model's skeleton,
+    dataset_tools.rigid, then the foot-contact clean-up, dataset_tools.cleanup) before they are
+    embedded and scored; the standard protocol judges the raw model output"""
 
     def __post_init__(self) -> None:
         at_least = {
@@ -366,8 +366,9 @@ def _multimodality(
 
 
 class CleanedBackend:
-    """A :class:`Backend` whose generated motions (raw features) go through the foot-contact
-    clean-up (:func:`dataset_tools.cleanup.clean_features`)."""
+    """A :class:`Backend` whose generated motions (raw features) are finished as ``t2m.sample``
+    finishes them (:func:`dataset_tools.rigid.finish_features`: rigid on the model's skeleton,
+    then the foot-contact clean-up)."""
 
     def __init__(self, backend: Backend):
         self.backend = backend
@@ -381,7 +382,7 @@ class CleanedBackend:
     def generate(
         self, captions: Sequence[Caption], lengths: np.ndarray | None, seed: int
     ) -> list[np.ndarray]:
-        return [clean_features(f) for f in self.backend.generate(captions, lengths, seed)]
+        return [finish_features(f) for f in self.backend.generate(captions, lengths, seed)]
 
 
 def check_memory(num_items: int, config: EvalConfig, spec: DatasetSpec) -> None:

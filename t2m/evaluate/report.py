@@ -121,6 +121,10 @@ PHYSICAL_COLUMNS = {
     "jerk_mean": ("Jerk mean, m/s³ →", 0),
     "jerk_peak": ("Jerk peak, m/s³ →", 0),
     "jerk_area": ("Jerk area vs real, m/s² ↓", 0),
+    "bone_stretch_max_m": ("Bone stretch max, m ↓", 4),
+    "bone_stretch_mean_m": ("Bone stretch mean, m ↓", 4),
+    "bone_stretch_max_rel": ("Bone stretch max, relative ↓", 3),
+    "bone_stretch_mean_rel": ("Bone stretch mean, relative ↓", 4),
 }
 
 
@@ -147,7 +151,9 @@ def _physical_table(summary: dict[str, Any]) -> list[str]:
         "lowest foot joint below the floor. Floating: share of frames with a predicted foot "
         "contact and every foot joint above 5 cm. Jerk: per frame the largest joint's summed "
         "|xyz| third difference; its mean and peak per motion (closer to the real row is better), "
-        "and the area between the row's mean jerk curve and that of real motions drawn apart.",
+        "and the area between the row's mean jerk curve and that of real motions drawn apart. "
+        "Bone stretch: per bone and frame, how far its length is from its median length in "
+        "the motion (metres, and as a share of that length); per motion its largest and mean.",
     ]
     return lines
 

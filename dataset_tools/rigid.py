@@ -1,0 +1,226 @@
+"""Rigid skeletons: joints that keep their bone lengths, fitted to joints that do not.
+
+A generated motion's joints come from the features' joint positions (``ric``), which the model
+predicts joint by joint: nothing holds a bone at one length, and limbs grow and shrink from frame
+to frame. :func:`rigid_joints` fits the fixed skeleton to such joints, in parent order from the
+root:
+
+* the root keeps its position;
+* a joint with one child (a knee, an elbow, a neck) keeps the observed direction of the bone to
+  that child, laid out at the skeleton's length from the already fitted joint;
+* a joint with several children (SMPL's pelvis and spine3, KIT's root and BLN) carries them as
+  one rigid piece, as a BVH or glTF joint carries its children's offsets: the children's rest
+  directions are fitted to the motion (the average, over frames, of their observed directions in
+  the piece's best frame, a generalised Procrustes fit), and per frame the piece takes the
+  rotation that best lays them along the observed bones (Kabsch).
+
+The result has every bone at its length in every frame and every branch rigid, so the BVH and
+glTF writers (:mod:`dataset_tools.bvh`, :mod:`dataset_tools.gltf`), which fit hips and collars
+the same way and use the same lengths, reproduce it exactly. Fitting it again returns it unchanged
+(to float64 rounding).
+
+:func:`finish_features` is the finishing step of every generated motion (``t2m.sample``,
+``t2m.edit``, the web app, the evaluation's ``--clean``): the rigid fit, then the foot-contact
+clean-up (:mod:`dataset_tools.cleanup`, whose leg IK keeps every per-frame bone length, so the
+result stays rigid), written back into features (:func:`features_with_joints`).
+
+Shapes: joints (T, J, 3) metres, y-up; lengths (J,) metres, the root's zero.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dataset_tools.cleanup import clean_joints
+from dataset_tools.kinematics import inverse_kinematics
+from dataset_tools.representation import (
+    FACING_SMOOTH_SIGMA,
+    FeatureLayout,
+    recover_from_ric,
+    recover_root,
+)
+from dataset_tools.rotations import qrot, quat_to_6d
+from dataset_tools.skeleton import SMPL, SkeletonSpec, skeleton_for
+
+PROCRUSTES_ITERATIONS = 4
+"""Rounds of the rest-direction fit of a branch (each: per-frame rotations, then their mean
+directions); the change after the fourth is below 1e-9 on generated and real motions."""
+_EPS = 1e-9
+
+
+def model_bone_lengths(skeleton: SkeletonSpec) -> np.ndarray | None:
+    """The bone lengths (J,) every motion of a model on ``skeleton`` gets: SMPL's are the target
+    skeleton every dataset this project builds is retargeted to (and the BVH / glTF writers'
+    lengths); KIT-ML's in :mod:`dataset_tools.skeleton` are typical adult lengths, not its
+    dataset's, so None there: each motion keeps its own median bone lengths."""
+    return SMPL.bone_lengths.copy() if skeleton.name == SMPL.name else None
+
+
+def _unit(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    norm = np.linalg.norm(vectors, axis=-1)
+    return vectors / np.maximum(norm, _EPS)[..., None], norm
+
+
+def _fill_degenerate(directions: np.ndarray, norms: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Unit directions (T, 3) where ``norms`` (T,) vanish replaced by the previous frame's (the
+    rest direction ``rest`` (3,) before the first defined one): a zero-length bone has none."""
+    degenerate = np.flatnonzero(norms < _EPS)
+    if degenerate.size == 0:
+        return directions
+    directions = directions.copy()
+    for frame in degenerate:
+        directions[frame] = directions[frame - 1] if frame > 0 else rest
+    return directions
+
+
+def _kabsch(rest: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """Rotations (T, 3, 3) that best carry unit rest directions (K, 3) onto observed (T, K, 3)."""
+    covariance = np.einsum("tki,kj->tij", observed, rest)  # sum_k observed_k rest_k^T
+    u, _, vt = np.linalg.svd(covariance)
+    det = np.linalg.det(u @ vt)
+    fix = np.ones((len(det), 3))
+    fix[:, 2] = np.sign(det + (det == 0))  # a proper rotation, never a reflection
+    return (u * fix[:, None, :]) @ vt
+
+
+def branch_rest_directions(observed: np.ndarray) -> np.ndarray:
+    """Unit rest directions (K, 3) of the children of a rigid branch, from their observed unit
+    directions (T, K, 3): starting from the first frame, alternately the per-frame best rotations
+    (Kabsch) and the mean of the observed directions turned back by them
+    (:data:`PROCRUSTES_ITERATIONS` rounds). Defined up to one rotation, which the per-frame
+    rotations absorb."""
+    rest = observed[0]
+    for _ in range(PROCRUSTES_ITERATIONS):
+        rotations = _kabsch(rest, observed)  # (T, 3, 3)
+        back = np.einsum("tji,tkj->tki", rotations, observed)  # R^T observed
+        rest, _ = _unit(back.mean(axis=0))
+    return rest
+
+
+def rigid_joints(
+    joints: np.ndarray,
+    skeleton: SkeletonSpec | None = None,
+    lengths: np.ndarray | None = None,
+    held: np.ndarray | None = None,
+) -> np.ndarray:
+    """The skeleton with fixed bone ``lengths`` (J,) fitted to joints (T, J, 3) (see the module
+    docstring); default lengths: :func:`model_bone_lengths`, else the median of each bone's
+    length over the motion. Returns a new float64 array (T, J, 3).
+
+    ``held`` (T, J) bool: joints that keep their given position (an edit's joints kept from its
+    source); the others are fitted from their parent, held or not, as above. A bone from a fitted
+    joint to a held one keeps the length it gets (a held joint is never moved).
+
+    Raises ValueError for shapes that do not fit the skeleton or non-finite joints.
+    """
+    joints = np.asarray(joints, dtype=np.float64)
+    skeleton = skeleton or skeleton_for(joints.shape[1] if joints.ndim == 3 else 0)
+    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3) or len(joints) < 1:
+        raise ValueError(f"joints must be (T >= 1, {skeleton.num_joints}, 3), got {joints.shape}")
+    if not np.isfinite(joints).all():
+        raise ValueError("joints contain NaN or infinite values")
+    if lengths is None:
+        lengths = model_bone_lengths(skeleton)
+    if lengths is None:
+        lengths = np.median(skeleton.bone_lengths_of(joints), axis=0)
+    lengths = np.asarray(lengths, dtype=np.float64)
+    if lengths.shape != (skeleton.num_joints,):
+        raise ValueError(f"lengths must be ({skeleton.num_joints},), got {lengths.shape}")
+    if held is not None:
+        held = np.asarray(held, dtype=bool)
+        if held.shape != joints.shape[:2]:
+            raise ValueError(f"held must be {joints.shape[:2]}, got {held.shape}")
+    parents = skeleton.parents
+    children: dict[int, list[int]] = {joint: [] for joint in range(skeleton.num_joints)}
+    for joint, parent in enumerate(parents):
+        if parent >= 0:
+            children[parent].append(joint)
+    fitted = np.empty_like(joints)
+    fitted[:, 0] = joints[:, 0]
+    for joint in range(skeleton.num_joints):  # parents precede children
+        kids = children[joint]
+        if not kids:
+            continue
+        directions = np.empty((len(joints), len(kids), 3))
+        for k, kid in enumerate(kids):
+            unit, norm = _unit(joints[:, kid] - joints[:, joint])
+            directions[:, k] = _fill_degenerate(unit, norm, skeleton.rest_directions[kid])
+        if len(kids) > 1:
+            rest = branch_rest_directions(directions)
+            directions = np.einsum("tij,kj->tki", _kabsch(rest, directions), rest)
+        fitted[:, kids] = fitted[:, joint : joint + 1] + directions * lengths[kids, None]
+        if held is not None:
+            fitted[:, kids] = np.where(held[:, kids, None], joints[:, kids], fitted[:, kids])
+    return fitted
+
+
+def features_with_joints(features: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """Features (T, D) of ``joints`` (T, J, 3) that share the root of ``features`` (T, D):
+    the root channels and the foot contacts are kept; joint positions (ric) and velocities are
+    the joints' in the features' own facing frame (so ``recover_from_ric`` gives the joints
+    back, to float32 rounding), the 6-D rotations come from inverse kinematics of the joints (the
+    last frame's velocity from a linear extrapolation). Float32.
+    """
+    features = np.asarray(features)
+    layout = FeatureLayout.for_dim(features.shape[-1])
+    num_frames, num_joints = len(features), layout.num_joints
+    if features.ndim != 2 or num_frames < 2:
+        raise ValueError(f"features must be (T >= 2, {layout.dim}), got {features.shape}")
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.shape != (num_frames, num_joints, 3):
+        raise ValueError(f"joints must be ({num_frames}, {num_joints}, 3), got {joints.shape}")
+    skeleton = skeleton_for(num_joints)
+    extended = np.concatenate([joints, 2 * joints[-1:] - joints[-2:-1]], axis=0)  # (T+1, J, 3)
+    facing, root = recover_root(features.astype(np.float64))  # (T, 4) world -> facing
+    facing_per_joint = np.broadcast_to(facing[:, None], (num_frames, num_joints, 4))
+    ric = joints.copy()
+    ric[..., [0, 2]] -= root[:, None, [0, 2]]
+    ric = qrot(facing_per_joint, ric)  # (T, J, 3)
+    velocity = qrot(facing_per_joint, extended[1:] - extended[:-1])  # (T, J, 3)
+    out = features.astype(np.float64).copy()
+    out[:, layout.ric] = ric[:, 1:].reshape(num_frames, -1)
+    out[:, layout.local_velocity] = velocity.reshape(num_frames, -1)
+    local = inverse_kinematics(extended, skeleton, smooth_sigma=FACING_SMOOTH_SIGMA, compat=True)
+    out[:, layout.rot6d] = quat_to_6d(local[:-1, 1:]).reshape(num_frames, -1)
+    return out.astype(np.float32)
+
+
+def finish_features(
+    features: np.ndarray,
+    clean: bool = True,
+    lengths: np.ndarray | None = None,
+    held: np.ndarray | None = None,
+) -> np.ndarray:
+    """Raw generated features (T, D) -> features (T, D) of the finished motion, float32: the
+    joints made rigid (:func:`rigid_joints` with ``lengths``, default :func:`model_bone_lengths`,
+    and ``held`` (T, J) joints left where they are), then, when ``clean``, the foot-contact
+    clean-up (:func:`dataset_tools.cleanup.clean_joints`, with the features' contact channels),
+    written back by :func:`features_with_joints`. ``recover_from_ric`` of the result is the
+    finished motion's joints.
+
+    Raises ValueError for features that are not (T >= 2, D), or ``held`` joints with ``clean``
+    (the clean-up moves feet).
+    """
+    if clean and held is not None and np.any(held):
+        raise ValueError("the foot clean-up moves feet: held joints need clean=False")
+    features = np.asarray(features)
+    layout = FeatureLayout.for_dim(features.shape[-1])
+    if features.ndim != 2 or len(features) < 2:
+        raise ValueError(f"features must be (T >= 2, {layout.dim}), got {features.shape}")
+    skeleton = skeleton_for(layout.num_joints)
+    joints = rigid_joints(
+        recover_from_ric(features.astype(np.float64), layout.num_joints), skeleton, lengths, held
+    )
+    if clean:
+        joints = clean_joints(joints, features[:, layout.foot_contact], skeleton)
+    return features_with_joints(features, joints)
+
+
+__all__ = [
+    "PROCRUSTES_ITERATIONS",
+    "branch_rest_directions",
+    "features_with_joints",
+    "finish_features",
+    "model_bone_lengths",
+    "rigid_joints",
+]
