@@ -310,3 +310,132 @@ def read_plain_pickle(path: str | os.PathLike) -> Any:
         raise UsageError(
             f"{path}: not a plain-data pickle, refused without running it ({error})"
         ) from None
+
+
+# ----------------------------------------------------------------------------- reading JSON
+
+MAX_JSON_DEPTH = 32
+"""Arrays and objects nested in one another in a JSON input we read (a batch edit with inline
+key targets needs 5)."""
+MAX_JSON_DIGITS = 30
+"""Digits of one number in a JSON input we read (a float64 prints with at most 17, and the
+largest whole number any field takes has 10)."""
+MAX_JSON_BYTES = 64 * 2**20
+"""The largest JSON file :func:`read_json` reads unless told otherwise."""
+
+_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')  # a string literal, escapes included
+_BRACKET_STEP = np.zeros(256, dtype=np.int8)  # +1 for [ and {, -1 for ] and }
+_BRACKET_STEP[[ord("["), ord("{")]] = 1
+_BRACKET_STEP[[ord("]"), ord("}")]] = -1
+
+
+def json_depth(text: str) -> int:
+    """How deep arrays and objects nest in the JSON ``text`` (brackets inside strings do not
+    count), found without parsing it, in time and memory linear in its length."""
+    skeleton = _JSON_STRING.sub('""', text).encode("ascii", "ignore")
+    codes = np.frombuffer(skeleton, dtype=np.uint8)
+    deepest, level, chunk = 0, 0, 1 << 22
+    for start in range(0, len(codes), chunk):
+        levels = np.cumsum(_BRACKET_STEP[codes[start : start + chunk]], dtype=np.int64) + level
+        if len(levels):
+            deepest, level = max(deepest, int(levels.max())), int(levels[-1])
+    return deepest
+
+
+def parse_json(
+    text: str, name: str, max_depth: int = MAX_JSON_DEPTH, max_digits: int = MAX_JSON_DIGITS
+) -> Any:
+    """The value of the JSON ``text`` a user gave, read strictly: arrays and objects nested at
+    most ``max_depth`` deep (checked before parsing), numbers of at most ``max_digits`` digits,
+    finite floats only (``1e400``, ``NaN`` and ``Infinity``, which Python's reader takes, are
+    refused), no key twice in one object (which of the two would count is a guess).
+
+    ``name`` says what the text is in messages ("the request body", "--batch edits.json").
+    Raises UsageError (one line naming it) for anything else.
+    """
+    depth = json_depth(text)
+    if depth > max_depth:
+        raise UsageError(
+            f"{name} is nested too deep for a JSON input: {depth} levels; at most {max_depth}"
+        )
+
+    def digits_of(literal: str) -> int:
+        mantissa = re.split("[eE]", literal)[0]
+        return sum(c.isdigit() for c in mantissa)
+
+    def integer(literal: str) -> int:
+        if digits_of(literal) > max_digits:
+            raise UsageError(
+                f"a number in {name} has {digits_of(literal)} digits; at most {max_digits}"
+            )
+        return int(literal)
+
+    def real(literal: str) -> float:
+        if digits_of(literal) > max_digits:
+            raise UsageError(
+                f"a number in {name} has {digits_of(literal)} digits; at most {max_digits}"
+            )
+        value = float(literal)
+        if not math.isfinite(value):
+            raise UsageError(f"the number {literal[:40]} in {name} is too large for a float")
+        return value
+
+    def constant(literal: str) -> float:
+        raise UsageError(f"{literal} in {name} is not a JSON number: give a finite number")
+
+    def unique(pairs: list[tuple[str, Any]]) -> dict:
+        result = dict(pairs)
+        if len(result) < len(pairs):
+            seen = set()
+            twice = next(key for key, _ in pairs if key in seen or seen.add(key))
+            shown = repr(twice) if len(twice) <= 40 else repr(twice[:37]) + "..."
+            raise UsageError(f"{name}: the key {shown} appears twice in one object")
+        return result
+
+    try:
+        return json.loads(
+            text,
+            parse_int=integer,
+            parse_float=real,
+            parse_constant=constant,
+            object_pairs_hook=unique,
+        )
+    except UsageError:
+        raise
+    except json.JSONDecodeError as error:
+        where = f"line {error.lineno}, column {error.colno}: {error.msg}"
+        raise UsageError(f"{name} is not valid JSON ({where})") from None
+    except (ValueError, RecursionError) as error:  # RecursionError: never past the depth check
+        raise UsageError(f"{name} is not valid JSON ({type(error).__name__})") from None
+
+
+def read_json(
+    path: str | os.PathLike,
+    what: str = "",
+    max_bytes: int = MAX_JSON_BYTES,
+    max_depth: int = MAX_JSON_DEPTH,
+) -> Any:
+    """The value of a JSON file that a user named, read by :func:`parse_json` (UTF-8, a
+    byte-order mark dropped) after its size is checked against ``max_bytes``.
+
+    ``what`` names the file's role in messages (``--batch``: "--batch edits.json is not valid
+    JSON ..."). Raises UsageError (one line naming the file) for a missing, unreadable, too large
+    or not UTF-8 file and for every refusal of :func:`parse_json`.
+    """
+    path = Path(path)
+    name = f"{what} {path}" if what else str(path)
+    if not path.is_file():
+        raise UsageError(f"{name}: no such file")
+    try:
+        size = path.stat().st_size
+        if size > max_bytes:
+            raise UsageError(
+                f"{name} is {_format_bytes(size)}; a JSON input here is at most "
+                f"{_format_bytes(max_bytes)}"
+            )
+        text = path.read_bytes().decode("utf-8-sig")
+    except OSError as error:
+        raise UsageError(f"cannot read {name}: {error.strerror or error}") from None
+    except UnicodeDecodeError:
+        raise UsageError(f"{name} is not UTF-8 text") from None
+    return parse_json(text, name, max_depth=max_depth)

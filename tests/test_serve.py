@@ -237,7 +237,11 @@ def test_a_generate_request_is_the_generation_schema_plus_the_web_limits(pipe):
 def test_bad_bodies_routes_and_hosts(server):
     generate = "/api/generate"
     status, answer, _ = call(server, "POST", generate, raw=b"{not json")
-    assert (status, answer["error"]) == (400, "the request body is not valid JSON")
+    assert (status, answer["error"]) == (
+        400,
+        "the request body is not valid JSON (line 1, "
+        "column 2: Expecting property name enclosed in double quotes)",
+    )
     status, answer, _ = call(server, "POST", generate, raw=b'{"seconds": NaN}')
     assert status == 400
     status, answer, _ = call(

@@ -9,7 +9,6 @@ A mapping names, for each SMPL joint, a BVH joint or a point between two (``["Sp
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from dataset_tools.bvh import read_bvh
+from dataset_tools.io import read_json
 from dataset_tools.rotations import to_y_up
 from dataset_tools.skeleton import SMPL, SMPL_JOINT_NAMES
 from dataset_tools.sources import ClipError, Motion
@@ -138,10 +138,7 @@ def load_mapping(spec: str | Path) -> JointMapping:
         raise ValueError(
             f"unknown mapping {str(spec)!r} (built-in: {', '.join(MAPPINGS)}, or a JSON file)"
         )
-    try:
-        content = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path.name}: mapping is not valid JSON ({error})") from None
+    content = read_json(path, "the mapping")  # a UsageError, which is a ValueError
     if not isinstance(content, dict):
         raise ValueError(f"{path.name}: mapping must be a JSON object")
     joints = content.get("joints", content)
@@ -298,7 +295,7 @@ def label_captions(path: str | Path) -> list[str] | None:
     if not (labels.is_file() and (cfg / "content_label.txt").is_file()):
         return None
     try:
-        indices = json.loads(labels.read_text(encoding="utf-8"))
+        indices = read_json(labels)  # UsageError (a ValueError) when malformed
         content = _label_lines(cfg / "content_label.txt")[int(indices["content"])]
         style = _label_lines(cfg / "style_label.txt")[int(indices["style"])]
     except (OSError, ValueError, KeyError, IndexError, TypeError, UnicodeDecodeError):

@@ -10,7 +10,6 @@ Three layouts are read:
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dataset_tools.command import UsageError
-from dataset_tools.io import load_npy
+from dataset_tools.io import load_npy, read_json
 from dataset_tools.rotations import to_y_up
 from dataset_tools.sources import ClipError, Motion, fps_problem
 
@@ -44,10 +43,7 @@ def read_source_config(input_dir: str | Path) -> dict:
     path = Path(input_dir) / SOURCE_CONFIG
     if not path.is_file():
         return {}
-    try:
-        config = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise UsageError(f"{path}: not valid JSON ({error})") from None
+    config = read_json(path)
     if not isinstance(config, dict):
         raise UsageError(f"{path}: expected a JSON object")
     if "fps" in config and (problem := fps_problem(config["fps"])) is not None:

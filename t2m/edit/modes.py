@@ -7,7 +7,6 @@ UsageError with one line.
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import re
@@ -19,6 +18,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from dataset_tools.command import UsageError
+from dataset_tools.io import parse_json
 from dataset_tools.spec import DatasetSpec
 from t2m.edit.core import EditPlan
 from t2m.edit.source import PreparedSource
@@ -266,12 +266,14 @@ def read_path(path: str | Path | np.ndarray | Sequence) -> np.ndarray:
     """Path points (K, 3) rows ``seconds, x, z`` (floor coordinates in metres, the model's frame:
     the motion starts at the origin facing +Z) from an array, a CSV file (optional header line)
     or a JSON file (a list of ``[seconds, x, z]`` or of ``{"t": .., "x": .., "z": ..}``)."""
+    name = "the path"
     if isinstance(path, (str, Path)):
         file = Path(path)
+        name = f"--path {file}"
         text = _read_text(file, "--path")
         try:
             if file.suffix.lower() == ".json":
-                data = json.loads(text)
+                data = parse_json(text, f"--path {file}")
                 data = data.get("points", data) if isinstance(data, dict) else data
                 rows = [[p["t"], p["x"], p["z"]] if isinstance(p, dict) else p for p in data]
             else:
@@ -290,8 +292,6 @@ def read_path(path: str | Path | np.ndarray | Sequence) -> np.ndarray:
             points = np.asarray(rows, dtype=np.float64)
         except UsageError:
             raise
-        except RecursionError:  # JSON nested deeper than the parser goes
-            raise UsageError(f"--path {file}: nested too deep; give rows 'seconds,x,z'") from None
         except (ValueError, KeyError, TypeError, OverflowError, AttributeError):
             raise UsageError(f"--path {file}: give rows 'seconds,x,z'") from None
     else:
@@ -300,15 +300,15 @@ def read_path(path: str | Path | np.ndarray | Sequence) -> np.ndarray:
         except (ValueError, TypeError, OverflowError):
             raise UsageError("a path is rows of (seconds, x, z) numbers") from None
     if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
-        raise UsageError(f"a path is rows of (seconds, x, z), got shape {points.shape}")
+        raise UsageError(f"{name}: give rows of (seconds, x, z), got shape {points.shape}")
     if len(points) > MAX_PATH_POINTS:
-        raise UsageError(f"a path has {len(points)} rows; at most {MAX_PATH_POINTS}")
+        raise UsageError(f"{name} has {len(points)} rows; at most {MAX_PATH_POINTS}")
     if not np.all(np.isfinite(points)):
-        raise UsageError("the path contains NaN or infinite values")
+        raise UsageError(f"{name} contains NaN or infinite values")
     if np.any(np.diff(points[:, 0]) <= 0) or points[0, 0] < 0:
-        raise UsageError("path times must be >= 0 and increasing")
+        raise UsageError(f"{name}: times must be >= 0 and increasing")
     if points[-1, 0] > MAX_SECONDS:
-        raise UsageError(f"path times must be at most {MAX_SECONDS:g} s, got {points[-1, 0]:g}")
+        raise UsageError(f"{name}: times must be at most {MAX_SECONDS:g} s, got {points[-1, 0]:g}")
     return points
 
 
@@ -331,20 +331,21 @@ def plan_path(text: str, points: np.ndarray, spec: DatasetSpec, seconds: float |
     return EditPlan(text, frames, target, keep)
 
 
-def plan_keys(text: str, keys: np.ndarray, spec: DatasetSpec) -> EditPlan:
+def plan_keys(text: str, keys: np.ndarray, spec: DatasetSpec, name: str = "--keys") -> EditPlan:
     """Joint targets (T, J, 3), NaN where free, in the model's frame; the root's floor position
-    is met exactly, other targets as closely as the search gets."""
+    is met exactly, other targets as closely as the search gets. ``name`` names them in messages
+    (``--keys FILE`` when read from one)."""
     keys = np.asarray(keys, dtype=np.float64)
     if keys.ndim != 3 or keys.shape[1:] != (spec.num_joints, 3):
         raise UsageError(
-            f"--keys must be (T, {spec.num_joints}, 3) with NaN for free, got {keys.shape}"
+            f"{name} must be (T, {spec.num_joints}, 3) with NaN for free, got {keys.shape}"
         )
     finite = np.isfinite(keys)
     if not finite.any():
-        raise UsageError("--keys constrains nothing (all NaN)")
+        raise UsageError(f"{name} constrains nothing (all NaN)")
     if np.isinf(keys).any():
-        raise UsageError("--keys contains infinite values (use NaN for free)")
-    frames = _whole_snippets(_round_up(len(keys), spec), spec, "--keys")
+        raise UsageError(f"{name} contains infinite values (use NaN for free)")
+    frames = _whole_snippets(_round_up(len(keys), spec), spec, name)
     target, keep = _empty(frames, spec)
     target[: len(keys)] = keys
     rows = np.flatnonzero(np.isfinite(target[:, 0, [0, 2]]).all(-1))
@@ -352,7 +353,7 @@ def plan_keys(text: str, keys: np.ndarray, spec: DatasetSpec) -> EditPlan:
         check_reachable(
             np.concatenate([[0.0], rows / spec.fps]),
             np.concatenate([[[0.0, 0.0]], target[rows, 0][:, [0, 2]]]),
-            "--keys",
+            name,
         )
     return EditPlan(text, frames, target, keep)
 
@@ -378,9 +379,12 @@ def read_timeline(
     snippets. ``max_lines`` / ``max_seconds``: the most segments and the longest timeline
     accepted (None: :data:`MAX_SECONDS` only); the message names the command's options that
     raise them (``--max-timeline-lines``, ``--max-timeline-seconds``)."""
+    whole, line_name = "the timeline", "timeline line"  # how messages name it
     if isinstance(lines, Path) or (
         isinstance(lines, str) and "\n" not in lines and "#" not in lines
     ):
+        whole = f"--timeline {lines}"
+        line_name = f"{whole} line"
         lines = _read_text(Path(lines), "--timeline").splitlines()
     elif isinstance(lines, str):
         lines = lines.splitlines()
@@ -388,7 +392,7 @@ def read_timeline(
         count = sum(1 for line in lines if line.strip())
         if count > max_lines:
             raise UsageError(
-                f"the timeline has {count} lines, more than the {max_lines} allowed "
+                f"{whole} has {count} lines, more than the {max_lines} allowed "
                 "(--max-timeline-lines raises the limit)"
             )
     entries: list[tuple[str, float, float]] = []
@@ -407,36 +411,36 @@ def read_timeline(
                 raise ValueError
         except ValueError:
             raise UsageError(
-                f"timeline line {number}: give 'text#start#end' or 'text#seconds'"
+                f"{line_name} {number}: give 'text#start#end' or 'text#seconds'"
             ) from None
         if not text or not (math.isfinite(start) and math.isfinite(end)) or end <= start:
-            raise UsageError(f"timeline line {number}: an empty prompt or end <= start")
+            raise UsageError(f"{line_name} {number}: an empty prompt or end <= start")
         if end > MAX_SECONDS:
             raise UsageError(
-                f"timeline line {number}: ends at {end:g} s; a timeline ends by {MAX_SECONDS:g} s"
+                f"{line_name} {number}: ends at {end:g} s; a timeline ends by {MAX_SECONDS:g} s"
             )
         half = 0.5 / spec.fps
         if abs(start - cursor) > half:
             kind = "a gap" if start > cursor else "an overlap"
             raise UsageError(
-                f"timeline line {number}: starts at {start:g} s, the previous ends at "
+                f"{line_name} {number}: starts at {start:g} s, the previous ends at "
                 f"{cursor:g} s ({kind}); segments must follow each other"
             )
         if max_seconds is not None and end > max_seconds:
             raise UsageError(
-                f"timeline line {number}: ends at {end:g} s, past the {max_seconds:g} s allowed "
+                f"{line_name} {number}: ends at {end:g} s, past the {max_seconds:g} s allowed "
                 "(--max-timeline-seconds raises the limit)"
             )
         entries.append((text, start, end))
         cursor = end
     if not entries:
-        raise UsageError("the timeline holds no segment")
+        raise UsageError(f"{whole} holds no segment")
     unit = spec.snippet_length
     segments = []
     for number, (text, start, end) in enumerate(entries, start=1):
         first = int(round(start * spec.fps / unit)) * unit
         last = int(round(end * spec.fps / unit)) * unit
         if last <= first:
-            raise UsageError(f"timeline segment {number} is shorter than one snippet")
+            raise UsageError(f"{whole}: segment {number} is shorter than one snippet")
         segments.append(Segment(text, first, last))
     return segments

@@ -10,12 +10,14 @@ directly; a file field also takes an array (``source``, ``keys``: (T, J, 3); ``p
 
 from __future__ import annotations
 
+import dataclasses
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from dataset_tools.command import UsageError, option
+from dataset_tools.command import UsageError, json_key, option
 from t2m.edit.core import EditPlan
 from t2m.edit.modes import (
     BODY_PARTS,
@@ -113,10 +115,13 @@ class EditRequest:
             )
 
     def prepared_source(self, spec) -> PreparedSource:
-        joints = self.source
+        joints, name = self.source, "the source"
         if isinstance(joints, (str, Path)):
-            joints = load_source(joints, spec, self.mapping, self.source_fps)
-        return prepare_source(np.asarray(joints), spec)
+            joints, name = (
+                load_source(joints, spec, self.mapping, self.source_fps),
+                f"--source {joints}",
+            )
+        return prepare_source(np.asarray(joints), spec, name)
 
     def plan(self, spec) -> EditPlan:
         """This request as a plan (not for compose, which chains several)."""
@@ -134,10 +139,21 @@ class EditRequest:
         if mode == "path":
             return plan_path(self.text, read_path(self.path), spec, self.seconds)
         if mode == "keys":
-            keys = self.keys
+            keys, name = self.keys, "--keys"
             if isinstance(keys, (str, Path)):
                 from dataset_tools.io import load_npy
 
-                keys = load_npy(keys, finite=False)
-            return plan_keys(self.text, keys, spec)
+                keys, name = load_npy(keys, finite=False), f"--keys {keys}"
+            return plan_keys(self.text, keys, spec, name)
         raise ValueError(f"{mode} has no single plan")
+
+
+_FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
+
+def json_terms(message: str) -> str:
+    """A message about an :class:`EditRequest` in the words of its JSON readers (``--batch``,
+    the web): each command-line option of a request field (``--keep-seconds``) becomes the field's
+    JSON key (``keep_seconds``); the command's own options (``--max-timeline-lines``) stay."""
+    keys = {"--" + f.name.replace("_", "-"): json_key(f) for f in dataclasses.fields(EditRequest)}
+    return _FLAG.sub(lambda match: keys.get(match[0], match[0]), message)

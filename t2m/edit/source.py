@@ -104,26 +104,29 @@ def load_source(
     return joints.astype(np.float32)
 
 
-def prepare_source(joints: np.ndarray, spec: DatasetSpec = HUMANML3D) -> PreparedSource:
+def prepare_source(
+    joints: np.ndarray, spec: DatasetSpec = HUMANML3D, name: str = "the source"
+) -> PreparedSource:
     """Bring joints (T, J, 3) (y-up metres at ``spec.fps``) into the model's frame.
 
-    Raises UsageError for NaN, another joint count, or a motion shorter than one snippet plus
-    the frame the features' velocities need.
+    Raises UsageError (naming the source as ``name``: ``--source FILE`` when read from one) for
+    NaN, another joint count, or a motion shorter than one snippet plus the frame the features'
+    velocities need.
     """
     joints = np.asarray(joints, dtype=np.float64)
     if joints.ndim != 3 or joints.shape[1:] != (spec.num_joints, 3):
-        raise UsageError(f"source joints must be (T, {spec.num_joints}, 3), got {joints.shape}")
+        raise UsageError(f"{name}: joints must be (T, {spec.num_joints}, 3), got {joints.shape}")
     if not np.all(np.isfinite(joints)):
-        raise UsageError("the source contains NaN or infinite values")
+        raise UsageError(f"{name} contains NaN or infinite values")
     if len(joints) < spec.snippet_length + 1:
         raise UsageError(
-            f"the source has {len(joints)} frames; an edit needs at least "
+            f"{name} has {len(joints)} frames at {spec.fps:g} fps; an edit needs at least "
             f"{spec.snippet_length + 1} ({(spec.snippet_length + 1) / spec.fps:.2f} s)"
         )
     try:
         features, recovered = process_motion(joints)
     except ValueError as error:  # degenerate poses (no facing direction)
-        raise UsageError(f"cannot use the source: {error}") from None
+        raise UsageError(f"cannot use {name}: {error}") from None
     return PreparedSource(
         features.astype(np.float32), recovered.astype(np.float32), half_yaw_of(features)
     )

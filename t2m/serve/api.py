@@ -11,14 +11,13 @@ naming the field, which the page shows as it is.
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
 import unicodedata
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from dataset_tools.command import UsageError, fields_from_dict, json_key
+from dataset_tools.io import parse_json
 from dataset_tools.spec import DatasetSpec
 from t2m.motion import GeneratedMotion
 from t2m.options import OutputOptions
@@ -79,40 +78,11 @@ class CheckedGeneration:
     precision: str
 
 
-MAX_NUMBER_DIGITS = 30
-"""digits of an integer in a request's JSON (the largest value any field takes has 10)"""
-
-
 def read_json(text: str) -> object:
-    """A request body's JSON, with numbers a request can mean: integers of at most
-    :data:`MAX_NUMBER_DIGITS` digits and finite floats (``1e400``, ``NaN`` and ``Infinity``, which
-    Python's reader takes, are refused). UsageError (one line) for anything else."""
-
-    def integer(digits: str) -> int:
-        if len(digits.lstrip("-")) > MAX_NUMBER_DIGITS:
-            raise UsageError(
-                f"a number in the request has {len(digits.lstrip('-'))} digits; at most "
-                f"{MAX_NUMBER_DIGITS}"
-            )
-        return int(digits)
-
-    def real(digits: str) -> float:
-        value = float(digits)
-        if not math.isfinite(value):
-            raise UsageError(f"the number {digits[:40]} in the request is too large")
-        return value
-
-    def constant(name: str) -> float:
-        raise UsageError(f"{name} is not a JSON number: give a finite number")
-
-    try:
-        return json.loads(text, parse_int=integer, parse_float=real, parse_constant=constant)
-    except UsageError:
-        raise
-    except ValueError:
-        raise UsageError("the request body is not valid JSON") from None
-    except RecursionError:  # arrays or objects nested deeper than the parser goes
-        raise UsageError("the request body is not valid JSON: nested too deep") from None
+    """A request body's JSON, read by the project's one strict reader
+    (:func:`dataset_tools.io.parse_json`: nesting, digits of a number, finite floats, no key
+    twice). UsageError (one line naming "the request body") for anything else."""
+    return parse_json(text, "the request body")
 
 
 def check_text(value: object, what: str, limit: int) -> str:

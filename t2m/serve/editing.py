@@ -173,6 +173,7 @@ def parse_edit(app, payload: object, folder: Path) -> tuple:
     refused; uploads take the place of files (read, and their files removed, here); the web's
     limits come on top."""
     from t2m.edit import EditRequest
+    from t2m.edit.request import json_terms
     from t2m.serve.api import run_options
 
     if not isinstance(payload, dict):
@@ -183,7 +184,11 @@ def parse_edit(app, payload: object, folder: Path) -> tuple:
     source_name = _read_uploads(app, values, uploads, folder)
     _check_limits(app, values)
     samples, seed, precision = run_options(payload, app.limits, app.pipe.device.type)
-    return EditRequest(**values), source_name, samples, seed, precision
+    try:
+        request = EditRequest(**values)
+    except UsageError as error:  # its checks name options; a request's keys are named here
+        raise UsageError(json_terms(str(error))) from None
+    return request, source_name, samples, seed, precision
 
 
 def _web_shapes(fields: dict) -> dict:
@@ -306,8 +311,10 @@ def edit(app, payload: object) -> dict:
     if not call.done.wait(app.generate_timeout):
         raise Busy("the edit took too long; try fewer samples")
     if call.error is not None:
-        if isinstance(call.error, ValueError):
-            raise UsageError(str(call.error)) from None
+        if isinstance(call.error, ValueError):  # a plan's refusal, in the request's keys
+            from t2m.edit.request import json_terms
+
+            raise UsageError(json_terms(str(call.error))) from None
         raise call.error
     motions, prepared = call.result
     extra = {"precision": precision, "mode": mode, "source": source_name}

@@ -431,7 +431,7 @@ def test_malformed_index_source_json_and_mapping_are_one_line(tmp_path, capsys):
     cases.append((("--index", str(negative)), "negative.csv:2"))
     for extra, words in cases:
         assert_one_line_error(*build(capsys, source, out, *extra), words)
-    for content, words in (("{", "not valid JSON"), ('{"fps": 1e999}', "frame rate")):
+    for content, words in (("{", "not valid JSON"), ('{"fps": 1e999}', "too large")):
         (source / "source.json").write_text(content)
         assert_one_line_error(*build(capsys, source, out), "source.json", words)
     bvh = tmp_path / "bvh"

@@ -80,7 +80,7 @@ def test_a_400_digit_integer_in_a_path_is_a_400(server):
     raw = json.dumps(_path_edit([[1, 0, 0.5], [2, 12345, 1]])).replace("12345", "9" * 400)
     status, answer, _ = call(server, "POST", "/api/edit", raw=raw.encode())
     assert status == 400, answer
-    assert answer["error"] == "a number in the request has 400 digits; at most 30"
+    assert answer["error"] == "a number in the request body has 400 digits; at most 30"
 
 
 @pytest.mark.parametrize("number", ["9" * 400, "1e400", "NaN", "-Infinity"])
