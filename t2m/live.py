@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 from dataset_tools.command import UsageError
-from dataset_tools.representation import recover_root
+from dataset_tools.representation import recover_from_ric, recover_root
 from dataset_tools.rotations import qinv, qrot
 from t2m.edit import COMPOSE_CONTEXT_SECONDS, _continuation
 from t2m.edit.core import EditPlan, SearchSettings, generate_plans
@@ -61,7 +61,7 @@ logger = logging.getLogger(__name__)
 
 CONTEXT_SECONDS = COMPOSE_CONTEXT_SECONDS
 """Each segment continues from this much of what was made before it (as ``compose`` does)."""
-FINISH_LOOKBACK_FRAMES = 16
+FINISH_LOOKBACK_FRAMES = 32
 """Frames before a snippet that its finishing window includes (a foot's contact run and its
 lock see this far back)."""
 MAX_REWIND_SECONDS = 5.0
@@ -164,7 +164,9 @@ class LiveStream:
         text: the first prompt.
         seed: seeds every draw (:func:`segment_seed`).
         seconds: the first prompt's segment length (None: the text2length model's draw).
-        clean: finish each snippet (:meth:`~t2m.pipeline.TextToMotion.finish`); False: raw.
+        finish: finish each snippet (:meth:`~t2m.pipeline.TextToMotion.finish`); False: the
+            model's raw output.
+        clean: the finishing's foot-contact clean-up.
         settings: the search of each segment (default: one draw, read by the posterior, no
             optimisation: what a ``continue`` edit without targets past the seam runs).
         context_seconds: how much of what was made each segment continues from.
@@ -180,6 +182,7 @@ class LiveStream:
         seed: int = 0,
         *,
         seconds: float | None = None,
+        finish: bool = True,
         clean: bool = True,
         settings: SearchSettings | None = None,
         context_seconds: float = CONTEXT_SECONDS,
@@ -187,7 +190,7 @@ class LiveStream:
         self.pipe = pipe
         self.spec = pipe.spec
         self.seed = int(seed)
-        self.clean = clean
+        self.finish, self.clean = finish, clean
         self.settings = settings or SearchSettings(method="posterior", candidates=1)
         unit = self.spec.snippet_length
         if not (0 <= context_seconds < math.inf):
@@ -327,9 +330,10 @@ class LiveStream:
         # the world root (half-yaw, x, z) of the window's first frame
         first = history.root[len(history.root) - back][0] if back else np.zeros(3)
         rows = slice(len(window) - len(raw), len(window))
-        joints, features = self.pipe.finish(window, self.clean and len(window) >= 2)
-        if not self.clean:
-            features = window
+        if self.finish and len(window) >= 2:
+            joints, features = self.pipe.finish(window, self.clean)
+        else:
+            joints, features = recover_from_ric(window, self.spec.num_joints), window
         _, root = recover_root(window)  # window-local: frame 0 at the origin facing +Z
         half_yaw = np.concatenate([[0.0], np.cumsum(window[:-1, 0], dtype=np.float64)])
         world = np.empty((len(raw), 3))
@@ -399,6 +403,7 @@ def replay(
     timeline: str | Path | Sequence[str],
     seed: int = 0,
     *,
+    finish: bool = True,
     clean: bool = True,
     settings: SearchSettings | None = None,
 ) -> LiveStream:
@@ -406,7 +411,7 @@ def replay(
     writes them), each taking over at its start, pulled to the timeline's end: with the
     stream's seed it makes the same frames (:meth:`LiveStream.joints`)."""
     segments = read_timeline(timeline, pipe.spec)
-    stream = LiveStream(pipe, segments[0].text, seed, clean=clean, settings=settings)
+    stream = LiveStream(pipe, segments[0].text, seed, finish=finish, clean=clean, settings=settings)
     for segment in segments[1:]:
         stream.prompt(segment.text, at=segment.start)
     while stream.frame < segments[-1].stop:
@@ -423,6 +428,42 @@ __all__ = [
     "LivePrompt",
     "LiveStream",
     "Snippet",
+    "drift_report",
     "replay",
     "segment_seed",
 ]
+
+
+def drift_report(joints: np.ndarray, fps: float, window_seconds: float = 30.0) -> list[dict]:
+    """How a long stream holds up, per window of ``window_seconds`` of world joints (T, J, 3)
+    (SMPL or KIT numbering, y-up metres): ``floor_m`` (median over frames of the lowest foot
+    joint's height: the figure stands on the floor near 0), ``upright_deg`` (median angle of the
+    pelvis-to-neck line from vertical), ``speed_p95_mps`` (95th percentile of the root's
+    horizontal speed), ``jerk_mean`` (mean of :func:`dataset_tools.physical.jerk_curve`,
+    m/s^3). A stream that drifts shows a trend across the windows."""
+    from dataset_tools.physical import jerk_curve
+    from dataset_tools.skeleton import skeleton_for
+
+    joints = np.asarray(joints, dtype=np.float64)
+    skeleton = skeleton_for(joints.shape[1])
+    feet = [*skeleton.feet_left, *skeleton.feet_right]
+    neck = skeleton.joint_names.index("neck")
+    size = max(4, int(window_seconds * fps))
+    report = []
+    for start in range(0, len(joints) - 3, size):
+        part = joints[start : start + size]
+        if len(part) < 4:
+            break
+        spine = part[:, neck] - part[:, 0]
+        cosine = spine[:, 1] / np.maximum(np.linalg.norm(spine, axis=-1), 1e-9)
+        speed = np.linalg.norm(np.diff(part[:, 0, [0, 2]], axis=0), axis=-1) * fps
+        report.append(
+            {
+                "start_s": start / fps,
+                "floor_m": float(np.median(part[:, feet, 1].min(axis=1))),
+                "upright_deg": float(np.degrees(np.median(np.arccos(np.clip(cosine, -1, 1))))),
+                "speed_p95_mps": float(np.percentile(speed, 95)),
+                "jerk_mean": float(jerk_curve(part, fps).mean()),
+            }
+        )
+    return report

@@ -15,6 +15,11 @@ Routes (the table :data:`ROUTES` below the request handler; docs/webapp.md docum
     POST /api/edit                  edit an uploaded or generated motion (t2m.serve.editing)
     GET  /api/results/<id>          a request's answer again (the page's history)
     GET  /api/files/<id>/<name>     a download: sampleNN_repRR.npy|bvh|glb|mp4|gif, results.npy|json
+    POST /api/live                  start a live stream (t2m.serve.live; docs/live.md)
+    GET  /api/live/<id>/events      its frames as server-sent events (one long-lived connection)
+    POST /api/live/<id>/prompt      a new prompt for it
+    POST /api/live/<id>/close       end it
+    GET  /api/live/<id>/<name>      timeline.txt, motion.npy|bvh|glb: the live motion so far
 
 HEAD is GET without the body. A path that only takes POST answers other methods with 405; any
 other unmatched request is 404. Errors are JSON ``{"error": sentence}``: 400 for bad input, 404
@@ -48,6 +53,7 @@ from dataset_tools.viz import RenderConfig, _chain_side  # the renderings' colou
 from t2m.pipeline import TextToMotion, offered_precisions
 from t2m.serve import api
 from t2m.serve.editing import edit, edit_info
+from t2m.serve.live import WRITE_TIMEOUT_S, LiveHub
 from t2m.serve.results import CONTENT_TYPES, DOWNLOAD_KINDS, Expired, ResultStore
 from t2m.serve.worker import GenerationJob, GenerationWorker
 
@@ -68,6 +74,7 @@ STATIC_FILES = {
         "api.js",
         "dom.js",
         "edit.js",
+        "live.js",
         "player.js",
         "viewer.js",
     )
@@ -104,9 +111,11 @@ class App:
     loopback_only: bool
     generate_timeout: float = 600.0
     boot: str = ""
+    live: LiveHub | None = None
 
     def __post_init__(self) -> None:
         self.boot = self.boot or secrets.token_urlsafe(8)
+        self.live = self.live or LiveHub(self.pipe)
 
     def info(self) -> dict:
         """GET /api/info."""
@@ -139,6 +148,7 @@ class App:
             },
             "limits": api.limits_json(self.limits),
             "edit": edit_info(),
+            "live": self.live.info(),
         }
 
     def generate(self, payload: object) -> dict:
@@ -344,6 +354,42 @@ class Handler(BaseHTTPRequestHandler):
         finally:
             self.app.store.release(answer["id"])
 
+    def post_live_open(self) -> None:
+        self._json(HTTPStatus.OK, self.app.live.open(self._read_json(), self.app.limits))
+
+    def post_live_prompt(self, session: str) -> None:
+        self._json(HTTPStatus.OK, self.app.live.prompt(session, self._read_json()))
+
+    def post_live_close(self, session: str) -> None:
+        self.app.live.close(session)
+        self._json(HTTPStatus.OK, {"closed": session})
+
+    def get_live_events(self, session: str) -> None:
+        """Server-sent events until the stream ends or the viewer goes (t2m.serve.live)."""
+        live = self.app.live.attach(session)  # 404 (or 400) before any header
+        self.close_connection = True
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", "text/event-stream; charset=utf-8")
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("Connection", "close")
+        for key, value in SECURITY_HEADERS.items():
+            self.send_header(key, value)
+        self.end_headers()
+        if self.command == "HEAD":
+            return
+        self.connection.settimeout(WRITE_TIMEOUT_S)
+
+        def write(data: bytes) -> None:
+            self.wfile.write(data)
+            self.wfile.flush()
+
+        self.app.live.run_events(live, write)
+
+    def get_live_download(self, session: str, name: str) -> None:
+        body, content_type, filename = self.app.live.download(session, name)
+        extra = {"Content-Disposition": f"attachment; filename*=UTF-8''{quote(filename)}"}
+        self._send(HTTPStatus.OK, body, content_type, extra)
+
     def get_result(self, request_id: str) -> None:
         self._json(HTTPStatus.OK, self.app.answer(request_id))
 
@@ -432,6 +478,11 @@ ROUTES: tuple[Route, ...] = (
     Route("POST", "/api/edit", Handler.post_edit),
     Route("GET", "/api/results/<request_id>", Handler.get_result),
     Route("GET", "/api/files/<request_id>/<name>", Handler.get_download),
+    Route("POST", "/api/live", Handler.post_live_open),
+    Route("GET", "/api/live/<session>/events", Handler.get_live_events),
+    Route("POST", "/api/live/<session>/prompt", Handler.post_live_prompt),
+    Route("POST", "/api/live/<session>/close", Handler.post_live_close),
+    Route("GET", "/api/live/<session>/<name>", Handler.get_live_download),
 )
 """method + path -> handler, in the order they are tried"""
 
@@ -468,6 +519,7 @@ class Server(ThreadingHTTPServer):
         """Stop serving, stop the worker and remove the generated files."""
         self.shutdown()
         self.server_close()
+        self.app.live.close_all()
         self.app.worker.stop()
         self.app.store.close()
 
@@ -483,10 +535,12 @@ def make_server(
     max_batch_motions: int = 32,
     max_queue: int = 16,
     limits: api.Limits | None = None,
+    live_streams: int = 8,
 ) -> Server:
     """A server bound to (host, port) (port 0: a free one; ``server.url``), not yet serving:
     call ``serve_forever()`` (in a thread) and ``shutdown_app()``. ``work_dir``: where the
-    generated files go (default: a new temporary folder)."""
+    generated files go (default: a new temporary folder). ``live_streams``: live-mode streams
+    at once (:mod:`t2m.serve.live`)."""
     import tempfile
 
     limits = limits or api.Limits()
@@ -498,6 +552,7 @@ def make_server(
     store = ResultStore(work_dir, pipe.spec.fps, keep_seconds, max_bytes, own_folder, kinds)
     worker = GenerationWorker(pipe, max_batch_motions=max_batch_motions, max_queue=max_queue)
     app = App(pipe, worker, store, limits, str(checkpoints), loopback_only=is_loopback(host))
+    app.live = LiveHub(pipe, max_streams=live_streams)
     handler = type("BoundHandler", (Handler,), {"app": app})
     family_host = host.strip("[]")
     server_class = Server
