@@ -177,8 +177,9 @@ def test_summary_and_markdown_mark_quick_runs(tmp_path):
 
 
 def test_standard_settings_have_no_deviation():
-    assert evaluate.deviations(evaluate.EvalConfig(), num_items=4384) == []
-    notes = evaluate.deviations(evaluate.EvalConfig(replications=5), num_items=4384)
+    paper = evaluate.EvalConfig(plan="whole")
+    assert evaluate.deviations(paper, num_items=4384) == []
+    notes = evaluate.deviations(evaluate.EvalConfig(plan="whole", replications=5), num_items=4384)
     assert notes == ["replications = 5 (standard: 20)"]
 
 
@@ -212,7 +213,7 @@ def test_quick_lowers_only_the_values_not_given():
     assert standard == evaluate.STANDARD and standard.device == "auto"
     quick = eval_config(parser().parse_args([*base, "--quick", "--replications", "5"]))
     assert quick.quick and quick.replications == 5
-    assert (quick.mm_texts, quick.mm_samples, quick.max_items) == (16, 10, 128)
+    assert (quick.mm_texts, quick.mm_samples, quick.max_items) == (16, 10, 256)
     assert eval_config(parser().parse_args([*base, "--threads", "2"])).num_threads == 2
 
 

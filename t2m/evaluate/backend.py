@@ -12,6 +12,7 @@ statistics, the embedder normalises with the evaluator's.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,6 +46,11 @@ class Backend(Protocol):
         """One motion per caption as raw features (T_i, D); ``lengths`` in frames (multiples
         of 4), or None to let the length model draw them. Deterministic for a seed."""
         ...
+
+
+# A backend may also offer ``with_plan(plan) -> Backend`` (the same models generating with the
+# other plan) and ``plans_differ(captions) -> bool`` (whether the plans generate some caption
+# differently): the protocol then tables the other plan's rows too (EvalConfig.both_plans).
 
 
 @dataclass(frozen=True)
@@ -166,16 +172,19 @@ class CheckpointBackend:
         batch_size: items per forward pass.
     """
 
-    def __init__(self, evaluator: Any, pipeline: Any, batch_size: int = 128, plan: str = "whole"):
+    def __init__(self, evaluator: Any, pipeline: Any, batch_size: int = 128, plan: str = "clauses"):
         if batch_size < 1:
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         embedder = evaluator if isinstance(evaluator, Embedder) else Embedder.from_stage(evaluator)
         self.embedder = embedder
         self.pipeline = pipeline
         self.batch_size = batch_size
+        if plan not in ("clauses", "whole"):
+            raise ValueError(f"plan must be 'clauses' or 'whole', got {plan!r}")
         self.plan = plan
-        """how captions are generated: "whole" (one pass, the paper) or "clauses"
-        (:meth:`t2m.pipeline.TextToMotion.generate_features` with each caption's clauses)"""
+        """how captions are generated: "clauses" (:meth:`t2m.pipeline.TextToMotion.
+        generate_features` with each caption's clauses, as t2m.sample) or "whole" (one pass,
+        the paper)"""
         self.evaluator = embedder.evaluator
         self.device = next(self.evaluator.parameters()).device
         if embedder.normalizer.dim != pipeline.normalizer.dim:
@@ -203,7 +212,7 @@ class CheckpointBackend:
         precision: str = "fp32",
         evaluator_dir: str | Path | None = None,
         glove_dir: str | Path | None = None,
-        plan: str = "whole",
+        plan: str = "clauses",
     ) -> CheckpointBackend:
         """Load the generator and length stages of a run folder, or the original T2M release's
         models (any folder of its layout), and the evaluator (:meth:`Embedder.load`): the one
@@ -220,6 +229,19 @@ class CheckpointBackend:
             run_dir, str(resolved), precision, which=which, glove_dir=glove_dir
         )
         return cls(embedder, pipeline, batch_size, plan)
+
+    def with_plan(self, plan: str) -> CheckpointBackend:
+        """The same models and caches, generating with ``plan``."""
+        other = copy.copy(self)
+        if plan not in ("clauses", "whole"):
+            raise ValueError(f"plan must be 'clauses' or 'whole', got {plan!r}")
+        other.plan = plan
+        return other
+
+    def plans_differ(self, captions: Sequence[Caption]) -> bool:
+        """Whether the clause plan generates some of ``captions`` otherwise than one pass: one
+        of them reads as several clauses (:meth:`~t2m.pipeline.TextToMotion.encode_clauses`)."""
+        return any(len(self._clauses(self.pipeline, caption)) > 1 for caption in captions)
 
     def _encode(self, vectorizer: Any, captions: Sequence[Caption]) -> list[Any]:
         """Dataset tokens (``word/POS``) -> EncodedText, as the models were trained on them."""

@@ -57,6 +57,23 @@ REAL = "Real motions"
 GT_LENGTH = "Ours (ground-truth length)"
 SAMPLED_LENGTH = "Ours (sampled length)"
 ROWS = (REAL, GT_LENGTH, SAMPLED_LENGTH)
+"""The protocol's rows; the generated ones with the evaluation's plan (``EvalConfig.plan``)."""
+
+PLANS = ("clauses", "whole")
+PLAN_NAMES = {"clauses": "clause by clause", "whole": "one pass"}
+PAPER_PLAN = "whole"
+"""The paper's protocol generates every caption in one pass."""
+
+
+def plan_row(row: str, plan: str) -> str:
+    """The name of a generated row made with the other plan: ``Ours (ground-truth length, one
+    pass)``, ``Ours (sampled length, clause by clause)``."""
+    return f"{row[:-1]}, {PLAN_NAMES[plan]})"
+
+
+def other_plan(plan: str) -> str:
+    return "whole" if plan == "clauses" else "clauses"
+
 
 METRICS = (
     "r_precision_top1",
@@ -116,9 +133,17 @@ class EvalConfig:
     evaluator always runs in float32"""
     quick: bool = False
     """development run: few replications on a subset, marked as such in every output"""
-    plan: Literal["whole", "clauses"] = "whole"
-    """how a caption is generated: whole (one pass, as the paper evaluates) or clauses (a
-    caption of several clauses clause by clause, as t2m.sample does by default; t2m.clauses)"""
+    plan: Literal["clauses", "whole"] = "clauses"
+    """how a caption is generated: clauses (a caption of several clauses clause by clause, as
+    t2m.sample and the web app do; t2m.clauses) or whole (one pass, as the paper evaluates)"""
+    both_plans: bool = True
+    """also table the generated rows made with the other plan, named (``..., one pass)``),
+    when it differs on the split's captions (some caption has several clauses); the same items,
+    captions and seeds as the plan's rows, without MultiModality"""
+    min_segments: int = field(default=30, metadata=option(metavar="N"))
+    """when a replication evaluates a subset of the split (--max-items), draw it so that every
+    action the dataset's labels name has at least N segments in it (the demo corpus; 0: a
+    uniform draw); the subset grows by whole R-precision pools where --max-items is too few"""
     clean: bool = False
     """finish generated motions as t2m.sample does by default (rigid on the model's skeleton,
     dataset_tools.rigid, then the foot-contact clean-up, dataset_tools.cleanup) before they are
@@ -135,6 +160,7 @@ class EvalConfig:
             "max_items": 1,
             "batch_size": 1,
             "num_threads": 0,
+            "min_segments": 0,
         }
         for key, least in at_least.items():
             value = getattr(self, key)
@@ -147,8 +173,9 @@ class EvalConfig:
 
 STANDARD = EvalConfig()
 
-# What --quick changes; explicit command-line values win.
-QUICK_SETTINGS = {"replications": 3, "max_items": 128, "mm_texts": 16, "mm_samples": 10}
+# What --quick changes; explicit command-line values win. 256 items: a draw of the demo corpus'
+# test split with at least 30 segments of every action (min_segments) needs 238-256.
+QUICK_SETTINGS = {"replications": 3, "max_items": 256, "mm_texts": 16, "mm_samples": 10}
 
 
 def quick_config(config: EvalConfig, keep: Collection[str] = ()) -> EvalConfig:
@@ -162,8 +189,13 @@ def quick_config(config: EvalConfig, keep: Collection[str] = ()) -> EvalConfig:
     return dataclasses.replace(config, **changes)
 
 
-def deviations(config: EvalConfig, num_items: int) -> list[str]:
-    """Human-readable differences between the effective settings and the standard protocol."""
+def deviations(
+    config: EvalConfig, num_items: int, plans_differ: bool = True, stratified: bool = False
+) -> list[str]:
+    """Human-readable differences between the effective settings and the standard protocol
+    (the paper's). ``plans_differ``: the clause plan generates some caption of the split
+    otherwise than one pass; ``stratified``: the subset was drawn per action
+    (``min_segments``)."""
     notes = []
     if config.quick:
         notes.append(
@@ -177,15 +209,29 @@ def deviations(config: EvalConfig, num_items: int) -> list[str]:
         "pool_size",
         "mm_pairs",
         "precision",
-        "plan",
         "clean",
     ):
         value, standard = getattr(config, key), getattr(STANDARD, key)
         if value != standard:
             notes.append(f"{key} = {value} (standard: {standard})")
-    if config.max_items is not None:
+    if config.plan != PAPER_PLAN and plans_differ:
+        paper_rows = (
+            f"; the paper's rows are the '{PLAN_NAMES[PAPER_PLAN]}' ones"
+            if config.both_plans
+            else ""
+        )
         notes.append(
-            f"only {num_items} items of the split evaluated (max_items = {config.max_items})"
+            f"plan = {config.plan}: captions of several clauses generated "
+            f"{PLAN_NAMES[config.plan]}, as t2m.sample does (the paper: {PAPER_PLAN}){paper_rows}"
+        )
+    if config.max_items is not None:
+        how = (
+            f", drawn so that every action has at least {config.min_segments} segments"
+            if stratified
+            else ""
+        )
+        notes.append(
+            f"only {num_items} items of the split evaluated (max_items = {config.max_items}{how})"
         )
     pairs = min(config.diversity_pairs, num_items)
     if pairs != STANDARD.diversity_pairs:
@@ -255,12 +301,57 @@ def draw_items(
     return Draw(items.astype(np.int64), captions, starts, lengths)
 
 
+def stratified_subset(
+    labels: Sequence[Sequence[str]],
+    size: int,
+    min_count: int,
+    rng: np.random.Generator,
+    multiple: int = 1,
+) -> np.ndarray:
+    """Indices of a random subset of the items in which every label occurs at least
+    ``min_count`` times (or as often as all the items hold it), filled up at random to ``size``
+    items, or to the next multiple of ``multiple`` above what the labels need.
+
+    ``labels[i]``: the labels of item i, one per occurrence (an item of two walks and a wave:
+    ``["walk", "wave", "walk"]``). Labels are served from the rarest up, each by random items
+    that hold it; the order of the result is random.
+    """
+    order = rng.permutation(len(labels))
+    totals: dict[str, int] = {}
+    for item_labels in labels:
+        for label in item_labels:
+            totals[label] = totals.get(label, 0) + 1
+    counts = dict.fromkeys(totals, 0)
+    chosen: list[int] = []
+    taken = np.zeros(len(labels), dtype=bool)
+    for label in sorted(totals, key=lambda name: (totals[name], name)):
+        target = min(min_count, totals[label])
+        for index in order:
+            if counts[label] >= target:
+                break
+            if taken[index] or label not in labels[index]:
+                continue
+            taken[index] = True
+            chosen.append(int(index))
+            for held in labels[index]:
+                counts[held] += 1
+    needed = -(-len(chosen) // multiple) * multiple
+    size = min(len(labels), max(size, needed))
+    chosen += [int(index) for index in order if not taken[index]][: max(0, size - len(chosen))]
+    return np.asarray(chosen, dtype=np.int64)[rng.permutation(len(chosen))]
+
+
 # ----------------------------------------------------------------------------------------------
 # scorers: what a dataset itself can tell about the motions of a row
 
 
 class Scorer(Protocol):
-    """Scores motions against what the dataset knows of its items (e.g. the demo corpus' labels)."""
+    """Scores motions against what the dataset knows of its items (e.g. the demo corpus' labels).
+
+    A scorer that also has ``segments_for(name) -> list[dict] | None`` (an item's labelled
+    segments, each with its ``"action"``; None for an item it does not know) lets the
+    evaluation draw a subset with enough segments of every action (``EvalConfig.min_segments``,
+    :func:`item_actions`)."""
 
     def __call__(self, names: Sequence[str], motions: Sequence[np.ndarray]) -> dict[str, float]:
         """Item names and their motions as raw features (T_i, D) -> accuracies by name: ``all``
@@ -271,6 +362,19 @@ class Scorer(Protocol):
 
 SCORER_PLUGINS = ("dataset_tools.synth.scoring",)
 """Modules that define ``scorer_for(dataset_dir: Path) -> Scorer | None``, asked in this order."""
+
+
+def item_actions(scorer: Scorer | None, names: Sequence[str]) -> list[list[str]] | None:
+    """The action of every labelled segment of each named item (the scorer's
+    ``segments_for``), or None when the scorer knows no item's segments."""
+    segments_for = getattr(scorer, "segments_for", None)
+    if segments_for is None:
+        return None
+    actions = []
+    for name in names:
+        segments = segments_for(name) or []
+        actions.append([str(segment["action"]) for segment in segments])
+    return actions if any(actions) else None
 
 
 def find_scorer(dataset_dir: str | Path) -> Scorer | None:
@@ -298,6 +402,12 @@ class ProtocolResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     physical: dict[str, dict[str, list[float]]] = field(default_factory=dict)
     """Per row, per figure of :mod:`dataset_tools.physical`, the value of each replication."""
+    rows: tuple[str, ...] = ROWS
+    """The rows, in table order: :data:`ROWS`, then those of the other plan (:func:`plan_row`)."""
+    plans_differ: bool = False
+    """Whether the clause plan generates some caption of the split otherwise than one pass."""
+    stratified: bool = False
+    """Whether each replication's subset was drawn per action (``min_segments``)."""
 
 
 class _Timer:
@@ -431,11 +541,12 @@ def _generated_row(
     stream: tuple[int, int],
     metric_rng: np.random.Generator,
     timed: _Timer,
+    multimodality: bool = True,
 ) -> tuple[dict[str, float], list]:
     """One generated row of a replication: motions for ``captions`` (at ``lengths``, or at
-    lengths the model draws), their metrics against ``reference`` and their multimodality;
-    ``stream`` is (replication, row) of their generation seeds. Returns the row's values and
-    the motions."""
+    lengths the model draws), their metrics against ``reference`` and (with ``multimodality``)
+    their multimodality; ``stream`` is (replication, row) of their generation seeds. Returns
+    the row's values and the motions."""
     rep, variant = stream
     generated = timed(
         "generate_s",
@@ -447,6 +558,8 @@ def _generated_row(
     text = timed("embed_s", backend.embed_texts, captions)
     motion = timed("embed_s", backend.embed_motions, generated)
     row = timed("metrics_s", _row_metrics, text, motion, reference, config, metric_rng)
+    if not multimodality:
+        return row, generated
     row["multimodality"] = _multimodality(
         backend,
         captions,
@@ -458,6 +571,42 @@ def _generated_row(
         timed,
     )
     return row, generated
+
+
+def _stratified_subsets(
+    clips: Sequence[Clip],
+    num_items: int,
+    available: int,
+    config: EvalConfig,
+    semantic: Scorer | None,
+) -> list[np.ndarray] | None:
+    """Each replication's subset of the clips drawn with at least ``min_segments`` segments of
+    every action (:func:`stratified_subset`), all of one size (whole pools), or None: the whole
+    split is evaluated, ``min_segments`` is 0, or the scorer knows no segments."""
+    if not config.min_segments or available == len(clips):
+        return None
+    actions = item_actions(semantic, [clip.name for clip in clips])
+    if actions is None:
+        return None
+
+    def draw(size: int) -> list[np.ndarray]:
+        return [
+            stratified_subset(
+                actions,
+                size,
+                config.min_segments,
+                stream_rng(EvalStream.ITEMS, config.seed, rep),
+                config.pool_size,
+            )
+            for rep in range(config.replications)
+        ]
+
+    subsets = draw(num_items)
+    largest = max(len(subset) for subset in subsets)
+    if largest > num_items:  # some draw needed more: every replication takes as many
+        subsets = draw(largest)
+    size = (min(len(subset) for subset in subsets) // config.pool_size) * config.pool_size
+    return [subset[:size] for subset in subsets]
 
 
 def run_protocol(
@@ -475,18 +624,35 @@ def run_protocol(
     intervals.
     """
     available, num_items = _item_counts(len(clips), config)
+    subsets = _stratified_subsets(clips, num_items, available, config, semantic)
+    if subsets is not None:
+        available = num_items = len(subsets[0])
     check_memory(num_items, config, spec)
+    # the other plan's rows, where it generates some caption otherwise
+    other = None
+    with_plan = getattr(backend, "with_plan", None)
+    if config.both_plans and with_plan is not None:
+        captions = [caption for clip in clips for caption in clip.captions]
+        if backend.plans_differ(captions):  # type: ignore[attr-defined]
+            other = with_plan(other_plan(config.plan))
     if config.clean:
         backend = CleanedBackend(backend)
+        other = None if other is None else CleanedBackend(other)
+    other_rows = {}
+    if other is not None:
+        other_rows = {row: plan_row(row, other_plan(config.plan)) for row in ROWS[1:]}
+    rows = ROWS + tuple(other_rows.values())
     values = {
         row: {
-            name: [] for name in METRICS + EXTRA_METRICS if row != REAL or name != "multimodality"
+            name: []
+            for name in METRICS + EXTRA_METRICS
+            if row in (GT_LENGTH, SAMPLED_LENGTH) or name != "multimodality"
         }
-        for row in ROWS
+        for row in rows
     }
-    semantic_values: dict[str, dict[str, list[float]]] = {row: {} for row in ROWS}
+    semantic_values: dict[str, dict[str, list[float]]] = {row: {} for row in rows}
     timed = _Timer("generate_s", "embed_s", "metrics_s", "semantic_s", "physical_s")
-    physical_values: dict[str, dict[str, list[float]]] = {row: {} for row in ROWS}
+    physical_values: dict[str, dict[str, list[float]]] = {row: {} for row in rows}
     # Physical figures need joints: only motions that are the spec's features have them.
     measure_physics = clips[0].motion.shape[-1] == spec.feature_dim
 
@@ -507,10 +673,18 @@ def run_protocol(
     for rep in tqdm(range(config.replications), desc="replications", unit="rep"):
         rng = stream_rng(EvalStream.ITEMS, config.seed, rep)
         metric_rng = stream_rng(EvalStream.METRICS, config.seed, rep)
+        # the other plan's rows draw their pairs apart, so that they leave the plan's as they are
+        other_metric_rng = stream_rng(EvalStream.METRICS, config.seed, rep, 1)
 
         # A subset (max_items) is drawn once per replication, so that the reference, the real
         # row and the generated rows all describe the same clips.
-        candidates = None if available == len(clips) else rng.permutation(len(clips))[:available]
+        if subsets is not None:
+            candidates = subsets[rep]
+            rng = stream_rng(EvalStream.ITEMS, config.seed, rep, 1)  # the crops, after the subset
+        elif available == len(clips):
+            candidates = None
+        else:
+            candidates = rng.permutation(len(clips))[:available]
         new_draw = functools.partial(draw_items, clips, num_items, rng, spec, candidates)
 
         reference_draw = new_draw()
@@ -547,6 +721,23 @@ def run_protocol(
                 values[row_name][name].append(value)
             add_semantic(row_name, draw, generated)
             physics[row_name] = row_physics(generated)
+            if other is not None:  # the same items, captions, lengths and seed; the other plan
+                other_name = other_rows[row_name]
+                row, generated = _generated_row(
+                    other,
+                    draw.caption_list(clips),
+                    draw.lengths if row_name == GT_LENGTH else None,
+                    reference,
+                    config,
+                    (rep, variant),
+                    other_metric_rng,
+                    timed,
+                    multimodality=False,
+                )
+                for name, value in row.items():
+                    values[other_name][name].append(value)
+                add_semantic(other_name, draw, generated)
+                physics[other_name] = row_physics(generated)
         if reference_physics is not None:
             figures = physical.rows_physics(physics, reference_physics, spec.fps)
             for row_name, row_figures in figures.items():
@@ -561,4 +752,7 @@ def run_protocol(
         config=config,
         timings_s=timings,
         physical=physical_values,
+        rows=rows,
+        plans_differ=other is not None,
+        stratified=subsets is not None,
     )

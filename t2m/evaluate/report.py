@@ -15,7 +15,15 @@ from typing import Any
 
 from dataset_tools.io import write_json_atomic, write_text_atomic
 from t2m.evaluate import metrics
-from t2m.evaluate.protocol import METRICS, ROWS, ProtocolResult, deviations
+from t2m.evaluate.protocol import (
+    GT_LENGTH,
+    METRICS,
+    PLAN_NAMES,
+    ProtocolResult,
+    deviations,
+    other_plan,
+    plan_row,
+)
 
 # Column headings of results.md.
 COLUMN_TITLES = {
@@ -49,7 +57,7 @@ def _finite(value: float) -> float | None:
 def summarize(result: ProtocolResult) -> dict[str, Any]:
     """The results.json content: settings, deviations, and per row/metric mean, interval, values."""
     rows: dict[str, dict[str, Any]] = {}
-    for row in ROWS:
+    for row in result.rows:
         rows[row] = {}
         for name, series in result.values[row].items():
             rows[row][name] = _entry(series)
@@ -58,13 +66,15 @@ def summarize(result: ProtocolResult) -> dict[str, Any]:
             rows[row][key] = _entry(series)
         for name, series in result.physical.get(row, {}).items():
             rows[row][f"physical_{name}"] = _entry(series)
+    notes = deviations(result.config, result.num_items, result.plans_differ, result.stratified)
     return {
         "quick": result.config.quick,
-        "standard_protocol": not deviations(result.config, result.num_items),
-        "deviations": deviations(result.config, result.num_items),
+        "standard_protocol": not notes,
+        "deviations": notes,
         "settings": dataclasses.asdict(result.config),
         "num_items": result.num_items,
         "num_items_available": result.num_available,
+        "stratified": result.stratified,
         "rows": rows,
         "timings_s": result.timings_s,
     }
@@ -85,10 +95,11 @@ def _cell(entry: dict[str, Any] | None, digits: int = 3) -> str:
 def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
     """Per-action semantic accuracy (segments of that action recovered), one column per row."""
     prefix = "semantic_accuracy_action_"
+    rows = list(summary["rows"])
     actions = sorted(
         {
             key[len(prefix) :]
-            for row in ROWS
+            for row in rows
             for key in summary["rows"][row]
             if key.startswith(prefix)
         }
@@ -99,13 +110,13 @@ def _semantic_breakdown(summary: dict[str, Any]) -> list[str]:
         "Segments recovered, per action (segments: how many were scored per replication, so "
         "how much one segment moves the share):",
         "",
-        "| Action | segments | " + " | ".join(ROWS) + " |",
-        "|---|---|" + "---|" * len(ROWS),
+        "| Action | segments | " + " | ".join(rows) + " |",
+        "|---|---|" + "---|" * len(rows),
     ]
     for action in actions:
-        cells = [_cell(summary["rows"][row].get(prefix + action)) for row in ROWS]
+        cells = [_cell(summary["rows"][row].get(prefix + action)) for row in rows]
         scored = [
-            summary["rows"][row].get(f"semantic_accuracy_scored_action_{action}") for row in ROWS
+            summary["rows"][row].get(f"semantic_accuracy_scored_action_{action}") for row in rows
         ]
         counts = [entry["mean"] for entry in scored if entry is not None]
         segments = f"{counts[0]:.0f}" if counts else "-"
@@ -130,7 +141,8 @@ PHYSICAL_COLUMNS = {
 
 def _physical_table(summary: dict[str, Any]) -> list[str]:
     """The physical-quality table (one line per row), or nothing when it was not measured."""
-    if not any("physical_skating_ratio" in summary["rows"][row] for row in ROWS):
+    rows = list(summary["rows"])
+    if not any("physical_skating_ratio" in summary["rows"][row] for row in rows):
         return []
     lines = [
         "Physical quality (see `dataset_tools.physical`):",
@@ -138,7 +150,7 @@ def _physical_table(summary: dict[str, Any]) -> list[str]:
         "| Method | " + " | ".join(title for title, _ in PHYSICAL_COLUMNS.values()) + " |",
         "|---|" + "---|" * len(PHYSICAL_COLUMNS),
     ]
-    for row in ROWS:
+    for row in rows:
         cells = [
             _cell(summary["rows"][row].get(f"physical_{name}"), digits)
             for name, (_, digits) in PHYSICAL_COLUMNS.items()
@@ -194,15 +206,17 @@ def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evalua
     else:
         lines.append("Standard protocol (Guo et al. 2022).")
     lines.append("")
+    rows = list(summary["rows"])
     columns = list(METRICS)
     for semantic in ("semantic_accuracy", "semantic_accuracy_all_fixed_timing"):
-        if any(semantic in summary["rows"][row] for row in ROWS):
+        if any(semantic in summary["rows"][row] for row in rows):
             columns.append(semantic)
     lines.append("| Method | " + " | ".join(COLUMN_TITLES[c] for c in columns) + " |")
     lines.append("|---|" + "---|" * len(columns))
-    for row in ROWS:
+    for row in rows:
         cells = [_cell(summary["rows"][row].get(c)) for c in columns]
         lines.append(f"| {row} | " + " | ".join(cells) + " |")
+    lines += ["", _plan_line(summary)]
     lines += [
         "",
         f"R-precision: each caption ranks the {settings['pool_size']} motions of its pool by "
@@ -232,6 +246,70 @@ def format_markdown(summary: dict[str, Any], title: str = "Text-to-motion evalua
     if "total_s" in timings:
         lines += ["", f"Wall time: {timings['total_s']:.1f} s."]
     return "\n".join(lines) + "\n"
+
+
+def _plan_line(summary: dict[str, Any]) -> str:
+    """How the generated rows were made: the plan, and the other plan's rows where tabled."""
+    plan = summary["settings"].get("plan", "whole")
+    line = f"Generated rows: captions of several clauses {PLAN_NAMES[plan]}" + (
+        " (as t2m.sample and the web app)" if plan == "clauses" else " (as the paper)"
+    )
+    other = plan_row(GT_LENGTH, other_plan(plan))
+    if other in summary["rows"]:
+        line += (
+            f"; rows named '{PLAN_NAMES[other_plan(plan)]}' generate the same items, captions, "
+            "lengths and seeds with the other plan (no MultiModality)."
+        )
+    else:
+        line += "."
+    return line
+
+
+def _spread(entry: dict[str, Any] | None, digits: int = 3) -> str:
+    """``mean (lowest-highest)`` over the replications of one metric."""
+    if entry is None or entry["mean"] is None:
+        return "n/a"
+    values = [value for value in entry["values"] if value is not None]
+    mean = f"{entry['mean']:.{digits}f}"
+    if len(values) < 2:
+        return mean
+    return f"{mean} ({min(values):.{digits}f}-{max(values):.{digits}f})"
+
+
+def headline(summary: dict[str, Any]) -> list[str]:
+    """The evaluation's headline numbers as lines of text: per generated row with ground-truth
+    lengths (each plan tabled), semantic accuracy, R-precision top 1 and FID, then semantic
+    accuracy per action, each as mean (lowest-highest) over the replications."""
+    settings = summary["settings"]
+    rows = [row for row in summary["rows"] if row.startswith(GT_LENGTH[:-1])]
+    lines = [
+        f"mean (lowest-highest) over {settings['replications']} replications, each its own "
+        f"generation seed and draw of {summary['num_items']} test items"
+        + (
+            f" (at least {settings['min_segments']} segments of every action)"
+            if summary.get("stratified")
+            else ""
+        )
+        + ":"
+    ]
+    for row in rows:
+        values = summary["rows"][row]
+        name = row if row != GT_LENGTH else f"{row[:-1]}, {PLAN_NAMES[settings['plan']]})"
+        cells = []
+        if "semantic_accuracy" in values:
+            cells.append(f"semantic accuracy {_spread(values['semantic_accuracy'])}")
+        cells.append(f"R@1 {_spread(values.get('r_precision_top1'))}")
+        cells.append(f"FID {_spread(values.get('fid'))}")
+        lines.append(f"  {name}: " + ", ".join(cells))
+    prefix = "semantic_accuracy_action_"
+    main = summary["rows"].get(GT_LENGTH, {})
+    actions = sorted(key[len(prefix) :] for key in main if key.startswith(prefix))
+    if actions:
+        lines.append(f"  per action ({PLAN_NAMES[settings['plan']]}, ground-truth length):")
+        cells = [f"{action} {_spread(main[prefix + action], 2)}" for action in actions]
+        for start in range(0, len(cells), 4):
+            lines.append("    " + ", ".join(cells[start : start + 4]))
+    return lines
 
 
 def write_results(summary: dict[str, Any], out_dir: str | Path) -> tuple[Path, Path]:
