@@ -18,6 +18,8 @@ The skeleton's convention (what retargeting tools and game engines expect):
   +Z (``axis_up="Y"``, ``axis_forward="-Z"``, its defaults); bones point along their local +Y
   (``primary_bone_axis="Y"``), their local +Z points to the body's front in the rest pose (for
   the feet, which point forwards: up), no leaf bones are added;
+* a stick-figure mesh (``Body``: the glTF file's, one thin box per bone) is skinned to it, so
+  the file has a bind pose (the T-pose), which importers take as the rest pose;
 * the animation is one action keyed at every frame, at times ``frame / fps`` from 0 (frames
   0 .. T - 1 of the scene it is built in; Blender's FBX importer puts them at 1 .. T), root translation on ``Hips``, rotations on every bone, baked without simplification.
 """
@@ -34,6 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from dataset_tools.bvh import _END_SITES, BvhMotion, motion_from_joints
+from dataset_tools.gltf import _bone_boxes
 from dataset_tools.io import atomic_output
 from dataset_tools.skeleton import SMPL
 
@@ -207,6 +210,28 @@ def build_armature(motion: BvhMotion, name: str = "Armature"):
     return armature
 
 
+def add_stick_figure(armature, motion: BvhMotion, name: str = "Body"):
+    """Skin the glTF writer's stick figure (one thin box per bone, bound rigidly to the bone's
+    parent) to the armature; returns the mesh object. A skinned mesh gives the FBX file its bind
+    pose, which importers take as the skeleton's rest pose (without one they take the pose of
+    the frame the file was written at)."""
+    bpy = require_bpy()
+    heads, _, _ = rest_bones(motion)
+    positions, joints, _, triangles = _bone_boxes(heads @ TO_BLENDER, motion.parents)
+    positions = positions.astype(np.float64) @ TO_BLENDER.T
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(positions.tolist(), [], triangles.reshape(-1, 3).tolist())
+    body = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(body)
+    body.parent = armature
+    for joint, bone_name in enumerate(BONE_NAMES):
+        vertices = np.flatnonzero(joints[:, 0] == joint).tolist()
+        if vertices:
+            body.vertex_groups.new(name=bone_name).add(vertices, 1.0, "REPLACE")
+    body.modifiers.new("Armature", "ARMATURE").object = armature
+    return body
+
+
 def write_fbx(
     joints: np.ndarray,
     path: str | os.PathLike,
@@ -219,13 +244,15 @@ def write_fbx(
     bpy = require_bpy()
     motion = motion_from_joints(joints, fps=fps, fit_rest_pose=fit_rest_pose)
     armature = build_armature(motion)
+    body = add_stick_figure(armature, motion)
     armature.select_set(True)
+    body.select_set(True)
     # the exporter prints its progress: kept for the debug log, out of the command's output
     with atomic_output(Path(path)) as temp, contextlib.redirect_stdout(io.StringIO()) as said:
         result = bpy.ops.export_scene.fbx(
             filepath=str(temp),
             use_selection=True,
-            object_types={"ARMATURE"},
+            object_types={"ARMATURE", "MESH"},
             add_leaf_bones=False,
             primary_bone_axis="Y",
             secondary_bone_axis="X",
