@@ -73,9 +73,14 @@ def _fill_degenerate(directions: np.ndarray, norms: np.ndarray, rest: np.ndarray
     return directions
 
 
-def _kabsch(rest: np.ndarray, observed: np.ndarray) -> np.ndarray:
-    """Rotations (T, 3, 3) that best carry unit rest directions (K, 3) onto observed (T, K, 3)."""
-    covariance = np.einsum("tki,kj->tij", observed, rest)  # sum_k observed_k rest_k^T
+def _kabsch(
+    rest: np.ndarray, observed: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """Rotations (T, 3, 3) that best carry unit rest directions (K, 3) onto observed (T, K, 3),
+    each pair weighted by ``weights`` (T, K) (default: equally)."""
+    if weights is not None:
+        observed = observed * weights[..., None]
+    covariance = np.einsum("tki,kj->tij", observed, rest)  # sum_k w_k observed_k rest_k^T
     u, _, vt = np.linalg.svd(covariance)
     det = np.linalg.det(u @ vt)
     fix = np.ones((len(det), 3))
@@ -83,18 +88,26 @@ def _kabsch(rest: np.ndarray, observed: np.ndarray) -> np.ndarray:
     return (u * fix[:, None, :]) @ vt
 
 
-def branch_rest_directions(observed: np.ndarray) -> np.ndarray:
+def branch_rest_directions(
+    observed: np.ndarray, weights: np.ndarray | None = None, frames: np.ndarray | None = None
+) -> np.ndarray:
     """Unit rest directions (K, 3) of the children of a rigid branch, from their observed unit
     directions (T, K, 3): starting from the first frame, alternately the per-frame best rotations
-    (Kabsch) and the mean of the observed directions turned back by them
-    (:data:`PROCRUSTES_ITERATIONS` rounds). Defined up to one rotation, which the per-frame
-    rotations absorb."""
+    (Kabsch, with ``weights`` (T, K)) and the mean of the observed directions turned back by them
+    (:data:`PROCRUSTES_ITERATIONS` rounds), each child's over its ``frames`` (T, K) bool
+    (default: every frame). Defined up to one rotation, which the per-frame rotations absorb."""
+    frames = np.ones(observed.shape[:2], bool) if frames is None else frames
     rest = observed[0]
     for _ in range(PROCRUSTES_ITERATIONS):
-        rotations = _kabsch(rest, observed)  # (T, 3, 3)
+        rotations = _kabsch(rest, observed, weights)  # (T, 3, 3)
         back = np.einsum("tji,tkj->tki", rotations, observed)  # R^T observed
-        rest, _ = _unit(back.mean(axis=0))
+        rest, _ = _unit((back * frames[..., None]).sum(axis=0))
     return rest
+
+
+HELD_WEIGHT = 1e6
+"""Weight of a child that stays where it is given against one that is fitted, in the rotation of
+a branch: the staying ones decide it (to about a micrometre)."""
 
 
 def rigid_joints(
@@ -107,9 +120,13 @@ def rigid_joints(
     docstring); default lengths: :func:`model_bone_lengths`, else the median of each bone's
     length over the motion. Returns a new float64 array (T, J, 3).
 
-    ``held`` (T, J) bool: joints that keep their given position (an edit's joints kept from its
-    source); the others are fitted from their parent, held or not, as above. A bone from a fitted
-    joint to a held one keeps the length it gets (a held joint is never moved).
+    ``held`` (T, J) bool: joints to keep where they are given (an edit's joints kept from a
+    source on the same skeleton). A held joint stays exactly where it is when its parent does
+    (the root: when it is held itself); a held joint that hangs from a fitted one is fitted too,
+    so a kept part attached to a regenerated body keeps its pose (its bone directions) and
+    follows that body. A branch's rotation is decided by its staying children, and a child's
+    rest direction is its direction on the frames where it stays, if there are any (one rigid
+    piece throughout: the source's).
 
     Raises ValueError for shapes that do not fit the skeleton or non-finite joints.
     """
@@ -126,11 +143,14 @@ def rigid_joints(
     lengths = np.asarray(lengths, dtype=np.float64)
     if lengths.shape != (skeleton.num_joints,):
         raise ValueError(f"lengths must be ({skeleton.num_joints},), got {lengths.shape}")
-    if held is not None:
-        held = np.asarray(held, dtype=bool)
-        if held.shape != joints.shape[:2]:
-            raise ValueError(f"held must be {joints.shape[:2]}, got {held.shape}")
+    held = np.zeros(joints.shape[:2], bool) if held is None else np.asarray(held, dtype=bool)
+    if held.shape != joints.shape[:2]:
+        raise ValueError(f"held must be {joints.shape[:2]}, got {held.shape}")
     parents = skeleton.parents
+    staying = held.copy()  # held, and so is everything up to the root
+    for joint, parent in enumerate(parents):
+        if parent >= 0:
+            staying[:, joint] &= staying[:, parent]
     children: dict[int, list[int]] = {joint: [] for joint in range(skeleton.num_joints)}
     for joint, parent in enumerate(parents):
         if parent >= 0:
@@ -145,12 +165,15 @@ def rigid_joints(
         for k, kid in enumerate(kids):
             unit, norm = _unit(joints[:, kid] - joints[:, joint])
             directions[:, k] = _fill_degenerate(unit, norm, skeleton.rest_directions[kid])
+        stays = staying[:, kids]  # (T, K)
         if len(kids) > 1:
-            rest = branch_rest_directions(directions)
-            directions = np.einsum("tij,kj->tki", _kabsch(rest, directions), rest)
+            weights = 1.0 + HELD_WEIGHT * stays
+            frames = np.where(stays.any(axis=0), stays, True)
+            rest = branch_rest_directions(directions, weights, frames)
+            rotations = _kabsch(rest, directions, weights)
+            directions = np.einsum("tij,kj->tki", rotations, rest)
         fitted[:, kids] = fitted[:, joint : joint + 1] + directions * lengths[kids, None]
-        if held is not None:
-            fitted[:, kids] = np.where(held[:, kids, None], joints[:, kids], fitted[:, kids])
+        fitted[:, kids] = np.where(stays[..., None], joints[:, kids], fitted[:, kids])
     return fitted
 
 
@@ -217,6 +240,7 @@ def finish_features(
 
 
 __all__ = [
+    "HELD_WEIGHT",
     "PROCRUSTES_ITERATIONS",
     "branch_rest_directions",
     "features_with_joints",
