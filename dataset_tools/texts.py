@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import re
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -70,16 +71,40 @@ def spacy_model_version() -> str:
     )
 
 
+_NUMBER_NAMES = (
+    "zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen "
+    "fifteen sixteen seventeen eighteen nineteen twenty"
+).split()
+_TIMES_DIGITS = re.compile(
+    r"\b(?:(\d{1,2}) ?[x\u00d7]|[x\u00d7] ?(\d{1,2}))(?![\w])", re.IGNORECASE
+)
+_SMALL_NUMBER = re.compile(r"\b(\d{1,2})\b")
+
+
+def spell_counts(text: str) -> str:
+    """Small numbers in words, as the tagger keeps only alphabetic tokens: "3 times" -> "three
+    times", "2x" / "x2" -> "two times"; numbers above twenty stay digits (and are dropped, as in
+    the published texts: "turns 90 degrees")."""
+
+    def name(digits: str) -> str:
+        value = int(digits)
+        return _NUMBER_NAMES[value] if value < len(_NUMBER_NAMES) else digits
+
+    text = _TIMES_DIGITS.sub(lambda m: f"{name(m.group(1) or m.group(2))} times", text)
+    return _SMALL_NUMBER.sub(lambda m: name(m.group(1)), text)
+
+
 def tag_captions(
     texts: Sequence[str], batch_size: int = 512, spacy_pos: bool = False
 ) -> list[list[tuple[str, str]]]:
-    """Tag captions in one batched spaCy pass: for each, the kept (word, POS) pairs.
+    """Tag captions in one batched spaCy pass: for each, the kept (word, POS) pairs (small
+    numbers spelled out first, :func:`spell_counts`).
 
     POS tags follow the published HumanML3D texts (possessive determiners ``DET``); with
     ``spacy_pos``, spaCy's own universal tags (``PRON`` there). Case is kept. Identical captions
     are tagged once (mirrored captions without left/right repeat a lot).
     """
-    unique = list(dict.fromkeys(text.replace("-", "") for text in texts))
+    unique = list(dict.fromkeys(spell_counts(text.replace("-", "")) for text in texts))
     tagged: dict[str, list[tuple[str, str]]] = {}
     for text, doc in zip(unique, load_nlp().pipe(unique, batch_size=batch_size)):
         pairs = []
@@ -92,7 +117,7 @@ def tag_captions(
             pos = token.pos_ if spacy_pos else PUBLISHED_POS.get(token.tag_, token.pos_)
             pairs.append((word, pos))
         tagged[text] = pairs
-    return [tagged[text.replace("-", "")] for text in texts]
+    return [tagged[spell_counts(text.replace("-", ""))] for text in texts]
 
 
 def tag_prompts(texts: Sequence[str], spacy_pos: bool = False) -> list[list[tuple[str, str]]]:

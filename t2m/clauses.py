@@ -11,11 +11,18 @@ state runs on across the boundary, so the motion stays one continuous sequence.
 
 This module finds the clauses in a caption's ``word/POS`` tokens (lemmatised, punctuation
 dropped, as the models read them) and shares a length among them. Temporal connectives start a
-new clause: "then", "and then", "after that", "afterwards", "subsequently", "next", "finally",
-"later", "before ...", "prior to ...", "followed by ...". A caption that opens with "after" or
-"once" ("after waving, a person sits down") splits where its main clause's subject starts (a
-subject pronoun, or a determiner before a word for a person). Everything else (including "and"
-alone, "while") stays in one clause: simultaneous or unclear parts are left to the model.
+new clause: "then", "and then", "after that", "after which", "afterwards", "subsequently",
+"next", "finally", "lastly", "eventually", "later", "before ...", "prior to ...", "followed by
+..." (with or without a leading "and"). A caption that opens with "after" or "once" ("after
+waving, a person sits down"; "once done waving, sit down") splits where its main clause's subject
+starts (a subject pronoun, or a determiner before a word for a person) or, in the imperative, at
+its next verb. Everything else (including "and" alone, "while") stays in one clause:
+simultaneous or unclear parts are left to the model.
+
+Counts are read in the forms people write them (:func:`repetition_count`): "once", "twice",
+"thrice", "two times", "a couple of times", "a single time", "one more time", "three jumps",
+"three separate times"; digits ("3 times", "2x", "x2") reach the parser spelled out, as the
+tagger reads them (:func:`dataset_tools.texts.spell_counts`).
 """
 
 from __future__ import annotations
@@ -27,7 +34,17 @@ import numpy as np
 from t2m.lexicon import COUNT_WORDS, MOTION_WORDS
 
 CONNECTIVES = frozenset(
-    {"then", "afterwards", "afterward", "subsequently", "finally", "later", "next"}
+    {
+        "then",
+        "afterwards",
+        "afterward",
+        "subsequently",
+        "finally",
+        "lastly",
+        "eventually",
+        "later",
+        "next",
+    }
 )
 """One-word connectives that start a new clause (with a preceding "and", it starts there)."""
 
@@ -50,6 +67,11 @@ PERSON_NOUNS = frozenset(
         "lady",
         "player",
         "dancer",
+        "subject",
+        "actor",
+        "performer",
+        "athlete",
+        "someone",
     }
 )
 
@@ -78,29 +100,37 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
     count = len(words)
     starts = [0]
     leading = count > 0 and words[0] in ("after", "once")
+    # "once done waving, ...": the leading clause's own verb comes after "done"
+    first_verb = 2 if leading and count > 1 and words[1] in ("do", "done") else 1
     split_leading = False
 
-    def followed_by(i: int, word: str) -> bool:
-        return i + 1 < count and words[i + 1] == word
+    def subject_at(i: int) -> bool:
+        return words[i] in SUBJECT_PRONOUNS or (
+            tags[i] == "DET" and i + 1 < count and words[i + 1] in PERSON_NOUNS
+        )
+
+    imperative = leading and not any(subject_at(i) for i in range(1, count))
+
+    def connective_at(i: int) -> bool:
+        word = words[i]
+        following = words[i + 1] if i + 1 < count else ""
+        if word in CONNECTIVES or word == "before":
+            return True
+        if word == "after":
+            return following in ("that", "which", "this")
+        return (word, following) in (("prior", "to"), ("followed", "by"), ("follow", "by"))
 
     for i in range(1, count):
         word = words[i]
-        if word in CONNECTIVES:
+        if word == "and":
+            starts_here = i + 1 < count and connective_at(i + 1)
+        elif connective_at(i):
             starts_here = words[i - 1] != "and"
-        elif word == "and":
-            starts_here = i + 1 < count and words[i + 1] in CONNECTIVES
-        elif word == "after":
-            starts_here = followed_by(i, "that")
-        elif word == "before":
-            starts_here = True
-        elif word == "prior":
-            starts_here = followed_by(i, "to")
-        elif word in ("follow", "followed"):
-            starts_here = followed_by(i, "by")
-        elif leading and not split_leading and "VERB" in tags[:i]:
-            # "after <clause> <subject> <main clause>": the subject starts the main clause
-            starts_here = word in SUBJECT_PRONOUNS or (
-                tags[i] == "DET" and i + 1 < count and words[i + 1] in PERSON_NOUNS
+        elif leading and not split_leading and "VERB" in tags[first_verb:i]:
+            # "after <clause> <subject> <main clause>": the subject starts the main clause; with
+            # no subject (the imperative "after walking forward, wave"), its verb does
+            starts_here = subject_at(i) or (
+                imperative and tags[i] == "VERB" and words[i - 1] not in ("and", "or", "to")
             )
             split_leading = starts_here
         else:
@@ -143,10 +173,20 @@ def _has_predicate(words: Sequence[str], tags: Sequence[str]) -> bool:
 
 
 LEADING_CONNECTIVES = (
+    ("and", "after", "that"),
     ("and", "then"),
     ("and", "afterwards"),
     ("and", "afterward"),
     ("after", "that"),
+    ("after", "which"),
+    ("after", "this"),
+    ("and", "before"),
+    ("and", "finally"),
+    ("and", "next"),
+    ("and", "later"),
+    ("and", "subsequently"),
+    ("once", "do"),
+    ("once", "done"),
     ("prior", "to"),
     ("followed", "by"),
     ("follow", "by"),
@@ -155,6 +195,8 @@ LEADING_CONNECTIVES = (
     ("afterward",),
     ("subsequently",),
     ("finally",),
+    ("lastly",),
+    ("eventually",),
     ("later",),
     ("next",),
     ("before",),
@@ -239,29 +281,40 @@ def share_snippets(
 PLAIN_COUNTS = frozenset({"once", "twice", "thrice"})
 """Words that are a count of repetitions on their own ("jumps twice")."""
 
+COUNT_OF = {"couple": 2, "pair": 2}
+"""Count nouns read through "of" ("a couple of times", "a pair of jumps": 2)."""
+
 
 def repetition_count(tokens: Sequence[str]) -> int:
     """How many times a clause's ``word/POS`` tokens say its action happens, 0 when they do not
-    say: "once" / "twice" / "thrice", a number followed by "time(s)" ("claps five times", "hops
-    3 times"), or a number word of two or more before a noun, adjectives between ("does three
-    squats", "throws two right punches"; "on one foot", "turns 90 degrees" are no counts), or
-    "one" before a repeatable action's noun (:data:`COUNTED_NOUNS`: "throws one left punch").
-    The first such count in the clause."""
+    say: "once" / "twice" / "thrice", a number followed by "time(s)", adjectives between ("claps
+    five times", "hops 3 times", "one more time", "three separate times"), a number word of two
+    or more before a noun, adjectives between ("does three squats", "throws two right punches";
+    "on one foot", "turns 90 degrees" are no counts), "one" before a repeatable action's noun
+    (:data:`COUNTED_NOUNS`: "throws one left punch"), or "couple" / "pair" and "of" before times
+    or a noun ("a couple of times", "a pair of jumps"). The first such count in the clause."""
     pairs = [_word_pos(t) for t in tokens]
     for i, (word, _) in enumerate(pairs):
         if word in PLAIN_COUNTS:
             return int(COUNT_WORDS[word])
         digits = word.isdigit() and len(word) <= 2
-        number = int(word) if digits else int(COUNT_WORDS.get(word, 0))
+        number = int(word) if digits else int(COUNT_WORDS.get(word, COUNT_OF.get(word, 0)))
         if not number or i + 1 >= len(pairs):
             continue
-        after = pairs[i + 1][0]
-        if after in ("time", "times"):
-            return number
-        noun = i + 1  # "three squats", "two right punches": a noun after any adjectives
-        while noun < len(pairs) and pairs[noun][1] == "ADJ":
+        noun = i + 1
+        if word in COUNT_OF:
+            if pairs[noun][0] != "of":
+                continue
             noun += 1
-        if not digits and noun < len(pairs) and pairs[noun][1] == "NOUN":
+        while noun < len(pairs) and pairs[noun][1] == "ADJ":  # "three separate times"
+            noun += 1
+        if noun >= len(pairs):
+            continue
+        if pairs[noun][0] in ("time", "times"):
+            return number
+        if word in COUNT_OF and pairs[noun][1] == "NOUN":
+            return number
+        if not digits and pairs[noun][1] == "NOUN":
             if number >= 2 or pairs[noun][0] in COUNTED_NOUNS:
                 return number
     return 0

@@ -64,6 +64,7 @@ from t2m.inference.conversion import convert
 from t2m.inference.conversion import offered_precisions as offered_precisions
 from t2m.inference.generation import clause_codes, decode_features, text_batch
 from t2m.inference.loading import load_models
+from t2m.lexicon import read_untrained
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
     MovementDecoder,
@@ -338,6 +339,7 @@ class TextToMotion:
                     max_words,
                     " ".join(dropped),
                 )
+            pairs = read_untrained(text, pairs, self.training_words, self.vectorizer)
             tokens = [f"{word}/{pos}" for word, pos in pairs]
             prepared.append(
                 PreparedText(
