@@ -20,6 +20,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from dataset_tools.command import UsageError
@@ -171,11 +172,17 @@ def file_sha256(path: Path) -> str:
 def read_normalizer(layout: ReleaseLayout) -> Normalizer:
     """``meta/mean.npy`` and ``meta/std.npy`` as stored (no further weighting)."""
     meta = layout.meta_dir
-    mean, std = load_npy(meta / "mean.npy"), load_npy(meta / "std.npy")
-    try:
-        return Normalizer(mean, std)
-    except ValueError as error:  # its checks of shape and values, each one line
-        raise UsageError(f"{meta}: {error}") from None
+    mean_file, std_file = meta / "mean.npy", meta / "std.npy"
+    mean, std = load_npy(mean_file), load_npy(std_file)  # NaN and infinity: refused there
+    for file, values in ((mean_file, mean), (std_file, std)):
+        if values.ndim != 1:
+            raise UsageError(f"{file}: a vector (D,) of statistics, got shape {values.shape}")
+    if mean.shape != std.shape:
+        raise UsageError(f"{mean_file} holds {len(mean)} values, {std_file} {len(std)}")
+    zero = np.flatnonzero(std <= 1e-8)
+    if len(zero):
+        raise UsageError(f"{std_file}: std is zero at dimensions {zero[:5].tolist()}")
+    return Normalizer(mean, std)
 
 
 def read_vocabulary(layout: ReleaseLayout, glove_dir: str | Path | None) -> WordVectors:

@@ -12,7 +12,9 @@ Cases per area (issue 31, second round):
 * silent fixes and needless refusals (``--source-fps 0`` taken as 20 fps, a byte-order mark kept
   as a prompt's first character, a ``--batch`` file with one refused): 3 cases;
 * long runs (a compose timeline of too many lines or seconds, no progress while composing or
-  searching): 4 cases.
+  searching): 4 cases;
+* messages naming the input (refusals of a --path, --keys, --source or --timeline file name
+  it; a --batch refusal names the edit and its JSON key, not the command's option): 9 cases.
 """
 
 from __future__ import annotations
@@ -248,3 +250,56 @@ def test_batch_file_byte_order_mark_is_dropped(tmp_path):
     from t2m.edit.__main__ import read_batch
 
     assert read_batch(tmp_path / "edits.json")[0].mode == "path"
+
+
+# ------------------------------------------------------------------------- messages naming the input
+
+
+def test_path_file_refusals_name_the_file(tiny_run, tmp_path, capsys):
+    (tmp_path / "back.csv").write_text("t,x,z\n1,0,0.5\n0.5,0,1\n")
+    argv = ["--mode", "path", "--text", "a person walks", "--path", str(tmp_path / "back.csv"),
+            "--checkpoints", str(tiny_run)]  # fmt: skip
+    refused(capsys, argv, tmp_path / "out", f"--path {tmp_path / 'back.csv'}", "increasing")
+
+
+def test_keys_file_refusals_name_the_file(tiny_run, tmp_path, capsys):
+    np.save(tmp_path / "flat.npy", np.zeros((20, 21, 3)))
+    argv = ["--mode", "keys", "--text", "a person walks", "--keys", str(tmp_path / "flat.npy"),
+            "--checkpoints", str(tiny_run)]  # fmt: skip
+    refused(capsys, argv, tmp_path / "out", f"--keys {tmp_path / 'flat.npy'} must be (T, 22, 3)")
+
+
+def test_a_source_file_too_short_is_named(tiny_run, tmp_path, capsys):
+    np.save(tmp_path / "blink.npy", synth_joints("walk_forward", 3, np.random.default_rng(3)))
+    argv = ["--mode", "body", "--text", "a person waves", "--source", str(tmp_path / "blink.npy"),
+            "--checkpoints", str(tiny_run)]  # fmt: skip
+    refused(capsys, argv, tmp_path / "out", f"--source {tmp_path / 'blink.npy'} has 3 frames")
+
+
+def test_timeline_file_refusals_name_the_file(tiny_run, tmp_path, capsys):
+    (tmp_path / "story.txt").write_text("a person walks#0#2\na person waves#3#4\n")
+    argv = ["--mode", "compose", "--timeline", str(tmp_path / "story.txt"),
+            "--checkpoints", str(tiny_run)]  # fmt: skip
+    refused(capsys, argv, tmp_path / "out", f"--timeline {tmp_path / 'story.txt'} line 2", "a gap")
+
+
+@pytest.mark.parametrize(
+    ("edit", "needles"),
+    [
+        ({"keep_seconds": 1e308}, ["edits[1]: keep_seconds must be from 0 to 3600"]),
+        ({"keep_seconds": 30}, ["edits[1]: keep_seconds 30 is past the source's end"]),
+        ({"source_fps": 0}, ["edits[1]: source_fps must be above 0"]),
+        ({"mode": "path"}, ["edits[1]: mode path takes no source"]),
+        ({"source": "missing.npy"}, ["edits[1]: ", "missing.npy"]),
+    ],
+    ids=["range", "past-the-end", "fps", "inputs", "file"],
+)
+def test_batch_refusals_name_the_edit_and_its_json_key(
+    tiny_run, tmp_path, capsys, walk_file, edit, needles
+):
+    good = {"mode": "path", "text": "a person walks", "path": [[1.0, 0.2, 0.8]]}
+    bad = {"mode": "continue", "text": "a person sits", "source": str(walk_file), **edit}
+    (tmp_path / "edits.json").write_text(json.dumps([good, bad]))
+    argv = ["--batch", str(tmp_path / "edits.json"), "--checkpoints", str(tiny_run)]
+    line = refused(capsys, argv, tmp_path / "out", f"--batch {tmp_path / 'edits.json'}", *needles)
+    assert "--keep-seconds" not in line and "--source" not in line, line

@@ -365,16 +365,16 @@ def test_release_opt_not_text_or_a_folder(release_copy):
     ("name", "array", "needle"),
     [
         ("mean.npy", np.zeros((2, 263), np.float32), "(2, 263)"),
-        ("std.npy", np.array(1.0, np.float32), "std ()"),
+        ("std.npy", np.array(1.0, np.float32), "shape ()"),
         ("std.npy", np.zeros(263, np.float32), "std is zero"),
-        ("mean.npy", np.zeros(200, np.float32), "(200,)"),
+        ("mean.npy", np.zeros(200, np.float32), "holds 200 values"),
     ],
 )
 def test_release_meta_statistics(release_copy, name, array, needle):
     # Normalizer's ValueError, with a traceback, before
     meta = release_copy / GENERATOR / "meta"
     np.save(meta / name, array)
-    refused(load_release, release_copy, meta, needle)
+    refused(load_release, release_copy, meta / name, needle)  # the file, not the folder
 
 
 @needs_reference

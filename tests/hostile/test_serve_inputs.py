@@ -21,7 +21,10 @@ Cases per area:
 * the server stays available to others (1 case): under forty trickling connections and a
   flood of the largest generate requests from two clients, `GET /api/info` answers within 1 s (this one held
   before; it guards the design: one model thread, a bounded queue, a thread per connection
-  with an idle timeout).
+  with an idle timeout);
+* refusals name the request's keys and the page states the server's bounds (2 cases): an edit
+  refused by its plan says ``keep_seconds``, not ``--keep-seconds``; the edit panel shows
+  ``max_source_frames`` from ``/api/info`` and warns of a longer upload.
 """
 
 from __future__ import annotations
@@ -287,3 +290,42 @@ def test_info_answers_within_a_second_while_a_client_trickles_and_floods(server,
             thread.join(timeout=300)
     # the flood itself was served or refused as busy, never failed
     assert statuses and set(statuses) <= {200, 503}, statuses
+
+
+# -- refusals name the request's keys, and the page states the server's bounds ------------------
+
+
+def test_an_edit_refused_by_its_plan_names_the_key_not_the_option(server, tmp_path):
+    walk = synth_joints("walk_forward", 61, np.random.default_rng(3))  # 3 s at 20 fps
+    np.save(tmp_path / "walk.npy", walk)
+    data = base64.b64encode((tmp_path / "walk.npy").read_bytes()).decode()
+    body = {"mode": "continue", "text": "a person sits down", "keep_seconds": 25,
+            "seconds": 28, "source": {"upload": {"name": "walk.npy", "base64": data}}}  # fmt: skip
+    status, answer, _ = call(server, "POST", "/api/edit", body)
+    assert status == 400, answer
+    assert answer["error"].startswith("keep_seconds 25 is past the source's end"), answer
+    assert "--" not in answer["error"]
+
+
+def test_the_edit_panel_states_the_servers_source_bound(server):
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed: the page's script cannot run here")
+    _, info, _ = call(server, "GET", "/api/info")
+    script = Path(__file__).parents[2] / "t2m" / "serve" / "static" / "edit.js"
+    check = (
+        f"import {{ sourceLimit }} from {json.dumps(script.as_uri())};\n"
+        f"const info = {json.dumps(info)};\n"
+        "console.log(JSON.stringify([sourceLimit(info, null), sourceLimit(info, 3600)]));\n"
+    )
+    done = subprocess.run([node, "--input-type=module", "-e", check], capture_output=True,
+                          text=True, timeout=60)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    unknown, hour = json.loads(done.stdout)
+    frames = info["limits"]["max_source_frames"]
+    assert f"at most {frames} frames" in unknown["note"] and not unknown["over"]
+    assert hour["over"] and f"at most {frames} frames" in hour["warning"]

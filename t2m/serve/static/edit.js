@@ -106,6 +106,20 @@ async function uploadSeconds(file, fps) {
   return shape ? Number(shape[1]) / fps : null;
 }
 
+// What the panel says of the server's bound on a source (/api/info's limits.max_source_frames:
+// frames after resampling to the model's rate), and whether a source of `seconds` (null:
+// unknown) exceeds it.
+export function sourceLimit(info, seconds) {
+  const frames = info.limits.max_source_frames, fps = info.fps;
+  const bound = `at most ${frames} frames (${(frames / fps).toFixed(1)} s at ${fps} fps)`;
+  const over = seconds !== null && seconds * fps + 1 > frames;
+  return {
+    note: `A source motion is ${bound} after resampling.`,
+    over,
+    warning: over ? `This file lasts ${seconds.toFixed(1)} s: the server takes a source of ${bound}; trim it first.` : "",
+  };
+}
+
 async function base64Of(file) {
   const url = await new Promise((resolve, reject) => {
     const reader = new FileReader();
@@ -165,9 +179,10 @@ function fillChoices(edit) {
 // Wire the panel; the answer's refresh(answer) lists the motions of a newly shown answer as
 // sources.
 export function setUpEditPanel(edit, page) {
-  $("edit-status").textContent = edit.available
-    ? "Pick a motion (uploaded, or one in the view), what to keep and what to change, and describe the change."
+  const intro = edit.available
+    ? `Pick a motion (uploaded, or one in the view), what to keep and what to change, and describe the change. ${sourceLimit(page.info, null).note}`
     : `Not available: ${edit.reason}.`;
+  $("edit-status").textContent = intro;
   $("edit-fields").disabled = !edit.available;
   if (!edit.available) return { refresh() {} };
   fillChoices(edit);
@@ -187,11 +202,14 @@ export function setUpEditPanel(edit, page) {
     const motions = page.current() ? page.current().motions : [];
     const m = motions[Number($("edit-current").value)];
     sourceSeconds = m ? m.frames / fps : null;
+    $("edit-status").textContent = intro;  // the bound is on uploads only
     draw();
   }
 
   async function chooseUpload(file) {
     sourceSeconds = await uploadSeconds(file, fps);
+    const limit = sourceLimit(page.info, sourceSeconds);
+    $("edit-status").textContent = limit.over ? limit.warning : intro;
     draw();
   }
 
