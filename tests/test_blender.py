@@ -180,3 +180,46 @@ def test_generated_motion_in_blender_is_the_npy_joints(generated, tmp_path):
             folder = tmp_path / f"{kind}{index}"
             folder.mkdir()
             assert _error(_blender_joints(kind, joints, folder), joints) < TOLERANCE, kind
+
+
+def _docs_recipe() -> str:
+    """The Python block of docs/export.md's "On an SMPL body in Blender"."""
+    page = (Path(__file__).resolve().parents[1] / "docs" / "export.md").read_text()
+    section = page.split("### On an SMPL body in Blender", 1)[1]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
+
+
+def test_docs_recipe_puts_the_smplh_parameters_on_an_armature(real_clip, tmp_path):
+    """The page's recipe, run on a stand-in SMPL-H armature (bones at a file's rest joints,
+    arbitrary rolls, upright in Blender), gives the file's forward kinematics."""
+    from dataset_tools.rotations import y_up_to_z_up
+    from dataset_tools.smplh import JOINT_NAMES, PARENTS, fit_smplh, smplh_forward, write_smplh
+
+    joints = real_clip[:12]
+    parameters = fit_smplh(joints)
+    path = write_smplh(parameters, tmp_path / "clip_smpl.npz")
+    _empty_scene()
+    data = bpy.data.armatures.new("SMPLH")
+    armature = bpy.data.objects.new("SMPLH", data)
+    bpy.context.scene.collection.objects.link(armature)
+    bpy.context.view_layer.objects.active = armature
+    bpy.ops.object.mode_set(mode="EDIT")
+    heads = parameters.rest_joints @ TO_BLENDER.T  # the body upright in Blender
+    rng = np.random.default_rng(0)
+    bones = []
+    for joint, parent in enumerate(PARENTS):
+        bone = data.edit_bones.new(JOINT_NAMES[joint])
+        bone.head = heads[joint].tolist()
+        bone.tail = (heads[joint] + rng.normal(0.0, 1.0, 3) * 0.05 + [0, 0, 0.02]).tolist()
+        bone.roll = float(rng.uniform(-np.pi, np.pi))
+        if parent >= 0:
+            bone.parent = bones[parent]
+        bones.append(bone)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    recipe = _docs_recipe().replace("/path/to/sample00_rep00_smpl.npz", str(path))
+    exec(compile(recipe, "docs/export.md", "exec"), {"__name__": "recipe"})
+    shown = _bone_heads(JOINT_NAMES, len(joints), 1) @ TO_BLENDER.T  # Blender's world
+    # Blender's world is AMASS's z-up world
+    expected = y_up_to_z_up(smplh_forward(parameters))
+    assert _error(shown, expected) < TOLERANCE
+    assert _error(expected[1:], expected[:-1]) > 0.005  # it moves
