@@ -137,9 +137,9 @@ class EvalConfig:
     """how a caption is generated: clauses (a caption of several clauses clause by clause, as
     t2m.sample and the web app do; t2m.clauses) or whole (one pass, as the paper evaluates)"""
     both_plans: bool = True
-    """also table the generated rows made with the other plan, named (``..., one pass)``),
-    when it differs on the split's captions (some caption has several clauses); the same items,
-    captions and seeds as the plan's rows, without MultiModality"""
+    """also table the rows generated with the other plan, named (Ours (ground-truth length, one
+    pass) ...), where it differs on the split's captions (some caption reads as several
+    clauses): the same items, captions, lengths and seeds, without MultiModality"""
     min_segments: int = field(default=30, metadata=option(metavar="N"))
     """when a replication evaluates a subset of the split (--max-items), draw it so that every
     action the dataset's labels name has at least N segments in it (the demo corpus; 0: a
