@@ -235,9 +235,15 @@ class LiveHub:
             rewind = int(LEAD_SECONDS * stream.spec.fps) + 2 * stream.spec.snippet_length
             shown = min(max(shown, stream.frame - rewind), stream.frame + stream.spec.fps)
             boundary = stream.prompt(text, at=math.ceil(shown) + PROMPT_MARGIN_FRAMES)
+            index = len(stream.prompts)  # the new prompt's, once it starts
         session.wake.set()
         fps = stream.spec.fps
-        return {"boundary": boundary, "seconds": boundary / fps, "text": settle_text(text)}
+        return {
+            "boundary": boundary,
+            "seconds": boundary / fps,
+            "prompt": index,
+            "text": settle_text(text),
+        }
 
     # -- frames --------------------------------------------------------------------------------
 

@@ -1,7 +1,8 @@
 // The page's entry module (index.html loads it; it imports the rest): the generate form,
 // warnings and errors, downloads, the history of requests, and the wiring of the view
-// (viewer.js), its player row (player.js) and the edit panel (edit.js). It talks to the
-// server's JSON API only (/api/info, /api/generate, /api/results/<id>, /api/edit).
+// (viewer.js), its player row (player.js), the edit panel (edit.js) and the live mode
+// (live.js), chosen by the mode switch. It talks to the server's JSON API only (/api/info,
+// /api/generate, /api/results/<id>, /api/edit; live.js: /api/live).
 //
 // Timings: every request leaves User Timing marks, "t2m:request" (the click), "t2m:answer"
 // (the answer arrived; its detail is the server's own "timing" from the answer) and
@@ -12,12 +13,13 @@
 import { callApi, postJson } from "./api.js";
 import { $ } from "./dom.js";
 import { setUpEditPanel } from "./edit.js";
+import { setUpLive } from "./live.js";
 import { bindPlayer, playMotions } from "./player.js";
 import { StickViewer } from "./viewer.js";
 
 const HISTORY_KEY = "t2m-history";
 const viewer = new StickViewer($("view"));
-const state = { info: null, current: null, history: [], editPanel: null };
+const state = { info: null, current: null, history: [], editPanel: null, live: null };
 
 function showError(message) {
   const box = $("error");
@@ -75,6 +77,7 @@ async function loadInfo() {
     settings: formSettings,
     run: (makeBody) => runRequest("/api/edit", makeBody, "editing"),
   });
+  state.live = setUpLive(viewer, info);
   // the history survives a reload of the page, not a restart of the server
   const saved = JSON.parse(sessionStorage.getItem(HISTORY_KEY) || "null");
   state.history = saved && saved.boot === info.boot ? saved.items : [];
@@ -218,7 +221,26 @@ function renderHistory() {
   }
 }
 
+// The mode switch: generate and edit, or live (its panel replaces the others; leaving live
+// mode ends its stream, and the view shows the last motions generated again).
+function setMode(mode) {
+  const liveMode = mode === "live";
+  document.querySelectorAll("[data-mode=generate]").forEach((element) => {
+    element.hidden = liveMode || (element.id === "downloads-section" && !state.current);
+  });
+  $("live-panel").hidden = !liveMode;
+  $("player").hidden = liveMode;
+  if (liveMode) $("live-prompt").focus();
+  else if (state.live && state.live.running) {
+    state.live.stop();
+    if (state.current) show(state.current);
+  }
+}
+
 bindPlayer(viewer);
+document.querySelectorAll("input[name=mode]").forEach((radio) => {
+  radio.addEventListener("change", (e) => setMode(e.target.value));
+});
 $("generate-form").addEventListener("submit", (event) => {
   event.preventDefault();
   return runRequest("/api/generate", async () => generateBody(), "generating");
