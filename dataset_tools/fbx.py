@@ -239,7 +239,8 @@ def write_fbx(
     fit_rest_pose: bool = True,
 ) -> BvhMotion:
     """Write joints (T, 22, 3) (metres, y-up) as an FBX file (atomically) through Blender's FBX
-    exporter; returns the solved motion. ValueError without ``bpy`` (naming the extra) and for
+    exporter; returns the solved motion. Blender's session is reset to an empty scene first
+    (bpy has one session per process). ValueError without ``bpy`` (naming the extra) and for
     what :func:`dataset_tools.bvh.motion_from_joints` refuses."""
     bpy = require_bpy()
     motion = motion_from_joints(joints, fps=fps, fit_rest_pose=fit_rest_pose)
