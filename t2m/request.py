@@ -55,7 +55,7 @@ class GenerationRequest:
     """motions generated together"""
     clean: bool = True
     """foot-contact clean-up: planted feet held still on the floor, legs fixed by IK
-    (--no-clean: the model's raw output)"""
+    (--no-clean: the model's output, only made rigid)"""
     plan: Literal["clauses", "whole"] = "clauses"
     """clauses: a prompt of several clauses ("jumps twice, then waves") is generated clause by
     clause, each with its share of the length; whole: the whole prompt in one pass (the paper)"""
