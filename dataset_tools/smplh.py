@@ -23,8 +23,8 @@ kinematics of the parameters over ``rest_joints`` (:func:`dataset_tools.sources.
 gives the BVH skeleton's joints, which are the input joints wherever the input is rigid on the
 target skeleton. The rest pose is the BVH skeleton's T-pose (target bone lengths of
 ``dataset_tools.skeleton.SMPL``, hips and collars fitted to the motion), with the pelvis at
-:data:`REST_PELVIS`, about where the SMPL-H templates put it at ``betas`` 0, so that ``trans``
-places a real SMPL-H body within a few centimetres of the motion too. A real SMPL-H body's own
+:data:`REST_PELVIS`, near the SMPL templates' pelvis at ``betas`` 0, so that ``trans`` places a
+real body near the motion too (shifted by the difference of its own rest pelvis). A real SMPL-H body's own
 rest pose bends its bones a few degrees away from this T-pose, so on such a body the pose is the
 same up to those degrees; exact reproduction needs the rest joints, which
 :func:`skeleton_body_model` turns into a body model file the AMASS reader takes.
@@ -62,8 +62,8 @@ PARENTS: tuple[int, ...] = SMPL.parents + tuple(
     for segment in (1, 2, 3)
 )
 REST_PELVIS = np.array([0.0, -0.223, 0.028])
-"""Rest position (metres, body model frame) of the pelvis: about where the SMPL and SMPL-H
-templates at ``betas`` 0 have it (their own value differs by a centimetre or two with gender)."""
+"""Rest position (metres, body model frame) of the pelvis, chosen near the SMPL templates' pelvis
+at ``betas`` 0 (not checked against a model file: none is in this repository)."""
 
 # A plausible hand at rest (not SMPL-H's own): offsets (metres) of each finger's first joint from
 # the left wrist and the direction of its segments, palm down, thumb forward (+Z); the right hand
