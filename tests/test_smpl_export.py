@@ -232,3 +232,26 @@ def test_smpl_option_writes_parameters_per_motion(tmp_path):
         read = load_amass(out / name, models).joints[:, :22]
         expected = motion_from_joints(np.load(out / f"sample{prompt:02d}_rep00.npy")).joints()
         assert np.abs(read - expected).max() < 1e-6
+
+
+@needs_reference
+def test_sample_and_edit_commands_write_smpl_files(tiny_run, tmp_path):
+    """``python -m t2m.sample --smpl`` and ``python -m t2m.edit --smpl`` on the tiny run."""
+    from t2m.edit.__main__ import main as edit_main
+    from t2m.sample import main as sample_main
+
+    source = tmp_path / "walk.npy"
+    np.save(source, _clip()[:60])
+    common = ["--checkpoints", str(tiny_run), "--render", "none", "--smpl"]
+    assert sample_main(["--text", "a person walks", "--length", "32", "--out", str(tmp_path / "s")]
+                       + common) == 0  # fmt: skip
+    edit = ["--source", str(source), "--text", "a person walks forward", "--mode", "continue",
+            "--keep-seconds", "1", "--candidates", "2", "--steps", "2", "--out", str(tmp_path / "e")]  # fmt: skip
+    assert edit_main(edit + common) == 0
+    for out in (tmp_path / "s", tmp_path / "e"):
+        stored = load_npz(out / "sample00_rep00_smpl.npz")
+        models = _write_body_model(out.parent / f"models_{out.name}", stored["rest_joints"])
+        read = load_amass(out / "sample00_rep00_smpl.npz", models).joints[:, :22]
+        expected = motion_from_joints(np.load(out / "sample00_rep00.npy")).joints()
+        assert np.abs(read - expected).max() < 1e-6, out.name
+        assert "sample00_rep00_smpl.npz" in json.loads((out / "results.json").read_text())["files"]
