@@ -213,7 +213,7 @@ def test_quick_lowers_only_the_values_not_given():
     assert standard == evaluate.STANDARD and standard.device == "auto"
     quick = eval_config(parser().parse_args([*base, "--quick", "--replications", "5"]))
     assert quick.quick and quick.replications == 5
-    assert (quick.mm_texts, quick.mm_samples, quick.max_items) == (16, 10, 256)
+    assert (quick.mm_texts, quick.mm_samples, quick.max_items) == (16, 10, 224)
     assert eval_config(parser().parse_args([*base, "--threads", "2"])).num_threads == 2
 
 
