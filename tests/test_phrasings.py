@@ -158,3 +158,21 @@ def test_the_table_is_large_and_distinct():
 @pytest.mark.parametrize(("text", "counts"), PHRASINGS, ids=[t for t, _ in PHRASINGS])
 def test_parser_reads_the_phrasing(parsed, text, counts):
     assert parsed[text] == counts
+
+
+@pytest.mark.parametrize(
+    ("text", "spelled"),
+    [
+        ("jumps 2x", "jumps two times"),
+        ("jumps x3.", "jumps three times."),
+        ("Claps 4 X", "Claps four times"),
+        ("hops 12 times", "hops twelve times"),
+        ("turns 90 degrees", "turns 90 degrees"),  # above twenty: left as digits
+        ("a 4x4 grid", "a 4x4 grid"),
+        ("box max2", "box max2"),
+    ],
+)
+def test_small_numbers_are_spelled_out_before_tagging(text, spelled):
+    from dataset_tools.texts import spell_counts
+
+    assert spell_counts(text) == spelled
