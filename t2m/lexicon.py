@@ -226,3 +226,12 @@ def read_untrained(
             readings.setdefault(word, word)
         out.append((readings[word], pos))
     return out
+
+
+def read_untrained_tokens(
+    text: str, tokens: Sequence[str], trained: Collection[str], vocabulary: Any = None
+) -> list[str]:
+    """:func:`read_untrained` on ``word/POS`` tokens (a dataset caption's, as an evaluation
+    encodes them) instead of (word, POS) pairs."""
+    pairs = [token.rpartition("/")[::2] for token in tokens]
+    return [f"{word}/{pos}" for word, pos in read_untrained(text, pairs, trained, vocabulary)]

@@ -91,3 +91,15 @@ def test_the_pipeline_reads_an_untrained_prompt_word_as_a_trained_one(pipe, capl
 @pytest.mark.parametrize("word", sorted(SYNONYMS))
 def test_every_synonym_points_to_other_words(word):
     assert SYNONYMS[word] and word not in SYNONYMS[word]
+
+
+def test_tokens_are_read_as_pairs_are():
+    from t2m.lexicon import read_untrained_tokens
+
+    tokens = ["a/DET", "person/NOUN", "bounce/VERB", "twice/ADV"]
+    assert read_untrained_tokens("", tokens, TRAINED, TABLE) == [
+        "a/DET",
+        "person/NOUN",
+        "jump/VERB",
+        "twice/ADV",
+    ]
