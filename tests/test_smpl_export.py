@@ -252,6 +252,9 @@ def test_sample_and_edit_commands_write_smpl_files(tiny_run, tmp_path):
         stored = load_npz(out / "sample00_rep00_smpl.npz")
         models = _write_body_model(out.parent / f"models_{out.name}", stored["rest_joints"])
         read = load_amass(out / "sample00_rep00_smpl.npz", models).joints[:, :22]
-        expected = motion_from_joints(np.load(out / "sample00_rep00.npy")).joints()
-        assert np.abs(read - expected).max() < 1e-6, out.name
+        written = np.load(out / "sample00_rep00.npy")
+        assert np.abs(read - motion_from_joints(written).joints()).max() < 1e-6, out.name
+        # generated and edited motions are rigid on the model's skeleton: the body's joints are
+        # the .npy joints themselves
+        assert np.linalg.norm(read - written, axis=-1).max() < 1e-3, out.name
         assert "sample00_rep00_smpl.npz" in json.loads((out / "results.json").read_text())["files"]
