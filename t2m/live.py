@@ -202,6 +202,7 @@ class LiveStream:
         self._history = _History()
         self.frame = 0  # frames pulled so far
         self._trimmed = 0  # snippets forgotten at the history's front (trim)
+        self._prepared: dict = {}  # text -> its prepare(): tagged once
         self.prompt(text, at=0, seconds=seconds)
 
     # -- prompts -------------------------------------------------------------------------------
@@ -227,7 +228,10 @@ class LiveStream:
         if len(text) > MAX_PROMPT_CHARS:
             raise UsageError(f"the prompt has {len(text)} characters; at most {MAX_PROMPT_CHARS}")
         text = settle_text(" ".join(text.split()))
-        self.pipe.prepare([text])  # no known word: UsageError now, not at its boundary
+        if text not in self._prepared:  # no known word: UsageError now, not at its boundary
+            if len(self._prepared) > 256:
+                self._prepared.clear()
+            self._prepared[text] = self.pipe.prepare([text])
         frames = None
         if seconds is not None:
             try:
@@ -294,7 +298,7 @@ class LiveStream:
         index = len(self._segments)
         generator = torch.Generator(self.pipe.device).manual_seed(segment_seed(self.seed, index))
         if prompt.frames is None:
-            prepared = self.pipe.prepare([prompt.text])
+            prepared = self._prepared.get(prompt.text) or self.pipe.prepare([prompt.text])
             frames = self.pipe.sample_lengths(prepared, generator)[0]
         else:
             frames = prompt.frames

@@ -265,20 +265,20 @@ class LiveHub:
             write(_event("hello", {"id": session.id, "fps": fps, "seed": session.seed}))
             while not session.closed.is_set():
                 session.wake.clear()
-                events = []
-                with session.lock:
+                event = None
+                with session.lock:  # one snippet at a time: a new prompt's first goes at once
                     if session.clock_start is None:
                         session.clock_start = time.monotonic()
-                    while stream.frame < session.clock_frame() + lead:
-                        events.append(_snippet_event(stream.next_snippet()))
-                    if stream.frame - stream.first_frame > (self.keep_seconds + 10) * fps:
+                    if stream.frame < session.clock_frame() + lead:
+                        event = _snippet_event(stream.next_snippet())
+                    elif stream.frame - stream.first_frame > (self.keep_seconds + 10) * fps:
                         stream.trim(self.keep_seconds)
-                if not events and time.monotonic() - session.last_write > 5.0:
-                    events.append(b": keep-alive\n\n")  # a comment: the page ignores it
-                for event in events:
+                if event is None and time.monotonic() - session.last_write > 5.0:
+                    event = b": keep-alive\n\n"  # a comment: the page ignores it
+                if event is not None:
                     write(event)
-                if events:
                     session.last_write = time.monotonic()
+                    continue
                 wait = (stream.frame - lead - session.clock_frame()) / fps
                 session.wake.wait(timeout=min(max(wait, 0.005), 0.25))
         except (OSError, ValueError) as error:  # the viewer went (or its socket timed out)
