@@ -51,9 +51,18 @@ MAX_BATCH_EDITS = 10_000
 """The most edits of one --batch file."""
 MAX_BATCH_BYTES = 256 * 2**20
 """The largest --batch file read."""
-SEARCH_BYTES_PER_FRAME = 32 * 1024
-"""Memory one candidate's frame takes during the search, generously: the decoded features and
-joints, the targets, and the activations the optimisation keeps for its gradient."""
+SEARCH_BYTES_PER_FRAME = 16 * 1024
+"""Memory one candidate's frame takes during the search whatever the model's size (the decoded
+features and joints, the targets), plus :data:`SEARCH_BYTES_PER_HIDDEN` per unit of the
+generator's hidden size (the activations the optimisation keeps for its gradient). Measured
+with ``tools/measure_edit_memory.py`` (a keys edit of 196 frames, ``--method optimize``, 20
+steps; growth of peak resident memory per added candidate frame; 2026-12-05, AMD EPYC Zen 5,
+AVX-512, 2 cores, loaded): 16.0 KiB at ``tiny`` (hidden 32), 28.3 KiB at ``demo`` (256), 65.0
+KiB with the ``paper`` sizes (1024); the rule gives 18, 32 and 80 KiB."""
+SEARCH_BYTES_PER_HIDDEN = 64
+"""Memory per candidate frame per unit of the generator's hidden size (see above)."""
+SEARCH_FIXED_BYTES = 128 * 2**20
+"""Memory a search takes whatever its size (measured: 94 to 115 MiB with one candidate)."""
 
 
 @dataclass
@@ -148,18 +157,24 @@ def batch_error(path: Path, number: int, error: ValueError) -> UsageError:
 
 
 def check_search_memory(
-    requests: list[EditRequest], frames: list[int], config: EditConfig, window: int
+    requests: list[EditRequest],
+    frames: list[int],
+    config: EditConfig,
+    window: int,
+    hidden_size: int = 1024,
 ) -> None:
     """Refuse, before generating, a search that cannot fit in memory: at worst every plain edit's
     results are searched in one batch of ``--candidates`` draws each, every frame taking
-    :data:`SEARCH_BYTES_PER_FRAME`; compose searches one ``window`` (the model's longest motion)
-    at a time."""
+    :data:`SEARCH_BYTES_PER_FRAME` plus :data:`SEARCH_BYTES_PER_HIDDEN` per unit of the
+    generator's ``hidden_size``, on top of :data:`SEARCH_FIXED_BYTES`; compose searches one
+    ``window`` (the model's longest motion) at a time."""
     from t2m.train.runtime import available_memory
 
     plain = [f for r, f in zip(requests, frames) if r.mode != "compose"]
     composed = [f for r, f in zip(requests, frames) if r.mode == "compose"]
     window = max([sum(plain)] + [min(f, window) for f in composed])
-    need = config.num_samples * config.candidates * window * SEARCH_BYTES_PER_FRAME
+    per_frame = SEARCH_BYTES_PER_FRAME + SEARCH_BYTES_PER_HIDDEN * hidden_size
+    need = SEARCH_FIXED_BYTES + config.num_samples * config.candidates * window * per_frame
     available = available_memory()
     if available is not None and need > available:
         raise UsageError(
@@ -205,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
             if config.batch is not None:
                 raise batch_error(config.batch, number, error) from None
             raise UsageError(str(error)) from None
-    check_search_memory(requests, frames, config, pipe.spec.max_frames)
+    hidden_size = pipe.vae.config.hidden_size
+    check_search_memory(requests, frames, config, pipe.spec.max_frames, hidden_size)
     # 3. edit and write
     write_motions(
         lambda: edit_batch(pipe, requests, config.num_samples, config.seed, settings),
