@@ -257,8 +257,8 @@ def _plan_line(summary: dict[str, Any]) -> str:
     other = plan_row(GT_LENGTH, other_plan(plan))
     if other in summary["rows"]:
         line += (
-            f"; rows named '{PLAN_NAMES[other_plan(plan)]}' generate the same items, captions, "
-            "lengths and seeds with the other plan (no MultiModality)."
+            f"; the row named '{PLAN_NAMES[other_plan(plan)]}' generates the same items, "
+            "captions, lengths and seeds with the other plan (no MultiModality)."
         )
     else:
         line += "."
