@@ -128,26 +128,32 @@ class _Segment:
 
 @dataclass
 class _History:
-    """What the stream made, snippet by snippet (lists of (4, .) arrays; index = frame // 4)."""
+    """What the stream made, snippet by snippet (lists of (4, .) arrays). The joints are kept
+    for the downloads (:meth:`LiveStream.trim` bounds them); the model's features, the finished
+    ones and the world root only as far back as a rewind and the next segment read."""
 
     raw: list[np.ndarray] = field(default_factory=list)  # model features, unfinished
     features: list[np.ndarray] = field(default_factory=list)  # finished
-    joints: list[np.ndarray] = field(default_factory=list)  # finished, world
     root: list[np.ndarray] = field(default_factory=list)  # (4, 3) world half-yaw, x, z
-    prompt: list[int] = field(default_factory=list)
+    joints: list[np.ndarray] = field(default_factory=list)  # finished, world
+    work_from: int = 0  # the snippet index of raw[0], features[0], root[0]
+    joints_from: int = 0  # the snippet index of joints[0]
 
-    def _lists(self) -> tuple[list, ...]:
-        return (self.raw, self.features, self.joints, self.root, self.prompt)
+    def truncate(self, snippet: int) -> None:
+        """Forget snippet ``snippet`` (an index from the stream's start) and all after it."""
+        for rows in (self.raw, self.features, self.root):
+            del rows[snippet - self.work_from :]
+        del self.joints[snippet - self.joints_from :]
 
-    def truncate(self, snippets: int) -> None:
-        """Keep the first ``snippets``."""
-        for rows in self._lists():
-            del rows[snippets:]
-
-    def truncate_front(self, snippets: int) -> None:
-        """Forget the first ``snippets``."""
-        for rows in self._lists():
-            del rows[:snippets]
+    def forget(self, keep_joints: int, keep_work: int) -> None:
+        """Keep only the last ``keep_joints`` snippets of joints and ``keep_work`` of the rest."""
+        drop = max(len(self.joints) - keep_joints, 0)
+        del self.joints[:drop]
+        self.joints_from += drop
+        drop = max(len(self.raw) - keep_work, 0)
+        for rows in (self.raw, self.features, self.root):
+            del rows[:drop]
+        self.work_from += drop
 
 
 def segment_seed(seed: int, index: int) -> int:
@@ -201,7 +207,6 @@ class LiveStream:
         self._segments: list[_Segment] = []
         self._history = _History()
         self.frame = 0  # frames pulled so far
-        self._trimmed = 0  # snippets forgotten at the history's front (trim)
         self._prepared: dict = {}  # text -> its prepare(): tagged once
         self.prompt(text, at=0, seconds=seconds)
 
@@ -255,7 +260,7 @@ class LiveStream:
     def _rewind(self, frame: int) -> None:
         """Drop what was pulled from ``frame`` (a snippet boundary) on."""
         unit = self.spec.snippet_length
-        self._history.truncate(frame // unit - self._trimmed)
+        self._history.truncate(frame // unit)
         while self._segments and self._segments[-1].start >= frame:
             self._segments.pop()
         self.prompts = [p for p in self.prompts if p.start < frame]
@@ -285,7 +290,6 @@ class LiveStream:
         history.features.append(features)
         history.joints.append(joints)
         history.root.append(root)
-        history.prompt.append(segment.prompt)
         self.frame = frame + unit
         return Snippet(frame, joints, features, segment.prompt, self.prompts[segment.prompt].text)
 
@@ -318,8 +322,9 @@ class LiveStream:
     def _raw_tail(self, frame: int) -> np.ndarray:
         """The raw features of the ``context_frames`` before ``frame`` (fewer at the start)."""
         unit = self.spec.snippet_length
-        first = max(frame - self.context_frames, self._trimmed * unit)
-        rows = self._history.raw[first // unit - self._trimmed : frame // unit - self._trimmed]
+        offset = self._history.work_from
+        first = max(frame - self.context_frames, offset * unit)
+        rows = self._history.raw[first // unit - offset : frame // unit - offset]
         if not rows:
             return np.zeros((0, self.spec.feature_dim), np.float32)
         return np.concatenate(rows)
@@ -355,26 +360,26 @@ class LiveStream:
         return _stack(self._history.joints, (0, self.spec.num_joints, 3))
 
     def features(self, raw: bool = False) -> np.ndarray:
-        """(T, D) float32 finished features of every frame pulled (``raw``: the model's)."""
+        """(T, D) float32 finished features of every frame pulled (``raw``: the model's); after
+        :meth:`trim`, of the last few seconds only (what a rewind and the next segment read)."""
         rows = self._history.raw if raw else self._history.features
         return _stack(rows, (0, self.spec.feature_dim))
 
     @property
     def first_frame(self) -> int:
         """The stream frame of :meth:`joints`' first row (0 unless trimmed)."""
-        return self._trimmed * self.spec.snippet_length
+        return self._history.joints_from * self.spec.snippet_length
 
     def trim(self, keep_seconds: float) -> None:
-        """Forget all but the last ``keep_seconds`` pulled (at least the context the next
-        segment reads and the finishing window): a stream that runs for hours keeps bounded
-        memory. What is forgotten can no longer be downloaded or rewound into."""
-        unit = self.spec.snippet_length
-        need = max(int(keep_seconds * self.spec.fps), self.context_frames, FINISH_LOOKBACK_FRAMES)
-        need = max(need, int(MAX_REWIND_SECONDS * self.spec.fps) + self.context_frames)
-        drop = len(self._history.raw) - -(-need // unit)
-        if drop > 0:
-            self._history.truncate_front(drop)
-            self._trimmed += drop
+        """Forget the joints of all but the last ``keep_seconds`` pulled (at least
+        :data:`MAX_REWIND_SECONDS`), and the features of all but what a rewind and the next
+        segment read: a stream that runs for hours keeps bounded memory. What is forgotten can
+        no longer be downloaded."""
+        unit, fps = self.spec.snippet_length, self.spec.fps
+        rewind = int(MAX_REWIND_SECONDS * fps)
+        keep_joints = max(int(keep_seconds * fps), rewind)
+        keep_work = rewind + max(self.context_frames, FINISH_LOOKBACK_FRAMES) + unit
+        self._history.forget(-(-keep_joints // unit), -(-keep_work // unit))
 
     def timeline(self) -> list[str]:
         """The prompts with their times as ``compose`` timeline lines ``text#start#end``

@@ -113,8 +113,10 @@ def test_trim_bounds_memory(pipe):
     assert stream.first_frame > 0 and len(stream.joints()) == 400 - stream.first_frame
     np.testing.assert_array_equal(stream.joints()[-40:], before)
     assert stream.first_frame + len(stream.joints()) == stream.frame
+    assert len(stream.features()) == len(stream.features(raw=True)) == 144  # 5 s + 2 s + 1
+    stream.prompt(JUMP, at=stream.frame - 100)  # a rewind as far back as allowed still works
     _pull(stream, 4)  # goes on from what it kept
-    assert len(stream.joints()) == 416 - stream.first_frame
+    assert len(stream.joints()) == 316 - stream.first_frame
 
 
 def test_a_long_stream_does_not_drift(pipe):

@@ -97,7 +97,7 @@ def run_stream(args) -> dict:
     if args.strip:
         from dataset_tools.viz import render_keyframes
 
-        seconds = min(36.0, len(joints) / fps)
+        seconds = min(48.0, len(joints) / fps)
         part = joints[: int(seconds * fps)]
         times = [p.start for p in stream.prompts if p.start < len(part)]
         frames = [min(start + int(1.6 * fps), len(part) - 1) for start in times][:6]
