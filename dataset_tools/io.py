@@ -79,17 +79,30 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(
-        dir=path.parent, prefix=f".{path.stem}.", suffix=f"{_PARTIAL_TAG}{path.suffix}"
-    )
+    try:
+        handle, temp = tempfile.mkstemp(
+            dir=path.parent, prefix=f".{path.stem}.", suffix=f"{_PARTIAL_TAG}{path.suffix}"
+        )
+    except OSError as error:
+        raise _naming(error, path) from None
     os.close(handle)
     try:
         os.chmod(temp, 0o666 & ~_current_umask())
         yield Path(temp)
         os.replace(temp, path)
-    except BaseException:
+    except BaseException as error:
         Path(temp).unlink(missing_ok=True)
+        if isinstance(error, OSError) and str(error.filename) in (temp, str(path.parent)):
+            raise _naming(error, path) from None
         raise
+
+
+def _naming(error: OSError, path: Path) -> OSError:
+    """``error`` about the temporary file (or its folder) as one about ``path``, the file the
+    user asked for (the temporary name means nothing to them)."""
+    if error.errno is None:
+        return OSError(f"cannot write {path}: {error}")
+    return OSError(error.errno, error.strerror, str(path))
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], Any]) -> Path:

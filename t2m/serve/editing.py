@@ -145,6 +145,12 @@ def _source(app, value: object, folder: Path) -> tuple[np.ndarray, str]:
             raise UsageError(
                 f"source: the uploaded {name} has {len(joints)} frames; at most {limit}"
             )
+        shortest = app.pipe.spec.snippet_length + 1  # an edit's plan checks it, naming no file
+        if len(joints) < shortest:
+            raise UsageError(
+                f"source: the uploaded {name} has {len(joints)} frames at {fps:g} fps; an edit "
+                f"needs at least {shortest}"
+            )
         return joints, name
     except UsageError as error:
         raise UsageError(_named(str(error), path, name)) from None
@@ -256,6 +262,12 @@ def _read_uploads(app, values: dict, uploads: dict, folder: Path) -> str | None:
         path, name = _upload(uploads.get("keys"), "keys", (".npy",), folder)
         try:
             values["keys"] = load_npy(path, finite=False)
+            shape, joints = values["keys"].shape, app.pipe.spec.num_joints
+            if len(shape) != 3 or shape[1:] != (joints, 3):  # the plan's check names no file
+                raise UsageError(
+                    f"keys: the uploaded {name} must be (T, {joints}, 3) with NaN for free, "
+                    f"got {shape}"
+                )
         except UsageError as error:
             raise UsageError(_named(str(error), path, name)) from None
         finally:

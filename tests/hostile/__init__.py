@@ -11,11 +11,11 @@
   naming the offending file and, in a batch, the edit and its JSON key);
 * ``test_json_inputs.py`` (24): the one strict JSON reader (nesting, digits, non-finite numbers,
   keys given twice, size) and every reader of a user's JSON that goes through it;
-* ``test_serve_inputs.py`` (24): the web server (no 500, security headers on every answer, Host
+* ``test_serve_inputs.py`` (26): the web server (no 500, security headers on every answer, Host
   headers, sizes bounded before work, fresh results kept, availability under a hostile client,
-  refusals in the request's keys, the source bound shown on the page);
-* ``test_export_release_inputs.py`` (56): ``t2m.export`` (overwrites, frame rates, coordinates,
-  degenerate bones) and the original release's files (vocabularies, tensors, options, statistics).
+  refusals in the request's keys naming uploads, the source bound shown on the page);
+* ``test_export_release_inputs.py`` (57): ``t2m.export`` (overwrites, frame rates, coordinates,
+  degenerate bones, failed writes named) and the original release's files (vocabularies, tensors, options, statistics).
 
 Each file's docstring lists its cases.
 """

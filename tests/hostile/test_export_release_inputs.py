@@ -2,17 +2,18 @@
 (:mod:`t2m.release`). Each bad input ends in exit status 2 (or a UsageError) with one line naming
 the option or file, before anything is written; nothing the user made is lost.
 
-Export (issue 31, cases 7 and 8): 7 tests, 20 cases: an existing output file (refused without
+Export (issue 31, cases 7 and 8): 8 tests, 21 cases: an existing output file (refused without
 ``--overwrite``), frame rates outside 1..1000 fps (10) and the range in ``--help``, joints beyond
 1e4 m (4), bones of no length (2), features whose joints overflow, no traceback in a real
-process.
+process, a write that fails naming the output rather than its temporary file.
 
 Release loading (issue 31, case 6): 10 tests, 36 cases, each a crafted copy of the reference
 release (``../shared/reference/t2m-original``; skipped without it): a vocabulary index of other
 than whole numbers (3, and once read alone by ``t2m.data.words``) or without ``unk`` (1); generator weights of 0-d, wrong shape, missing,
 non-float or non-finite, claiming more values than stored, or not tensors at all (16); the length
 estimator's (3) and the evaluator's (3); ``opt.txt``'s unit_length (3), ``opt.txt`` not UTF-8 or
-a folder (1); ``meta/`` statistics of wrong shape or zero std (4); one line from ``t2m.sample``
+a folder (1); ``meta/`` statistics of wrong shape or zero std, naming ``mean.npy`` or ``std.npy``
+(4); one line from ``t2m.sample``
 in a real process (1).
 """
 
@@ -167,6 +168,22 @@ def test_export_refusals_have_no_traceback_in_a_real_process(tmp_path):
     assert done.returncode == 2
     one_line(done.stderr, str(source))
     assert not out.exists()
+
+
+def test_a_write_that_fails_names_the_output_not_its_temporary_file(tmp_path, capsys):
+    from dataset_tools.io import atomic_write
+
+    def full_disk(file) -> None:
+        raise OSError(28, "No space left on device", file.name)
+
+    with pytest.raises(OSError) as error:
+        atomic_write(tmp_path / "out.bvh", full_disk)
+    assert str(error.value) == f"[Errno 28] No space left on device: '{tmp_path / 'out.bvh'}'"
+    assert sorted(os.listdir(tmp_path)) == []
+    if Path("/proc/self").is_dir():  # a folder no file can be made in, whoever runs the test
+        assert export.main([str(saved(tmp_path, walk())), "/proc/out.bvh"]) != 0
+        last = capsys.readouterr().err.strip().splitlines()[-1]  # after a gimbal-lock warning
+        assert last == "error: [Errno 2] No such file or directory: '/proc/out.bvh'", last
 
 
 # ------------------------------------------------------------------------------------ release

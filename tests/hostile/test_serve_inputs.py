@@ -22,9 +22,10 @@ Cases per area:
   flood of the largest generate requests from two clients, `GET /api/info` answers within 1 s (this one held
   before; it guards the design: one model thread, a bounded queue, a thread per connection
   with an idle timeout);
-* refusals name the request's keys and the page states the server's bounds (2 cases): an edit
-  refused by its plan says ``keep_seconds``, not ``--keep-seconds``; the edit panel shows
-  ``max_source_frames`` from ``/api/info`` and warns of a longer upload.
+* refusals name the request's keys and uploads, and the page states the server's bounds (4
+  cases): an edit refused by its plan says ``keep_seconds``, not ``--keep-seconds``; key
+  targets of the wrong shape and a source too short name the uploaded file; the edit panel
+  shows ``max_source_frames`` from ``/api/info`` and warns of a longer upload.
 """
 
 from __future__ import annotations
@@ -329,3 +330,25 @@ def test_the_edit_panel_states_the_servers_source_bound(server):
     frames = info["limits"]["max_source_frames"]
     assert f"at most {frames} frames" in unknown["note"] and not unknown["over"]
     assert hour["over"] and f"at most {frames} frames" in hour["warning"]
+
+
+def _upload(name: str, array: np.ndarray, folder) -> dict:
+    np.save(folder / name, array)
+    data = base64.b64encode((folder / name).read_bytes()).decode()
+    return {"upload": {"name": name, "base64": data}}
+
+
+@pytest.mark.parametrize("what", ["keys", "source"])
+def test_an_upload_refused_by_the_plan_is_named(server, tmp_path, what):
+    if what == "keys":
+        body = {"mode": "keys", "text": "a person waves",
+                "keys": _upload("targets.npy", np.zeros((20, 21, 3)), tmp_path)}  # fmt: skip
+        needle = "keys: the uploaded targets.npy must be (T, 22, 3)"
+    else:
+        blink = synth_joints("walk_forward", 3, np.random.default_rng(3))
+        body = {"mode": "body", "text": "a person waves", "part": "lower",
+                "source": _upload("blink.npy", blink, tmp_path)}  # fmt: skip
+        needle = "source: the uploaded blink.npy has 3 frames"
+    status, answer, _ = call(server, "POST", "/api/edit", body)
+    assert status == 400, answer
+    assert answer["error"].startswith(needle), answer
