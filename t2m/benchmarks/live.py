@@ -94,6 +94,16 @@ def run_stream(args) -> dict:
             {k: round(v, 3) for k, v in w.items()} for w in drift_report(joints, fps, 60.0)
         ],
     }
+    from t2m.live import SETTLE_TEXT
+
+    still = []  # the root's speed while settled: from 1 s after "stop" to the next prompt
+    for index, prompt in enumerate(stream.prompts):
+        stop = stream.prompts[index + 1].start if index + 1 < len(stream.prompts) else len(joints)
+        if prompt.text == SETTLE_TEXT and stop - prompt.start > fps:
+            root = joints[prompt.start + int(fps) : stop, 0, :]
+            still.append(np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=-1).mean() * fps)
+    if still:
+        result["settled_root_speed_mps"] = round(float(np.mean(still)), 3)
     if args.strip:
         from dataset_tools.viz import render_keyframes
 

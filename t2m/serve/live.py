@@ -82,6 +82,7 @@ class LiveSession:
     connected: bool = False
     clock_start: float | None = None  # monotonic time of frame 0 on the viewer's clock
     last_write: float = 0.0  # monotonic time of the last event sent
+    trimmed_at: int = 0  # the stream's frame at its last trim
 
     def clock_frame(self) -> float:
         """The frame the viewer shows now (by the server's clock)."""
@@ -271,8 +272,9 @@ class LiveHub:
                         session.clock_start = time.monotonic()
                     if stream.frame < session.clock_frame() + lead:
                         event = _snippet_event(stream.next_snippet())
-                    elif stream.frame - stream.first_frame > (self.keep_seconds + 10) * fps:
+                    elif stream.frame - session.trimmed_at > 10 * fps:  # memory stays bounded
                         stream.trim(self.keep_seconds)
+                        session.trimmed_at = stream.frame
                 if event is None and time.monotonic() - session.last_write > 5.0:
                     event = b": keep-alive\n\n"  # a comment: the page ignores it
                 if event is not None:
