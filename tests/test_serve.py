@@ -84,7 +84,7 @@ def test_the_page_is_es_modules_served_as_javascript(server):
         assert not re.search(r"\bwindow\.\w+\s*=", text), f"{name} writes a global"
         seen.add(name)
         todo += [m for m in re.findall(r'from "\./([\w.]+)"', text) if m not in seen]
-    assert seen == {"app.js", "api.js", "dom.js", "edit.js", "player.js", "viewer.js"}
+    assert seen == {"app.js", "api.js", "dom.js", "edit.js", "live.js", "player.js", "viewer.js"}
     status, answer, response = call(server, "HEAD", "/static/viewer.js")
     assert status == 200 and answer == b"" and response.getheader("Content-Length") != "0"
 
