@@ -223,3 +223,6 @@ def test_evaluation_of_cleaned_motions(tiny_run, tiny_dataset, tmp_path):
     assert "clean = True (standard: False)" in summary["deviations"]
     for row in ("Ours (ground-truth length)", "Ours (sampled length)"):
         assert summary["rows"][row]["physical_penetration_mm"]["mean"] == 0.0
+    # finished as t2m.sample finishes them: rigid, as the real motions are
+    for row in ("Real motions", "Ours (ground-truth length)", "Ours (sampled length)"):
+        assert summary["rows"][row]["physical_bone_stretch_max_m"]["mean"] < 1e-5
