@@ -15,7 +15,8 @@
   headers, sizes bounded before work, fresh results kept, availability under a hostile client,
   refusals in the request's keys naming uploads, the source bound shown on the page);
 * ``test_export_release_inputs.py`` (57): ``t2m.export`` (overwrites, frame rates, coordinates,
-  degenerate bones, failed writes named) and the original release's files (vocabularies, tensors, options, statistics).
+  degenerate bones, failed writes named) and the original release's files (vocabularies,
+  tensors, options, statistics).
 
 Each file's docstring lists its cases.
 """
