@@ -150,6 +150,57 @@ def test_live_api_streams_prompts_and_downloads(live_server):
     assert status == 404
 
 
+def _get(server, path: str, method: str = "GET") -> tuple[int, bytes]:
+    request = urllib.request.Request(server.url.rstrip("/") + path, method=method)
+    try:
+        with urllib.request.urlopen(request, timeout=30) as response:
+            return response.status, response.read(64)
+    except urllib.error.HTTPError as error:
+        return error.code, error.read()
+
+
+@pytest.mark.parametrize(
+    ("body", "words"),
+    [
+        ({"text": "a person walks", "seed": -1}, "seed must be"),
+        ({"text": "a person walks", "seed": True}, "seed must be"),
+        ({"text": "a person walks", "colour": 1}, "unknown field 'colour'"),
+        ({"text": "zzqx blorf"}, "no known word"),
+        ({"text": "walk " * 120}, "at most 500"),
+        ({"text": "a person walks", "precision": "fp64"}, "precision must be one of"),
+        (["a person walks"], "send a JSON object"),
+    ],
+)
+def test_a_bad_live_request_is_a_400_in_words(live_server, body, words):
+    status, answer = _post(live_server, "/api/live", body)
+    assert status == 400 and words in answer["error"], answer
+    assert _running(live_server) == 0
+
+
+def test_live_routes_refuse_what_is_not_there(live_server):
+    for path in ("/api/live/nope/events", "/api/live/nope/timeline.txt"):
+        assert _get(live_server, path)[0] == 404
+    assert _post(live_server, "/api/live/nope/prompt", {"text": "a person walks"})[0] == 404
+    assert _get(live_server, "/api/live")[0] == 405
+    _, session = _post(live_server, "/api/live", {"text": "a person walks forward"})
+    try:
+        assert _get(live_server, f"/api/live/{session['id']}/secrets.txt")[0] == 404
+        assert _get(live_server, session["events"], method="HEAD")[0] == 200  # attaches nothing
+        events = _Events(live_server, session["events"])
+        assert _wait_until(lambda: len(events.snippets()) >= 1)
+        status, body = _get(live_server, session["events"])  # a second viewer of the same stream
+        assert status == 400 and b"already has a viewer" in body
+        for frame in (-3, "x", True):
+            status, answer = _post(
+                live_server, session["prompt"], {"text": "a person", "frame": frame}
+            )
+            assert status == 400 and "frame must be" in answer["error"]
+        events.close()
+    finally:
+        _post(live_server, session["close"], {})
+    assert _wait_until(lambda: _running(live_server) == 0)
+
+
 def test_a_slow_or_vanished_viewer_stalls_no_other(pipe):
     """Three sessions of one hub: a viewer whose writes block (a full socket), one whose writes
     fail (a closed tab) and a normal one. The normal one's frames keep their pace; the failing

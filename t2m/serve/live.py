@@ -283,8 +283,14 @@ class LiveHub:
                     continue
                 wait = (stream.frame - lead - session.clock_frame()) / fps
                 session.wake.wait(timeout=min(max(wait, 0.005), 0.25))
-        except (OSError, ValueError) as error:  # the viewer went (or its socket timed out)
+        except OSError as error:  # the viewer went (or its socket timed out)
             logger.debug("live session %s ended: %s", session.id, error)
+        except Exception as error:  # the stream failed: the page hears why, the log has the trace
+            logger.exception("live session %s failed", session.id)
+            try:
+                write(_event("failure", {"error": f"the live stream failed: {error}"}))
+            except OSError:
+                pass
         finally:
             self.close(session.id)
 

@@ -366,7 +366,10 @@ class Handler(BaseHTTPRequestHandler):
 
     def get_live_events(self, session: str) -> None:
         """Server-sent events until the stream ends or the viewer goes (t2m.serve.live)."""
-        live = self.app.live.attach(session)  # 404 (or 400) before any header
+        if self.command == "HEAD":  # the headers only: no viewer attaches
+            self.app.live.get(session)
+        else:
+            live = self.app.live.attach(session)  # 404 (or 400) before any header
         self.close_connection = True
         self.send_response(HTTPStatus.OK)
         self.send_header("Content-Type", "text/event-stream; charset=utf-8")

@@ -144,6 +144,10 @@ export function setUpLive(viewer, info) {
     live.source = source;
     source.addEventListener("snippet", (event) => onSnippet(JSON.parse(event.data)));
     source.addEventListener("hello", () => status(`live: "${session.text}"`));
+    source.addEventListener("failure", (event) => {  // the server's sentence, then the end
+      showError(JSON.parse(event.data).error);
+      stop();
+    });
     source.onerror = () => {
       if (live.source !== source) return;
       showError("the live stream ended (the server stopped or the connection dropped); Start begins a new one");
