@@ -2,10 +2,11 @@
 
 Its typed fields are the whole schema. ``python -m t2m.edit`` makes its options from them
 (:func:`dataset_tools.command.add_config_options`), ``--batch`` reads each JSON object with
-:func:`dataset_tools.command.config_from_dict` (file names relative to the batch file), and the
+:func:`dataset_tools.command.fields_from_dict` (file names relative to the batch file), and the
 web app's ``POST /api/edit`` reads the same fields with the same reader (uploads and its size and
-count limits on top, file names refused: :mod:`t2m.serve.editing`). Python callers build it
-directly; a file field also takes an array (``source``, ``keys``: (T, J, 3); ``path``: (K, 3)).
+count limits on top, file names refused: :mod:`t2m.serve.editing`); both say a refusal in their
+JSON keys (:func:`json_terms`). Python callers build it directly; a file field also takes an
+array (``source``, ``keys``: (T, J, 3); ``path``: (K, 3)).
 """
 
 from __future__ import annotations
