@@ -74,6 +74,8 @@ SETTLE_COMMANDS = frozenset(
 """Prompts (lower case, punctuation dropped) that mean "come to rest"."""
 MAX_PROMPT_CHARS = 500
 """The longest prompt a stream takes."""
+UNSIZED_SECONDS = 4.0
+"""A segment's length when no text2length model is loaded and the prompt fixes none."""
 
 
 def settle_text(text: str) -> str:
@@ -223,7 +225,8 @@ class LiveStream:
         """Take ``text`` over at the first snippet boundary at or after frame ``at`` (default:
         the frames pulled so far; earlier than that by at most :data:`MAX_REWIND_SECONDS`,
         which drops what was pulled from there; later: queued). ``seconds`` fixes its segments'
-        length (None: drawn by the text2length model). Returns the boundary frame.
+        length (None: drawn by the text2length model; without one, :data:`UNSIZED_SECONDS`).
+        Returns the boundary frame.
 
         Raises UsageError (one line; the stream goes on unchanged) for an empty or too long
         prompt, one with no word the model knows, or a boundary too far back."""
@@ -238,6 +241,8 @@ class LiveStream:
                 self._prepared.clear()
             self._prepared[text] = self.pipe.prepare([text])
         frames = None
+        if seconds is None and self.pipe.length_model is None:
+            seconds = UNSIZED_SECONDS
         if seconds is not None:
             try:
                 frames = self.pipe._clamp(float(seconds) * self.spec.fps)
@@ -428,21 +433,6 @@ def replay(
     return stream
 
 
-__all__ = [
-    "CONTEXT_SECONDS",
-    "FINISH_LOOKBACK_FRAMES",
-    "MAX_REWIND_SECONDS",
-    "SETTLE_COMMANDS",
-    "SETTLE_TEXT",
-    "LivePrompt",
-    "LiveStream",
-    "Snippet",
-    "drift_report",
-    "replay",
-    "segment_seed",
-]
-
-
 def drift_report(joints: np.ndarray, fps: float, window_seconds: float = 30.0) -> list[dict]:
     """How a long stream holds up, per window of ``window_seconds`` of world joints (T, J, 3)
     (SMPL or KIT numbering, y-up metres): ``floor_m`` (median over frames of the lowest foot
@@ -476,3 +466,19 @@ def drift_report(joints: np.ndarray, fps: float, window_seconds: float = 30.0) -
             }
         )
     return report
+
+
+__all__ = [
+    "CONTEXT_SECONDS",
+    "FINISH_LOOKBACK_FRAMES",
+    "MAX_REWIND_SECONDS",
+    "SETTLE_COMMANDS",
+    "SETTLE_TEXT",
+    "UNSIZED_SECONDS",
+    "LivePrompt",
+    "LiveStream",
+    "Snippet",
+    "drift_report",
+    "replay",
+    "segment_seed",
+]

@@ -136,3 +136,10 @@ def test_a_long_stream_does_not_drift(pipe):
         assert window["upright_deg"] < 30, report
         assert window["speed_p95_mps"] < 4.0, report
     assert report[1]["jerk_mean"] < 1.5 * report[0]["jerk_mean"], report
+
+
+def test_without_a_length_model_segments_have_a_fixed_length(pipe, monkeypatch):
+    monkeypatch.setattr(pipe, "length_model", None)
+    stream = pipe.stream(WALK, seed=0)
+    _pull(stream, 45)
+    assert [s.start for s in stream._segments] == [0, 80, 160]
