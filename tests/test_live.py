@@ -143,3 +143,19 @@ def test_without_a_length_model_segments_have_a_fixed_length(pipe, monkeypatch):
     stream = pipe.stream(WALK, seed=0)
     _pull(stream, 45)
     assert [s.start for s in stream._segments] == [0, 80, 160]
+
+
+def test_the_replay_command_writes_the_streams_motion(pipe, tiny_run, tmp_path):
+    from t2m.replay import main
+
+    stream = pipe.stream(WALK, seed=4)
+    _pull(stream, 12)
+    stream.prompt("Stop!")
+    _pull(stream, 12)
+    timeline = tmp_path / "live_seed4.txt"
+    timeline.write_text("\n".join(stream.timeline()) + "\n")
+    out = tmp_path / "out"
+    argv = ["--timeline", str(timeline), "--seed", "4", "--checkpoints", str(tiny_run)]
+    assert main([*argv, "--out", str(out), "--device", "cpu"]) == 0
+    np.testing.assert_array_equal(np.load(out / "sample00_rep00.npy"), stream.joints())
+    assert main(["--checkpoints", str(tiny_run)]) == 2  # no timeline: one line, no traceback
