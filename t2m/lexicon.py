@@ -156,6 +156,11 @@ MIN_SIMILARITY = 0.8
 the opposites the vectors hold close ("sit" / "stand" 0.76), so only near-identical words (a
 spelling, an inflection, "guy" / "man") are read through the vectors alone."""
 
+COMMON_WORDS = 2000
+"""Words in the first rows of a GloVe table (its most frequent: "go" 242, "move" 483, "follow"
+1,816) are not read through the vectors: their vectors sit among every sense, and the nearest
+trained motion word of "move", "come" and "go" is "turn" (cosine 0.88-0.91), of "follow" "step"."""
+
 READ_AS_POS = frozenset({"VERB", "NOUN"})
 """Only verbs and nouns are read as others: among adjectives and adverbs the nearest word is
 often the opposite ("quickly" -> "slowly"), and "the" or "with" stay what they are."""
@@ -191,12 +196,14 @@ def read_untrained(
     pairs: Sequence[tuple[str, str]],
     trained: Collection[str],
     vocabulary: Any = None,
+    common: int = COMMON_WORDS,
 ) -> list[tuple[str, str]]:
     """A tagged prompt's (word, POS) pairs with each content word the model was not trained on
     (not in ``trained``) read as a word it was: the first trained word of its :data:`SYNONYMS`
     entry, else its nearest trained word in the word vectors of ``vocabulary`` (a
     :class:`t2m.data.words.WordVectors`: its ``index`` and ``vectors``) when their cosine is at
-    least :data:`MIN_SIMILARITY`. Each reading is named in a warning ("read 'dash' as 'run'");
+    least :data:`MIN_SIMILARITY` and the word is not among the table's first ``common`` rows
+    (:data:`COMMON_WORDS`). Each reading is named in a warning ("read 'dash' as 'run'");
     words with no reading stay as they are (the model then reads their own vector, or ``unk``).
     """
     vectors = getattr(vocabulary, "vectors", None)
@@ -216,8 +223,10 @@ def read_untrained(
                     word,
                     known[0],
                 )
-            elif vectors is not None and (
-                found := nearest_trained(word, trained, vocabulary.index, vectors)
+            elif (
+                vectors is not None
+                and vocabulary.index.get(word, -1) >= common
+                and (found := nearest_trained(word, trained, vocabulary.index, vectors))
             ):
                 if found[1] >= MIN_SIMILARITY:
                     readings[word] = found[0]
@@ -235,9 +244,14 @@ def read_untrained(
 
 
 def read_untrained_tokens(
-    text: str, tokens: Sequence[str], trained: Collection[str], vocabulary: Any = None
+    text: str,
+    tokens: Sequence[str],
+    trained: Collection[str],
+    vocabulary: Any = None,
+    common: int = COMMON_WORDS,
 ) -> list[str]:
     """:func:`read_untrained` on ``word/POS`` tokens (a dataset caption's, as an evaluation
     encodes them) instead of (word, POS) pairs."""
     pairs = [token.rpartition("/")[::2] for token in tokens]
-    return [f"{word}/{pos}" for word, pos in read_untrained(text, pairs, trained, vocabulary)]
+    read = read_untrained(text, pairs, trained, vocabulary, common)
+    return [f"{word}/{pos}" for word, pos in read]

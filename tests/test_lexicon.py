@@ -50,14 +50,16 @@ def test_synonyms_are_read_as_the_first_trained_meaning(caplog):
 
 def test_vectors_read_only_near_identical_verbs_and_nouns(caplog):
     with caplog.at_level(logging.WARNING, logger="t2m.lexicon"):
-        read = read_untrained("guy", [("guy", "NOUN")], TRAINED, TABLE)
+        read = read_untrained("guy", [("guy", "NOUN")], TRAINED, TABLE, common=0)
     assert read == [("jump", "NOUN")]
     assert "nearest trained word in the word vectors, cosine 0.98" in caplog.text
+    # a word among the table's most frequent (here its first 4 rows) is too general
+    assert read_untrained("", [("guy", "NOUN")], TRAINED, TABLE, common=4) == [("guy", "NOUN")]
     word, cosine = nearest_trained("blorf", TRAINED, TABLE.index, TABLE.vectors)
     assert cosine < MIN_SIMILARITY
-    assert read_untrained("", [("blorf", "NOUN")], TRAINED, TABLE) == [("blorf", "NOUN")]
+    assert read_untrained("", [("blorf", "NOUN")], TRAINED, TABLE, 0) == [("blorf", "NOUN")]
     # adjectives and adverbs keep their own vectors (their nearest word is often an opposite)
-    assert read_untrained("", [("quickly", "ADV")], TRAINED, TABLE) == [("quickly", "ADV")]
+    assert read_untrained("", [("quickly", "ADV")], TRAINED, TABLE, 0) == [("quickly", "ADV")]
     # no vector, no table entry: left as it is (the model reads it as unk)
     assert read_untrained("", [("zzz", "VERB")], TRAINED, TABLE) == [("zzz", "VERB")]
     assert nearest_trained("zzz", TRAINED, TABLE.index, TABLE.vectors) is None
