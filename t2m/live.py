@@ -43,6 +43,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +59,18 @@ from t2m.edit.core import EditPlan, SearchSettings, generate_plans
 from t2m.edit.modes import read_timeline
 
 logger = logging.getLogger(__name__)
+_quiet = threading.local()  # set while a stream runs the edit search: its per-search log lines
+
+
+class _QuietSearch(logging.Filter):
+    """Drops the edit search's INFO lines logged for a stream's segments (one every few seconds
+    per stream); an edit's own, on any other thread or call, pass."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno > logging.INFO or not getattr(_quiet, "on", False)
+
+
+logging.getLogger("t2m.edit.core").addFilter(_QuietSearch())
 
 CONTEXT_SECONDS = COMPOSE_CONTEXT_SECONDS
 """Each segment continues from this much of what was made before it (as ``compose`` does)."""
@@ -318,7 +331,11 @@ class LiveStream:
         else:
             target = np.full((frames, spec.num_joints, 3), np.nan)
             plan = EditPlan(prompt.text, frames, target, np.zeros(target.shape[:2], bool))
-        (result,) = generate_plans(self.pipe, [plan], generator, self.settings)
+        _quiet.on = True
+        try:
+            (result,) = generate_plans(self.pipe, [plan], generator, self.settings)
+        finally:
+            _quiet.on = False
         raw = result.features[len(tail) :].astype(np.float32)
         if self._segments:  # only the running segment is read on: free the others' frames
             self._segments[-1].raw = raw[:0]
