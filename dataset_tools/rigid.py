@@ -14,10 +14,14 @@ root:
   the piece's best frame, a generalised Procrustes fit), and per frame the piece takes the
   rotation that best lays them along the observed bones (Kabsch).
 
-The result has every bone at its length in every frame and every branch rigid, so the BVH and
-glTF writers (:mod:`dataset_tools.bvh`, :mod:`dataset_tools.gltf`), which fit hips and collars
-the same way and use the same lengths, reproduce it exactly. Fitting it again returns it unchanged
-(to float64 rounding).
+The result has every bone at its length in every frame and every branch rigid. The lengths are
+the target skeleton's (:func:`model_bone_lengths`): every clip a dataset is built from is
+retargeted to it, so it is the body the model learnt, one body for all its motions rather than
+each motion's own estimate of it; and it is the body the BVH and glTF writers lay out
+(:mod:`dataset_tools.bvh`, :mod:`dataset_tools.gltf`, which fit the hips and collars to the
+motion's own rigid shape), so they reproduce the result exactly. Fitting it again returns it
+unchanged (to float64 rounding). An edit holds the joints it keeps from its source
+(``held``, see :func:`rigid_joints`).
 
 :func:`finish_features` is the finishing step of every generated motion (``t2m.sample``,
 ``t2m.edit``, the web app, the evaluation's ``--clean``): the rigid fit, then the foot-contact
