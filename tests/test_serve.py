@@ -475,12 +475,13 @@ def test_an_idle_connection_is_closed(server, monkeypatch):
 def test_served_motions_get_the_clean_up_that_sample_gives(pipe, monkeypatch):
     import t2m.pipeline
 
-    def lifted(features):  # a visible stand-in for the clean-up: the root joint 10 cm higher
-        features = features.copy()
-        features[:, 3] += 0.1
+    def lifted(features, clean=True):  # a visible stand-in for the finishing step: cleaned,
+        features = np.array(features, dtype=np.float32)  # the root joint is 10 cm higher
+        if clean:
+            features[:, 3] += 0.1
         return features
 
-    monkeypatch.setattr(t2m.pipeline, "clean_features", lifted)
+    monkeypatch.setattr(t2m.pipeline, "finish_features", lifted)
     job = GenerationJob(["a person walks forward"], [40], 1, seed=5, precision="fp32")
     generate_jobs(pipe, [job])
     served = job.result[0][0][0].joints
