@@ -306,7 +306,7 @@ class LiveHub:
             if name == "timeline.txt":
                 body = "\n".join(stream.timeline()) + "\n"
                 return body.encode("utf-8"), DOWNLOADS[name], f"live_seed{session.seed}.txt"
-            joints, features = stream.joints(), stream.features()
+            joints = stream.joints()
         if len(joints) < 2:
             raise UsageError("the stream has made no motion yet")
         from t2m.motion import GeneratedMotion
@@ -314,7 +314,9 @@ class LiveHub:
 
         kind = name.split(".")[1]
         text = " / ".join(prompt.text for prompt in stream.prompts)
-        motion = GeneratedMotion(text, 0, 0, joints, features)
+        # the writers used here read joints only; a long stream keeps features of its last
+        # seconds only (LiveStream.trim), so none are handed over
+        motion = GeneratedMotion(text, 0, 0, joints, np.zeros((len(joints), 0), np.float32))
         with tempfile.TemporaryDirectory(prefix="t2m-live-") as folder:
             written = write_motion_file(motion, Path(folder), kind, stream.spec.fps)
             body = (Path(folder) / written).read_bytes()
