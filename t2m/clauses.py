@@ -101,7 +101,7 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
     starts = [0]
     leading = count > 0 and words[0] in ("after", "once")
     # "once done waving, ...": the leading clause's own verb comes after "done"
-    first_verb = 2 if leading and count > 1 and words[1] in ("do", "done") else 1
+    first_verb = 2 if words[:1] == ["once"] and count > 1 and words[1] in ("do", "done") else 1
     split_leading = False
 
     def subject_at(i: int) -> bool:

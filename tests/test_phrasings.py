@@ -103,6 +103,8 @@ PHRASINGS: list[tuple[str, list[int]]] = [
     ("once done walking forward, the subject waves", [0, 0]),
     ("after walking forward, wave", [0, 0]),
     ("once done jumping 3 times, sit down", [3, 0]),
+    ("after doing two squats, a human walks backwards quickly", [2, 0]),
+    ("after doing a front kick with the right leg, the figure waves", [0, 0]),
     ("a person walks forward, then turns left, then jumps twice", [0, 0, 2]),
     ("walk forward, then turn, then clap 3x", [0, 0, 3]),
     ("a person squats twice then jumps and then kicks after that bows", [2, 0, 0, 0]),
