@@ -108,3 +108,22 @@ def test_a_stretching_motion_would_not_agree(outputs, tmp_path):
     positions = positions[:, [names.index(joint) for joint in SMPL.joint_names]] / 100.0
     error = np.linalg.norm(positions - stretched, axis=-1)
     assert error[::2, wrist].min() > 0.02 and error[:, :wrist].max() <= TOLERANCE_M
+
+
+def test_the_files_t2m_sample_writes_agree(tiny_run, tmp_path):
+    """What a user gets: ``python -m t2m.sample --bvh --glb`` writes three files per motion
+    that hold the same joints."""
+    from t2m import sample
+
+    out = tmp_path / "out"
+    argv = ["--text", "a person walks forward", "--num-samples", "2", "--length", "48"]
+    argv += ["--checkpoints", str(tiny_run), "--out", str(out), "--render", "none"]
+    assert sample.main([*argv, "--bvh", "--glb", "--seed", "7"]) == 0
+    for rep in range(2):
+        stem = out / f"sample00_rep{rep:02d}"
+        npy = np.load(stem.with_suffix(".npy"))
+        names, _, _, positions, _ = read_bvh(stem.with_suffix(".bvh"))
+        bvh_joints = positions[:, [names.index(j) for j in SMPL.joint_names]] / 100.0
+        glb_joints = _read_with_pygltflib(stem.with_suffix(".glb"))[0]
+        assert np.linalg.norm(bvh_joints - npy, axis=-1).max() <= TOLERANCE_M
+        assert np.linalg.norm(glb_joints - npy, axis=-1).max() <= TOLERANCE_M
