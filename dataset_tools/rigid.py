@@ -46,9 +46,10 @@ from dataset_tools.representation import (
 from dataset_tools.rotations import qrot, quat_to_6d
 from dataset_tools.skeleton import SMPL, SkeletonSpec, skeleton_for
 
-PROCRUSTES_ITERATIONS = 4
+PROCRUSTES_ITERATIONS = 2
 """Rounds of the rest-direction fit of a branch (each: per-frame rotations, then their mean
-directions); the change after the fourth is below 1e-9 on generated and real motions."""
+directions) after its start: on demo-corpus motions whose joints were moved by 1.5 cm of noise
+per frame, two rounds put every joint within 0.03 mm of where eight put it."""
 _EPS = 1e-9
 
 
@@ -96,12 +97,17 @@ def branch_rest_directions(
     observed: np.ndarray, weights: np.ndarray | None = None, frames: np.ndarray | None = None
 ) -> np.ndarray:
     """Unit rest directions (K, 3) of the children of a rigid branch, from their observed unit
-    directions (T, K, 3): starting from the first frame, alternately the per-frame best rotations
+    directions (T, K, 3): starting from their mean in each frame's basis of the first two,
+    alternately the per-frame best rotations
     (Kabsch, with ``weights`` (T, K)) and the mean of the observed directions turned back by them
     (:data:`PROCRUSTES_ITERATIONS` rounds), each child's over its ``frames`` (T, K) bool
     (default: every frame). Defined up to one rotation, which the per-frame rotations absorb."""
     frames = np.ones(observed.shape[:2], bool) if frames is None else frames
-    rest = observed[0]
+    # a start near the answer: the mean directions in each frame's basis of the first two
+    first, _ = _unit(observed[:, 0])
+    second, _ = _unit(observed[:, 1] - np.sum(observed[:, 1] * first, -1, keepdims=True) * first)
+    basis = np.stack([first, second, np.cross(first, second)], axis=-1)  # (T, 3, 3) columns
+    rest, _ = _unit((np.einsum("tji,tkj->tki", basis, observed) * frames[..., None]).sum(axis=0))
     for _ in range(PROCRUSTES_ITERATIONS):
         rotations = _kabsch(rest, observed, weights)  # (T, 3, 3)
         back = np.einsum("tji,tkj->tki", rotations, observed)  # R^T observed
