@@ -31,7 +31,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from t2m.lexicon import COUNT_WORDS, MOTION_WORDS
+from t2m.lexicon import COUNT_WORDS, MOTION_WORDS, SYNONYMS
 
 CONNECTIVES = frozenset(
     {
@@ -126,11 +126,18 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
             starts_here = i + 1 < count and connective_at(i + 1)
         elif connective_at(i):
             starts_here = words[i - 1] != "and"
-        elif leading and not split_leading and "VERB" in tags[first_verb:i]:
+        elif (
+            leading
+            and not split_leading
+            and any(_is_action(words[j], tags[j]) for j in range(first_verb, i))
+        ):
             # "after <clause> <subject> <main clause>": the subject starts the main clause; with
             # no subject (the imperative "after walking forward, wave"), its verb does
             starts_here = subject_at(i) or (
-                imperative and tags[i] == "VERB" and words[i - 1] not in ("and", "or", "to")
+                imperative
+                and _is_action(word, tags[i])
+                and words[i - 1] not in ("and", "or", "to")
+                and tags[i - 1] not in ("DET", "ADJ", "NUM")
             )
             split_leading = starts_here
         else:
@@ -157,12 +164,25 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
     return kept
 
 
+def _motion_verb(word: str) -> bool:
+    return word in MOTION_WORDS["ACTION"] or word in EXTRA_VERBS or word in SYNONYMS
+
+
+def _is_action(word: str, tag: str) -> bool:
+    """A word tagged VERB or a motion verb the tagger may call a noun (see :func:`_has_predicate`),
+    also as a gerund left unlemmatised ("kicking", "running", "waving")."""
+    if tag == "VERB" or _motion_verb(word):
+        return True
+    stem = word[:-3] if word.endswith("ing") else ""
+    return bool(stem) and any(_motion_verb(s) for s in (stem, stem + "e", stem[:-1]))
+
+
 def _has_predicate(words: Sequence[str], tags: Sequence[str]) -> bool:
     """Whether a part names an action: a word tagged VERB, a motion verb the tagger may call a
-    noun ("waves", "lowers": the vocabulary's action words, :data:`EXTRA_VERBS`), or a noun right
+    noun ("waves", "lowers": the vocabulary's action words, :data:`EXTRA_VERBS`, the motion
+    verbs of :data:`t2m.lexicon.SYNONYMS`: "Signal hello" opening a caption), or a noun right
     after its connective and subject ("then sidestep to the left", "then leap forward")."""
-    actions = MOTION_WORDS["ACTION"]
-    if any(t == "VERB" or w in actions or w in EXTRA_VERBS for w, t in zip(words, tags)):
+    if any(_is_action(w, t) for w, t in zip(words, tags)):
         return True
     start = _connective_length(words)
     if start < len(words) and words[start] in SUBJECT_PRONOUNS:

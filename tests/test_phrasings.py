@@ -139,6 +139,28 @@ PHRASINGS: list[tuple[str, list[int]]] = [
 ]
 
 
+# Captions as the dataset builder tags them (case kept: a capitalised imperative may come out a
+# noun), from the demo corpus's paraphrase pool.
+AS_BUILT: list[tuple[str, list[int]]] = [
+    ("Signal hello with the right arm before bouncing on one left foot three times in a row.", [0, 3]),
+    ("Once done signalling hello with the right arm, bounce on one left foot 3x.", [0, 3]),
+    ("After bouncing on one right foot 4x, pivot to the left by half a circle.", [4, 0]),
+    ("Once done kicking with the right foot, a person walks straight ahead slowly.", [0, 0]),
+    ("once done greeting with a left-handed wave, he bounces up and down two times.", [0, 2]),
+    ("Duck down and come back up a couple of times.", [2]),
+    ("The subject paces forward, subsequently applauds 2x.", [0, 2]),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("text", "counts"), AS_BUILT, ids=[t for t, _ in AS_BUILT])
+def test_parser_reads_captions_tagged_as_built(text, counts):
+    from dataset_tools.texts import tag_captions
+
+    (pairs,) = tag_captions([text])
+    tokens = [f"{word}/{pos}" for word, pos in pairs]
+    assert [repetition_count(clause) for clause in clause_captions(tokens)] == counts
+
+
 @pytest.fixture(scope="module")
 def parsed() -> dict[str, list[int]]:
     """Every phrasing's clause counts, tagged in one batch (one spaCy pass)."""
