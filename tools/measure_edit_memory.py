@@ -86,7 +86,8 @@ def measure(
     before = _resident_bytes()
     edit(pipe, "a person walks forward", mode, settings=settings, **request)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
-    return {"candidates": candidates, "frames": frames, "growth": peak - before}
+    hidden = pipe.vae.config.hidden_size
+    return {"candidates": candidates, "frames": frames, "growth": peak - before, "hidden": hidden}
 
 
 def main() -> None:
@@ -106,7 +107,11 @@ def main() -> None:
         count = args.candidates[0]
         print(json.dumps(measure(args.checkpoints, args.mode, count, args.steps, args.paper_sized)))
         return
-    from t2m.edit.__main__ import SEARCH_BYTES_PER_FRAME
+    from t2m.edit.__main__ import (
+        SEARCH_BYTES_PER_FRAME,
+        SEARCH_BYTES_PER_HIDDEN,
+        SEARCH_FIXED_BYTES,
+    )
 
     rows = []
     for count in args.candidates:
@@ -119,11 +124,13 @@ def main() -> None:
     print(
         f"{args.mode} edit, {rows[0]['frames']} frames, {args.steps} steps, {args.checkpoints}{sizes}"
     )
-    print("candidates  peak growth MiB  KiB per candidate frame  estimate KiB")
+    print("candidates  peak growth MiB  KiB per candidate frame  t2m.edit's estimate MiB")
     for row in rows:
         per = row["growth"] / (row["candidates"] * row["frames"]) / 1024
+        per_frame = SEARCH_BYTES_PER_FRAME + SEARCH_BYTES_PER_HIDDEN * row["hidden"]
+        estimate = SEARCH_FIXED_BYTES + row["candidates"] * row["frames"] * per_frame
         print(f"{row['candidates']:>10}  {row['growth'] / 2**20:>15.1f}  {per:>23.1f}  "
-              f"{SEARCH_BYTES_PER_FRAME / 1024:>12.0f}")  # fmt: skip
+              f"{estimate / 2**20:>23.1f}")  # fmt: skip
     first, last = rows[0], rows[-1]
     if last["candidates"] > first["candidates"]:
         slope = (last["growth"] - first["growth"]) / (

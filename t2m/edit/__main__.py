@@ -57,7 +57,7 @@ features and joints, the targets), plus :data:`SEARCH_BYTES_PER_HIDDEN` per unit
 generator's hidden size (the activations the optimisation keeps for its gradient). Measured
 with ``tools/measure_edit_memory.py`` (a keys edit of 196 frames, ``--method optimize``, 20
 steps; growth of peak resident memory per added candidate frame; 2026-12-05, AMD EPYC Zen 5,
-AVX-512, 2 cores, loaded): 16.0 KiB at ``tiny`` (hidden 32), 28.3 KiB at ``demo`` (256), 65.0
+AVX-512, 2 cores, loaded): 16.0 KiB at ``tiny`` (hidden 32), 28.3 KiB at ``demo`` (256), 66.4
 KiB with the ``paper`` sizes (1024); the rule gives 18, 32 and 80 KiB."""
 SEARCH_BYTES_PER_HIDDEN = 64
 """Memory per candidate frame per unit of the generator's hidden size (see above)."""
