@@ -1,7 +1,7 @@
 """One motion, one truth: the ``.npy`` joints, the BVH file and the ``.glb`` of a motion agree
 within 1 mm at every joint and frame, for generated, edited and real motions.
 
-Each motion is saved as ``t2m.sample`` saves it (float32 ``.npy``), written with the project's
+Each motion (generated, edited, streamed, real) is saved as ``t2m.sample`` saves it (float32 ``.npy``), written with the project's
 writers (:func:`dataset_tools.bvh.write_bvh`, :func:`dataset_tools.gltf.write_glb`) from the
 loaded array, and read back: the BVH with our reader (:func:`dataset_tools.bvh.read_bvh`), the
 glTF by evaluating its nodes and animation with pygltflib (``tests/test_gltf.py``'s reader).
@@ -33,7 +33,7 @@ REFERENCE_JOINTS = SHARED / "reference" / "humanml3d" / "new_joints" / "012314.n
 @pytest.fixture(scope="module")
 def outputs(pipe) -> dict[str, np.ndarray]:
     """Joints (T, 22, 3) float32 of the outputs: generated (cleaned and not, two prompts),
-    an edit of a real clip, and real clips."""
+    edits of a real clip, a live stream, and real clips."""
     from t2m.edit import SearchSettings, edit
 
     motions = {}
@@ -55,6 +55,12 @@ def outputs(pipe) -> dict[str, np.ndarray]:
     arms = edit(pipe, "a person waves", "body", walk, part="arms", seed=0,
                 settings=SearchSettings(candidates=2, steps=0))  # fmt: skip
     motions["body edit (legs and root regenerated)"] = arms[0].joints
+    stream = pipe.stream("a person walks forward", seed=2)  # the live stream, across a prompt
+    for snippet in range(24):
+        if snippet == 12:
+            stream.prompt("a person jumps up and down")
+        stream.next_snippet()
+    motions["live stream"] = stream.joints()
     if REFERENCE_JOINTS.exists():
         motions["real (HumanML3D 012314)"] = np.load(REFERENCE_JOINTS)[:120]
     return motions
