@@ -1,7 +1,7 @@
 """One motion, one truth: the ``.npy`` joints, the BVH file and the ``.glb`` of a motion agree
-within 1 mm at every joint and frame, for generated, edited and real motions.
+within 1 mm at every joint and frame, for generated, edited, streamed and real motions.
 
-Each motion (generated, edited, streamed, real) is saved as ``t2m.sample`` saves it (float32 ``.npy``), written with the project's
+Each motion is saved as ``t2m.sample`` saves it (float32 ``.npy``), written with the project's
 writers (:func:`dataset_tools.bvh.write_bvh`, :func:`dataset_tools.gltf.write_glb`) from the
 loaded array, and read back: the BVH with our reader (:func:`dataset_tools.bvh.read_bvh`), the
 glTF by evaluating its nodes and animation with pygltflib (``tests/test_gltf.py``'s reader).
