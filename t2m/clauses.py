@@ -138,6 +138,7 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
                 and _is_action(word, tags[i])
                 and words[i - 1] not in ("and", "or", "to")
                 and tags[i - 1] not in ("DET", "ADJ", "NUM")
+                and not words[i - 1].endswith("ing")  # "once done jabbing using the arm"
             )
             split_leading = starts_here
         else:

@@ -148,6 +148,7 @@ AS_BUILT: list[tuple[str, list[int]]] = [
     ("Once done kicking with the right foot, a person walks straight ahead slowly.", [0, 0]),
     ("once done greeting with a left-handed wave, he bounces up and down two times.", [0, 2]),
     ("Duck down and come back up a couple of times.", [2]),
+    ("Once done jabbing using the right arm a single time, stay motionless.", [1, 0]),
     ("The subject paces forward, subsequently applauds 2x.", [0, 2]),
 ]  # fmt: skip
 
