@@ -131,15 +131,6 @@ CONTENT_CHECKS: dict[str, Callable[[Facts], bool]] = {
 
 STAGES = ("autoencoder", "generator")
 
-FINAL_EPOCHS = 42
-"""Generator epochs at the full length that the check trains (50 epochs in all with the `demo`
-preset's 2/2/2 before them). The preset's 17 are sized for the demo corpus (100 batches an
-epoch); the 672 training clips here make 18, so the preset's schedule is a fifth of its steps.
-Measured (2026-12-02, two training seeds x three generation seeds, 10 motions per content):
-overall 0.70 / 0.63 / 0.62 and 0.72 / 0.66 / 0.62 with the preset's 17 (generated "walks
-forward" turned right by 70-100 degrees in most draws), 0.81 / 0.81 / 0.83 and 0.84 / 0.79 /
-0.77 with 42, for about one more minute of training."""
-
 
 @dataclass
 class MocapCheckConfig:
@@ -157,8 +148,10 @@ class MocapCheckConfig:
     """where results.json and results.md go"""
     preset: str = "demo"
     """training preset"""
-    final_epochs: int = field(default=FINAL_EPOCHS, metadata=option(metavar="N"))
-    """generator epochs at the full length in place of the preset's (0: the preset's own)"""
+    final_epochs: int = field(default=0, metadata=option(metavar="N"))
+    """generator epochs at the full length in place of the preset's (0: the preset's own; the
+    demo preset is sized in optimiser steps, so these captures train as many as the demo
+    corpus)"""
     samples: int = field(default=5, metadata=option(metavar="N"))
     """generated motions per content"""
     seed: int = 0
