@@ -302,8 +302,9 @@ class TextToMotion:
     def prepare(self, texts: Sequence[str]) -> list[PreparedText]:
         """Lower-case, tag and encode prompts (:func:`dataset_tools.texts.tag_prompts`).
 
-        Words the model was not trained on (``training_words``) are named in a warning: they
-        keep their word vector where the vocabulary has one, else they read as ``unk``. Raises
+        Words the model was not trained on (``training_words``) are named in a warning and read
+        as trained ones where they can be (:func:`t2m.lexicon.read_untrained`: "dash" as
+        "run"); the others keep their word vector where the vocabulary has one, else ``unk``. Raises
         UsageError (one line) for an empty prompt or one with no word the model was trained on.
         """
         from dataset_tools.texts import tag_prompts
