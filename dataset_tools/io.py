@@ -336,22 +336,35 @@ largest whole number any field takes has 10)."""
 MAX_JSON_BYTES = 64 * 2**20
 """The largest JSON file :func:`read_json` reads unless told otherwise."""
 
-_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')  # a string literal, escapes included
-_BRACKET_STEP = np.zeros(256, dtype=np.int8)  # +1 for [ and {, -1 for ] and }
+_BRACKET_STEP = np.zeros(256, dtype=np.int64)  # +1 for [ and {, -1 for ] and }
 _BRACKET_STEP[[ord("["), ord("{")]] = 1
 _BRACKET_STEP[[ord("]"), ord("}")]] = -1
+_QUOTE, _BACKSLASH = ord('"'), ord("\\")
+_DEPTH_CHUNK = 1 << 20
 
 
 def json_depth(text: str) -> int:
     """How deep arrays and objects nest in the JSON ``text`` (brackets inside strings do not
-    count), found without parsing it, in time and memory linear in its length."""
-    skeleton = _JSON_STRING.sub('""', text).encode("ascii", "ignore")
-    codes = np.frombuffer(skeleton, dtype=np.uint8)
-    deepest, level, chunk = 0, 0, 1 << 22
-    for start in range(0, len(codes), chunk):
-        levels = np.cumsum(_BRACKET_STEP[codes[start : start + chunk]], dtype=np.int64) + level
-        if len(levels):
-            deepest, level = max(deepest, int(levels.max())), int(levels[-1])
+    count), found without parsing it, in time linear in its length and memory bounded per chunk
+    of a MiB: a quote ends a string unless an odd number of backslashes precedes it (a regular
+    expression for strings takes quadratic time on a text of unterminated escaped quotes)."""
+    data = text.encode("utf-8", "surrogatepass")  # ASCII bytes never occur inside a UTF-8 character
+    deepest = level = 0
+    inside, run = False, 0  # in a string at the chunk's start; backslashes that ended the last
+    for start in range(0, len(data), _DEPTH_CHUNK):
+        codes = np.frombuffer(data, np.uint8, min(_DEPTH_CHUNK, len(data) - start), start)
+        index = np.arange(len(codes))
+        # the last position at or before each one that is not a backslash (-1: none in the chunk)
+        plain = np.maximum.accumulate(np.where(codes == _BACKSLASH, -1, index))
+        before = np.empty(len(codes), dtype=np.int64)  # backslashes right before each position
+        before[0] = run
+        before[1:] = np.where(plain[:-1] >= 0, index[:-1] - plain[:-1], index[:-1] + 1 + run)
+        quotes = np.cumsum((codes == _QUOTE) & (before % 2 == 0)) + inside
+        steps = np.where(quotes % 2 == 1, 0, _BRACKET_STEP[codes])
+        levels = np.cumsum(steps) + level
+        deepest, level = max(deepest, int(levels.max())), int(levels[-1])
+        inside = bool(quotes[-1] % 2)
+        run = len(codes) - 1 - int(plain[-1]) if plain[-1] >= 0 else len(codes) + run
     return deepest
 
 
