@@ -28,6 +28,7 @@ import shutil
 import socket
 import sys
 import tempfile
+import time
 import traceback
 import warnings
 from collections.abc import Callable
@@ -236,6 +237,15 @@ def serve_probes(run: Path, tmp: Path) -> tuple[list[Probe], Callable[[], None]]
 
         return check
 
+    def timed(check: Callable[[], str | None], seconds: float) -> Callable[[], str | None]:
+        def within() -> str | None:
+            started = time.perf_counter()
+            problem = check()
+            took = time.perf_counter() - started
+            return problem or (f"took {took:.1f} s" if took > seconds else None)
+
+        return within
+
     def upload(name: str, content: bytes) -> dict:
         return {"upload": {"name": name, "base64": base64.b64encode(content).decode()}}
 
@@ -260,6 +270,7 @@ def serve_probes(run: Path, tmp: Path) -> tuple[list[Probe], Callable[[], None]]
         ("NaN", refused(post("/api/generate", b'{"prompts": ["a"], "seconds": NaN}'), "NaN")),
         ("JSON 100,000 deep", refused(post("/api/edit", DEEP.encode()), "nested too deep")),
         ("JSON key twice", refused(post("/api/generate", b'{"seed": 1, "seed": 2}'), "twice")),
+        ("5 MB of escaped quotes", timed(refused(post("/api/edit", b'"' + b'\\"' * 2_500_000), "not valid JSON"), 10)),
         ("malformed JSON", refused(post("/api/generate", b"{not json"), "not valid JSON")),
         ("Content-Length '١٢'", refused(post("/api/generate", b"{}", "١٢".encode()), "Content-Length")),
         ("Content-Length of 5,000 digits", refused(post("/api/generate", b"{}", b"1" * 5000), "at most")),
