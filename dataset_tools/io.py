@@ -450,6 +450,8 @@ def read_json(
     """
     path = Path(path)
     name = f"{what} {path}" if what else str(path)
+    if path.is_dir():
+        raise UsageError(f"{name} is a folder, not a JSON file")
     if not path.is_file():
         raise UsageError(f"{name}: no such file")
     try:

@@ -9,7 +9,7 @@
 * ``test_edit_inputs.py`` (35): ``python -m t2m.edit`` (times that overflow, hostile path and
   batch JSON, sizes bounded before work, byte-order marks, timelines without bound, messages
   naming the offending file and, in a batch, the edit and its JSON key);
-* ``test_json_inputs.py`` (28): the one strict JSON reader (nesting, digits, non-finite numbers,
+* ``test_json_inputs.py`` (29): the one strict JSON reader (nesting, digits, non-finite numbers,
   keys given twice, size) and every reader of a user's JSON that goes through it;
 * ``test_serve_inputs.py`` (26): the web server (no 500, security headers on every answer, Host
   headers, sizes bounded before work, fresh results kept, availability under a hostile client,

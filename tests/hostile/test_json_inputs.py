@@ -6,11 +6,11 @@ the file or "the request body"; nothing is parsed before the nesting is checked.
 
 Cases:
 
-* the reader itself (15 cases): nesting 100,000 deep, a 400-digit whole number, a 40-digit
+* the reader itself (16 cases): nesting 100,000 deep, a 400-digit whole number, a 40-digit
   float, 1e400, NaN, -Infinity, a key given twice, malformed JSON (with its line and column),
-  a file over its size bound, a file not UTF-8, a byte-order mark (taken); brackets inside
-  strings do not count as nesting, the nesting check agrees with a character scan (3 chunk
-  sizes) and takes linear time on 2 MB of unterminated escaped quotes;
+  a file over its size bound, a file not UTF-8, a folder or no file, a byte-order mark
+  (taken); brackets inside strings do not count as nesting, the nesting check agrees with a
+  character scan (3 chunk sizes) and takes linear time on 2 MB of unterminated escaped quotes;
 * the same hostile text is refused alike by each reader (4 readers x 3 texts: 12 cases), and
   ``source.json`` goes through the reader too (1 case).
 """
@@ -105,6 +105,13 @@ def test_a_file_over_its_bound_or_not_utf8_is_refused_naming_it(tmp_path):
     (tmp_path / "latin.json").write_bytes(b'{"text": "caf\xe9"}')
     with pytest.raises(UsageError, match=r"latin\.json is not UTF-8 text$"):
         read_json(tmp_path / "latin.json")
+
+
+def test_a_folder_or_a_missing_file_is_refused_naming_it(tmp_path):
+    with pytest.raises(UsageError, match=r"^--batch .* is a folder, not a JSON file$"):
+        read_json(tmp_path, "--batch")
+    with pytest.raises(UsageError, match=r"^--batch .*gone\.json: no such file$"):
+        read_json(tmp_path / "gone.json", "--batch")
 
 
 def test_a_byte_order_mark_is_taken(tmp_path):
