@@ -676,8 +676,10 @@ class TextToMotion:
         length in every frame, hips and collars one rigid piece with the pelvis and spine3:
         :func:`dataset_tools.rigid.finish_features`), then the foot-contact clean-up when
         ``clean``. What :meth:`generate` and the web app return; the BVH and glTF writers
-        reproduce these joints exactly."""
-        features = finish_features(features, clean)
+        reproduce these joints exactly. Non-finite features (a broken checkpoint) pass through
+        unfinished, so that the writers' check names the motion (:mod:`t2m.outputs`)."""
+        if np.isfinite(features).all():
+            features = finish_features(features, clean)
         joints = recover_from_ric(features, self.spec.num_joints)
         return joints.astype(np.float32), features
 
