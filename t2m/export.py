@@ -60,6 +60,11 @@ class ExportCommandConfig:
     """replace an existing output file (otherwise it is refused)"""
 
     def __post_init__(self) -> None:
+        if self.output.is_dir():
+            raise UsageError(
+                f"output {self.output} is a folder; give a file path ending in "
+                f"{', '.join(SUFFIXES[:-1])} or {SUFFIXES[-1]}"
+            )
         if self.output.suffix.lower() not in SUFFIXES:
             raise UsageError(
                 f"output must end in {', '.join(SUFFIXES[:-1])} or {SUFFIXES[-1]}, "

@@ -14,9 +14,9 @@
 * ``test_serve_inputs.py`` (26): the web server (no 500, security headers on every answer, Host
   headers, sizes bounded before work, fresh results kept, availability under a hostile client,
   refusals in the request's keys naming uploads, the source bound shown on the page);
-* ``test_export_release_inputs.py`` (57): ``t2m.export`` (overwrites, frame rates, coordinates,
-  degenerate bones, failed writes named) and the original release's files (vocabularies,
-  tensors, options, statistics).
+* ``test_export_release_inputs.py`` (58): ``t2m.export`` (overwrites, a folder as output,
+  frame rates, coordinates, degenerate bones, failed writes named) and the original release's
+  files (vocabularies, tensors, options, statistics).
 
 Each file's docstring lists its cases.
 """

@@ -85,6 +85,17 @@ def test_export_refuses_an_existing_output_file_without_overwrite(tmp_path, caps
     assert sorted(os.listdir(tmp_path)) == ["in.npy", "mine.bvh", "mine.glb"]
 
 
+def test_export_names_a_folder_given_as_output(tmp_path, capsys):
+    source = saved(tmp_path, walk())
+    folder = tmp_path / "takes.bvh"
+    folder.mkdir()
+    for output in (tmp_path, folder):
+        assert export.main([str(source), str(output)]) == 2
+        one_line(capsys.readouterr().err, f"output {output} is a folder")
+    assert sorted(os.listdir(tmp_path)) == ["in.npy", "takes.bvh"]
+    assert not list(folder.iterdir())
+
+
 @pytest.mark.parametrize("fps", ["1e9", "1e300", "0.5", "1001", "inf"])
 @pytest.mark.parametrize("suffix", [".bvh", ".glb"])
 def test_export_refuses_a_frame_rate_outside_1_to_1000(tmp_path, capsys, fps, suffix):
