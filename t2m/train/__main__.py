@@ -56,7 +56,7 @@ class TrainOptions:
     resume: bool = False
     """continue from the stage's latest.pt"""
     force: bool = False
-    """retrain a stage whose folder already holds a run (its best.pt is replaced)"""
+    """retrain a stage whose folder already holds a run (its files move into previous/ first)"""
     device: str | None = None
     """auto, cpu, cuda, cuda:N (default: the config's, auto)"""
     bf16: bool | None = None

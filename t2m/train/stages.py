@@ -19,6 +19,8 @@ Adding a stage is one :class:`~t2m.train.job.Stage` in :data:`STAGES`, its confi
 
 from __future__ import annotations
 
+import logging
+import os
 from pathlib import Path
 
 import torch
@@ -48,6 +50,8 @@ from t2m.train.job import Stage, StageJob
 from t2m.train.length import train_length
 from t2m.train.runtime import Runtime
 from t2m.train.stage import FINISHED
+
+logger = logging.getLogger(__name__)
 
 
 def _accelerated(models: dict[str, nn.Module]) -> dict[str, nn.Module]:
@@ -184,6 +188,29 @@ def _rebuild(record: Stage, checkpoint: dict, path: Path, device: torch.device) 
     )
 
 
+# What a stage's run writes into its folder (see t2m.train.checkpoint and t2m.train.stage).
+RUN_FILES = ("best.pt", "latest.pt", FINISHED, "config.json", "metrics.jsonl", "curves.png")
+PREVIOUS = "previous"
+
+
+def set_aside(stage_dir: Path) -> Path:
+    """Move a stage folder's run files (:data:`RUN_FILES`) into its ``previous/`` subfolder
+    (replacing the run set aside there before) and return that folder. ``--force`` does this
+    before it retrains, so that a retrain stopped before its first validation leaves no
+    ``best.pt`` behind for sampling or export to take for the new model; the old run stays
+    recoverable. Files the run did not write are left where they are."""
+    previous = stage_dir / PREVIOUS
+    if previous.is_dir():
+        for name in RUN_FILES:
+            (previous / name).unlink(missing_ok=True)
+    previous.mkdir(exist_ok=True)
+    for name in RUN_FILES:
+        if (stage_dir / name).is_file():
+            os.replace(stage_dir / name, previous / name)
+    logger.info("the earlier %s run is set aside in %s", stage_dir.name, previous)
+    return previous
+
+
 def train_stage(
     stage: str,
     config: Config,
@@ -196,8 +223,9 @@ def train_stage(
     """Train ``stage`` with ``config`` into its folder of ``run_dir``; returns that folder.
 
     A stage folder that already holds a run (a checkpoint or ``finished.json``) is continued
-    with ``resume``, started afresh over with ``force``, and otherwise refused (UsageError), so
-    that a trained ``best.pt`` is never replaced by mistake. The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line UsageError
+    with ``resume``, started afresh with ``force`` (the earlier run's files moved into
+    ``previous/`` first: :func:`set_aside`), and otherwise refused (UsageError), so that a
+    trained ``best.pt`` is never replaced by mistake. The stages it needs are loaded from ``run_dir`` (best checkpoints; a one-line UsageError
     names the make target of a missing one). Opens (and closes) the runtime when not given one.
     Example::
 
@@ -228,6 +256,8 @@ def train_stage(
                     f"run `make {needed.make_target}` first"
                 )
             prerequisites[name] = load_stage(run_dir, name, runtime.device)
+        if earlier and force:  # only once the stages it needs are there
+            set_aside(stage_dir)
         job = StageJob(record, config, Path(dataset_dir), run_dir, runtime, resume, prerequisites)
         return record.train(job)
     finally:

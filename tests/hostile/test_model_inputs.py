@@ -293,6 +293,37 @@ def test_a_finished_stage_is_not_retrained_without_force(tiny_dataset, tiny_run,
     assert (run_dir / "length" / "best.pt").read_bytes() != before["length/best.pt"]
 
 
+def test_a_forced_retrain_stopped_early_leaves_no_old_best(
+    tiny_dataset, tiny_run, tmp_path, capsys, monkeypatch
+):
+    """--force sets the earlier run aside before it trains: a retrain stopped before its first
+    validation must not leave the old best.pt for sampling (--which best) to take."""
+    import t2m.train.stages as stages
+
+    run_dir = tmp_path / "run"
+    for stage in ("autoencoder", "length"):
+        shutil.copytree(tiny_run / stage, run_dir / stage)
+    old = snapshot(run_dir / "length")
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt  # the retrain stops before it validates once
+
+    monkeypatch.setattr(stages, "StageJob", killed)
+    assert train_main([*_train_argv(tiny_dataset, run_dir, "length"), "--force"]) != 0
+    assert "interrupted" in capsys.readouterr().err
+    assert not (run_dir / "length" / "best.pt").exists()
+    assert snapshot(run_dir / "length" / "previous") == old  # recoverable, byte for byte
+    monkeypatch.undo()
+    # loading (what sampling and export do) no longer finds a length model there
+    with pytest.raises(UsageError, match="make train-len"):
+        stages.load_stage(run_dir, "length", which="best")
+    # a forced retrain that finishes trains afresh; the run set aside stays as it was
+    argv = [*_train_argv(tiny_dataset, run_dir, "length"), "--force", "--length.epochs=1"]
+    assert train_main(argv) == 0
+    assert stages.load_stage(run_dir, "length").models
+    assert snapshot(run_dir / "length" / "previous") == old
+
+
 def test_finished_json_is_standard_json(tiny_run):
     def refuse(constant: str) -> None:
         raise AssertionError(f"non-standard JSON constant {constant}")
