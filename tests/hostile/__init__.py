@@ -4,7 +4,7 @@
   dataset arrays and release files; Makefile variables as text);
 * ``test_dataset_inputs.py`` (52): ``python -m dataset_tools`` (arrays, paths, options, names,
   killed runs and workers, locks, malformed index and mapping files);
-* ``test_model_inputs.py`` (49): sample, train, evaluate, render, export and demo (options out of
+* ``test_model_inputs.py`` (50): sample, train, evaluate, render, export and demo (options out of
   range, paths, killed runs, resources);
 * ``test_edit_inputs.py`` (35): ``python -m t2m.edit`` (times that overflow, hostile path and
   batch JSON, sizes bounded before work, byte-order marks, timelines without bound, messages
