@@ -222,3 +222,65 @@ def test_page_names_words_the_model_does_not_know(page):
     )
     assert "not trained on blorf" in text
     assert not page.find_element("id", "error").is_displayed()
+
+
+BACKGROUND, GRID = (0xFB, 0xFB, 0xFA), (0xD2, 0xD2, 0xD2)  # the view's (viewer.js)
+# Frames the page draws per second over `seconds` (requestAnimationFrame callbacks: the viewer
+# draws in its own, so a slow drawing lowers the rate), and the mean milliseconds the page's
+# callbacks take per frame (the viewer asks for each next frame through the global
+# requestAnimationFrame, wrapped here while measuring).
+FRAME_RATE = """const [seconds, done] = arguments;
+const original = window.requestAnimationFrame;
+let busy = 0;
+window.requestAnimationFrame = (callback) => original((now) => {
+  const begin = performance.now(); callback(now); busy += performance.now() - begin;
+});
+let frames = 0, start = null;
+function tick(now) {
+  if (start === null) { start = now; busy = 0; } else frames++;
+  if (now - start < seconds * 1000) original(tick);
+  else {
+    window.requestAnimationFrame = original;
+    done({fps: frames / ((now - start) / 1000), ms: busy / frames});
+  }
+}
+original(tick);"""
+
+
+def _figure(driver, value: str) -> None:
+    from selenium.webdriver.support.ui import Select
+
+    Select(driver.find_element("id", "figure")).select_by_value(value)
+    time.sleep(0.2)
+
+
+def test_page_draws_a_body_and_keeps_its_frame_rate(page):
+    """The "draw" menu: body (capsules, the default) covers far more of the view than sticks, in
+    the same colours; the choice is remembered. Then 8 motions play side by side and the page's
+    frame rate is measured in both modes (T2M_FPS_SECONDS seconds each, default 1.5)."""
+    assert page.find_element("id", "figure").get_attribute("value") == "body"
+    _generate(page, "a person walks forward#40", samples=2)
+    _wait(page, TIMING)
+    page.find_element("id", "play").click()  # pause: both modes draw the same frame
+    _wait(page, "return document.getElementById('play').textContent === 'Play'")
+    ink = {}
+    for mode in ("sticks", "body"):
+        _figure(page, mode)
+        pixels = _canvas_pixels(page)
+        assert page.execute_script("return localStorage.getItem('t2m-figure')") == mode
+        far = [np.abs(pixels - np.array(c)).sum(axis=-1) > 60 for c in (BACKGROUND, GRID)]
+        ink[mode] = int((far[0] & far[1]).sum())  # the figures' pixels
+        assert _colour_count(pixels, LEFT) > 200 and _colour_count(pixels, RIGHT) > 200
+    assert ink["body"] > 1.8 * ink["sticks"], ink
+    page.find_element("id", "play").click()
+
+    _generate(page, "a person walks forward#80", samples=8)
+    _wait(page, TIMING)
+    seconds = float(os.environ.get("T2M_FPS_SECONDS", "1.5"))
+    rates = {}
+    for mode in ("sticks", "body"):
+        _figure(page, mode)
+        rates[mode] = page.execute_async_script(FRAME_RATE, seconds)
+    print(f"8 motions, {seconds:g} s each: frames per second and ms per drawing {rates}")
+    assert rates["body"]["fps"] > 5, rates  # it still plays as a motion, not a slide show
+    assert rates["body"]["ms"] > rates["sticks"]["ms"] > 0, rates  # the body is more to draw

@@ -19,6 +19,14 @@ import { StickViewer } from "./viewer.js";
 
 const HISTORY_KEY = "t2m-history";
 const viewer = new StickViewer($("view"));
+// the view's "draw" menu: body (capsules) or sticks, remembered by the browser
+const FIGURE_KEY = "t2m-figure";
+$("figure").value = localStorage.getItem(FIGURE_KEY) === "sticks" ? "sticks" : "body";
+viewer.figure = $("figure").value;
+$("figure").addEventListener("change", (e) => {
+  viewer.figure = e.target.value;
+  localStorage.setItem(FIGURE_KEY, viewer.figure);
+});
 const state = { info: null, current: null, history: [], editPanel: null, live: null };
 
 function showError(message) {

@@ -1,19 +1,46 @@
-// The page's 3D stick-figure viewer: a perspective camera drawn on a 2D canvas, no library.
+// The page's 3D figure viewer: a perspective camera drawn on a 2D canvas, no library.
 //
 // World: metres, +Y up, a body facing +Z has its left side at +X (the dataset's convention).
-// The camera orbits a target point (yaw about +Y, pitch above the floor, distance); each line is
+// The camera orbits a target point (yaw about +Y, pitch above the floor, distance); each point is
 // projected with a pinhole model and the bones are drawn far to near, so nearer limbs cover
 // farther ones. Left limbs, right limbs and the spine take the colours of the project's
 // renderings; the floor grid and each motion's root trajectory lie at the lowest foot height.
 //
+// Two ways to draw a figure (the property `figure`): "body" draws each bone as a capsule, a thick
+// line with round caps whose width is the limb's radius (BODY_RADII, metres, by the bone's child
+// joint) seen at the bone's depth, shaded by a darker outline under a lighter core, with a head
+// sphere above the neck and a hand past each wrist; "sticks" draws each bone as a thin line.
+//
 // The viewer owns its canvas only: the page drives it through the methods and properties below
-// (setMotions, show, seek, playing, speed, loop, follow, resetCamera) and hears back through
-// onFrame(frame) after every drawn frame and onFirstFrame() once new motions are on screen.
+// (setMotions, show, seek, playing, speed, loop, follow, figure, resetCamera) and hears back
+// through onFrame(frame) after every drawn frame and onFirstFrame() once new motions are on screen.
+
+// Limb radii in metres, by the lower-cased name of the joint a bone ends at (SMPL and KIT names);
+// other bones take DEFAULT_RADIUS.
+const BODY_RADII = {
+  // SMPL
+  left_hip: 0.075, right_hip: 0.075, left_knee: 0.07, right_knee: 0.07,
+  left_ankle: 0.05, right_ankle: 0.05, left_foot: 0.04, right_foot: 0.04,
+  spine1: 0.1, spine2: 0.11, spine3: 0.12, neck: 0.09, head: 0.05,
+  left_collar: 0.065, right_collar: 0.065, left_shoulder: 0.055, right_shoulder: 0.055,
+  left_elbow: 0.045, right_elbow: 0.045, left_wrist: 0.035, right_wrist: 0.035,
+  // KIT
+  bp: 0.11, bt: 0.12, bln: 0.09, bun: 0.05, ls: 0.06, rs: 0.06, le: 0.045, re: 0.045,
+  lw: 0.035, rw: 0.035, lh: 0.075, rh: 0.075, lk: 0.07, rk: 0.07, la: 0.05, ra: 0.05,
+  lmrot: 0.04, rmrot: 0.04, lf: 0.035, rf: 0.035,
+};
+const DEFAULT_RADIUS = 0.045;
+const TORSO_INNER = new Set(["spine1", "spine2", "bp"]);  // passed over: one torso capsule
+const HEAD_RADIUS = 0.1;      // the head sphere, its centre this far past the head joint:
+const HEAD_LIFT = 0.07;       // along the neck-to-head direction
+const HAND = [0.07, 0.04];    // a hand past each wrist: length along the forearm, radius
+const CENTER_BODY = "#5a5a5a";  // the spine's and head's colour in the body (the sticks' is darker)
 
 export class StickViewer {
   #dirty = true;  // something changed since the last drawn frame
   #playing = true;
   #follow = true;
+  #figure = "body";
 
   constructor(canvas) {
     this.canvas = canvas;
@@ -58,6 +85,9 @@ export class StickViewer {
     this.jointCount = jointCount;
     const names = skeleton.joint_names.map((name) => name.toLowerCase());
     this.headJoint = Math.max(names.indexOf("head"), names.indexOf("bun"), 0);  // SMPL, KIT
+    this.radii = names.map((name) => BODY_RADII[name] ?? DEFAULT_RADIUS);
+    this.torso = names.map((name) => TORSO_INNER.has(name));
+    this.wrists = names.flatMap((name, j) => (/(^|_)wrist$|^[lr]w$/.test(name) ? [j] : []));
     let floor = Infinity;
     for (const m of this.motions) {
       for (let i = 1; i < m.joints.length; i += 3) floor = Math.min(floor, m.joints[i]);
@@ -93,6 +123,16 @@ export class StickViewer {
 
   set follow(value) {
     this.#follow = value;
+    this.#dirty = true;
+  }
+
+  // figure: "body" (capsules) or "sticks" (lines)
+  get figure() {
+    return this.#figure;
+  }
+
+  set figure(value) {
+    this.#figure = value === "sticks" ? "sticks" : "body";
     this.#dirty = true;
   }
 
@@ -250,26 +290,25 @@ export class StickViewer {
       this.skeleton.chains.forEach((chain, k) => {
         const color = this.skeleton.colors[this.skeleton.sides[k]];
         const kept = m.kept ? m.kept[Math.min(frame, m.frames - 1)] : null;
-        for (let i = 1; i < chain.length; i++) {
-          const a = this._project(camera, this._joint(m, frame, chain[i - 1], dx));
-          const b = this._project(camera, this._joint(m, frame, chain[i], dx));
+        // the body's torso is one capsule: the spine's inner joints are passed over
+        const joints = this.#figure === "body" ? chain.filter((j, i) => i === 0 || !this.torso[j]) : chain;
+        for (let i = 1; i < joints.length; i++) {
+          const [ja, jb] = [joints[i - 1], joints[i]];
+          const a = this._project(camera, this._joint(m, frame, ja, dx));
+          const b = this._project(camera, this._joint(m, frame, jb, dx));
+          if (!a || !b) continue;
           // a bone between two kept joints (from an edit's source) in the highlight colour
-          const both = kept && kept[chain[i - 1]] === "1" && kept[chain[i]] === "1";
+          const both = kept && kept[ja] === "1" && kept[jb] === "1";
           const shade = both ? this.highlightColor : color;
-          if (a && b) bones.push({ a, b, color: shade, depth: (a[2] + b[2]) / 2 });
+          const depth = (a[2] + b[2]) / 2;
+          bones.push({ a, b, ja, jb, color: shade, radius: this.radii[jb], depth, figure: m.index });
         }
       });
+      if (this.#figure === "body") this._extremities(camera, m, frame, dx, bones);
     });
     bones.sort((p, q) => q.depth - p.depth);
-    for (const bone of bones) {
-      const width = Math.max(2, Math.min(9, (camera.focal * 0.045) / bone.depth));
-      c.strokeStyle = bone.color;
-      c.lineWidth = width;
-      c.beginPath();
-      c.moveTo(bone.a[0], bone.a[1]);
-      c.lineTo(bone.b[0], bone.b[1]);
-      c.stroke();
-    }
+    if (this.#figure === "body") this._drawBody(camera, bones);
+    else this._drawSticks(camera, bones);
     // 4. each motion's number (as in the captions) above its head
     c.fillStyle = "#555";
     c.font = "14px system-ui, sans-serif";
@@ -283,6 +322,88 @@ export class StickViewer {
     if (this._firstPending && this.motions.length) {
       this._firstPending = false;
       if (this.onFirstFrame) this.onFirstFrame();
+    }
+  }
+
+  _drawSticks(camera, bones) {
+    const c = this.context;
+    for (const bone of bones) {
+      c.strokeStyle = bone.color;
+      c.lineWidth = Math.max(2, Math.min(9, (camera.focal * 0.045) / bone.depth));
+      c.beginPath();
+      c.moveTo(bone.a[0], bone.a[1]);
+      c.lineTo(bone.b[0], bone.b[1]);
+      c.stroke();
+    }
+  }
+
+  // The head sphere (a ball: a = b) and a hand past each wrist, added to a motion's bones.
+  _extremities(camera, m, frame, dx, bones) {
+    const parents = this.skeleton.parents;
+    const colorOf = (joint) => {
+      const k = this.skeleton.chains.findIndex((chain) => chain.slice(1).includes(joint));
+      return this.skeleton.colors[this.skeleton.sides[Math.max(k, 0)]];
+    };
+    const head = this.headJoint, neck = parents[head];
+    if (neck >= 0) {
+      const h = this._joint(m, frame, head, dx), n = this._joint(m, frame, neck, dx);
+      const up = normalize(sub(h, n));
+      const p = this._project(camera, [0, 1, 2].map((i) => h[i] + HEAD_LIFT * up[i]));
+      if (p) bones.push({ a: p, b: p, color: colorOf(head), radius: HEAD_RADIUS, depth: p[2], figure: m.index });
+    }
+    for (const wrist of this.wrists) {
+      const elbow = parents[wrist];
+      if (elbow < 0) continue;
+      const w = this._joint(m, frame, wrist, dx), e = this._joint(m, frame, elbow, dx);
+      const along = normalize(sub(w, e));
+      const a = this._project(camera, w);
+      const b = this._project(camera, [0, 1, 2].map((i) => w[i] + HAND[0] * along[i]));
+      if (!a || !b) continue;
+      const depth = (a[2] + b[2]) / 2;
+      bones.push({ a, b, ja: wrist, jb: -1, color: colorOf(wrist), radius: HAND[1], depth, figure: m.index });
+    }
+  }
+
+  // Capsules far to near, each a darker outline, the limb's colour and a lighter core line. Where
+  // a bone meets one drawn before it (a farther bone of the same figure), its outline and colour
+  // stop short of the joint (the farther bone's round end fills it), so a limb reads as one piece
+  // rather than beads; a ball (a = b, the head) is a disc with a lighter spot to the upper left.
+  _drawBody(camera, bones) {
+    const c = this.context;
+    const drawn = new Set();  // "figure:joint" of the bones drawn so far
+    for (const bone of bones) {
+      const width = Math.max(3, (2 * camera.focal * bone.radius) / bone.depth);
+      const color = bone.color === this.skeleton.colors.center ? CENTER_BODY : bone.color;
+      const [dark, light] = shades(color);
+      if (bone.a === bone.b) {
+        const [x, y] = bone.a, r = width / 2;
+        c.fillStyle = dark;
+        c.beginPath(); c.arc(x, y, r + 1.5, 0, 2 * Math.PI); c.fill();
+        c.fillStyle = color;
+        c.beginPath(); c.arc(x, y, r, 0, 2 * Math.PI); c.fill();
+        c.fillStyle = light;
+        c.beginPath(); c.arc(x - 0.35 * r, y - 0.35 * r, 0.3 * r, 0, 2 * Math.PI); c.fill();
+        continue;
+      }
+      const ends = [bone.ja, bone.jb].map((j) => drawn.has(`${bone.figure}:${j}`));
+      const [a, b] = [bone.a, bone.b];
+      const length = Math.hypot(b[0] - a[0], b[1] - a[1]) || 1;
+      const unit = [(b[0] - a[0]) / length, (b[1] - a[1]) / length];
+      for (const [paint, w, cut] of [[dark, width + 3, width + 3], [color, width, width], [light, 0.3 * width, width]]) {
+        // at a cut end the stroke stops cut / 2 before the joint (the outline's and the colour's
+        // round caps end at the joint; the core stays inside its own bone)
+        const [cutA, cutB] = ends.map((end) => (end ? cut / 2 : 0));
+        if (cutA + cutB >= length && (cutA === 0) === (cutB === 0)) continue;  // covered
+        const from = cutA + cutB >= length ? (cutA ? length : 0) : cutA;
+        const to = cutA + cutB >= length ? from : length - cutB;
+        c.strokeStyle = paint;
+        c.lineWidth = w;
+        c.beginPath();
+        c.moveTo(a[0] + unit[0] * from, a[1] + unit[1] * from);
+        c.lineTo(a[0] + unit[0] * to, a[1] + unit[1] * to);
+        c.stroke();
+      }
+      drawn.add(`${bone.figure}:${bone.ja}`).add(`${bone.figure}:${bone.jb}`);
     }
   }
 
@@ -316,4 +437,16 @@ function cross(a, b) {
 function normalize(a) {
   const n = Math.hypot(a[0], a[1], a[2]) || 1;
   return [a[0] / n, a[1] / n, a[2] / n];
+}
+
+// A colour's darker and lighter shades (mixed with black and with white), cached by colour.
+const SHADES = new Map();
+function shades(color) {
+  if (!SHADES.has(color)) {
+    const n = parseInt(color.slice(1), 16);
+    const rgb = [(n >> 16) & 255, (n >> 8) & 255, n & 255];
+    const mix = (t, to) => `rgb(${rgb.map((v) => Math.round(v + (to - v) * t)).join(",")})`;
+    SHADES.set(color, [mix(0.4, 0), mix(0.45, 255)]);
+  }
+  return SHADES.get(color);
 }
