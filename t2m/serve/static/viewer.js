@@ -443,6 +443,7 @@ function normalize(a) {
 const SHADES = new Map();
 function shades(color) {
   if (!SHADES.has(color)) {
+    if (!/^#[0-9a-f]{6}$/i.test(color)) return [color, color];  // not #rrggbb: unshaded
     const n = parseInt(color.slice(1), 16);
     const rgb = [(n >> 16) & 255, (n >> 8) & 255, n & 255];
     const mix = (t, to) => `rgb(${rgb.map((v) => Math.round(v + (to - v) * t)).join(",")})`;
