@@ -1,0 +1,58 @@
+"""The hard keep's seams (:func:`t2m.edit.core.hard_keep`): a free run meets the kept frame in
+value and in per-frame change, and the offset that makes it meet is eased out with zero slope at
+both ends (smoothstep), not cut off or ramped linearly.
+
+Synthetic features on a non-root joint (the root's heading and path bending are not involved):
+the kept frames 0-7 of joint 5, the free run 8-63, ``blend`` 16 frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from t2m.edit.core import EditPlan, hard_keep, joint_columns
+
+FRAMES, KEPT, BLEND, JOINT = 64, 8, 16, 5
+
+
+def _plan(source: np.ndarray) -> EditPlan:
+    keep = np.zeros((FRAMES, 22), bool)
+    keep[:KEPT, JOINT] = True
+    target = np.full((FRAMES, 22, 3), np.nan)
+    return EditPlan("a person waves", FRAMES, target, keep, source_features=source)
+
+
+def test_the_seam_offset_eases_out_with_zero_slope_at_both_ends():
+    columns = joint_columns(22)[JOINT]
+    source = np.zeros((FRAMES, 263))
+    generated = np.zeros((FRAMES, 263))
+    generated[:, columns] = 1.0  # the free run sits 1 away from the kept value
+    out = hard_keep(generated, _plan(source), blend=BLEND)
+    weight = -(out[:, columns] - generated[:, columns])[:, 0]  # share of the offset applied
+    assert np.all(out[:KEPT, columns] == 0.0)  # kept exactly
+    assert weight[KEPT - 1 + BLEND :] == pytest.approx(0.0, abs=1e-12)  # gone after blend frames
+    assert np.all(np.diff(weight[KEPT - 1 : KEPT + BLEND]) <= 0)  # fades monotonically
+    # zero slope where it starts and where it ends: the first and the last step of the fade
+    # are 3/b^2 - 2/b^3 = 0.011 of the offset for smoothstep (a linear ramp: 1/b = 0.0625)
+    first_step = weight[KEPT - 1] - weight[KEPT]
+    last_step = weight[KEPT + BLEND - 2] - weight[KEPT + BLEND - 1]
+    assert first_step < 0.02 and last_step < 0.02, (first_step, last_step)
+    assert weight[KEPT - 1 + BLEND // 2] == pytest.approx(0.5)  # symmetric about the middle
+    # a hard cut (no easing) would apply the whole offset up to a frame and none after it
+    assert np.max(-np.diff(weight)) < 0.1
+
+
+def test_the_free_run_meets_the_kept_frame_in_its_rate_of_change():
+    columns = joint_columns(22)[JOINT]
+    source = np.zeros((FRAMES, 263))
+    source[:, columns] = 0.1 * np.arange(FRAMES)[:, None]  # the kept side moves 0.1 a frame
+    generated = np.zeros((FRAMES, 263))  # the generated side stands still
+    out = hard_keep(generated, _plan(source), blend=BLEND)
+    kept_step = source[KEPT - 1, columns] - source[KEPT - 2, columns]
+    seam_step = out[KEPT, columns] - out[KEPT - 1, columns]
+    # smoothstep keeps 0.989 of offset + change: the step across the seam is 0.091 for 0.1
+    # (a linear ramp: 0.050; meeting the value alone, without the change term: -0.008)
+    assert seam_step == pytest.approx(kept_step, abs=0.015)
+    # and it returns to the generated motion once the blend is over
+    assert np.all(out[KEPT - 1 + BLEND :, columns] == pytest.approx(0.0, abs=1e-12))
