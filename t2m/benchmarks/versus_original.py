@@ -125,6 +125,20 @@ def features_row(orig: SimpleNamespace) -> dict[str, Callable[[], object]]:
     }
 
 
+def _finishing_as_the_original(pipe):
+    """``pipe`` finishing its motions as the original's generation row does: features to joints
+    (``recover_from_ric``), no rigid fit and no clean-up, so that both sides time the same work.
+    The rigid fit that every motion of ours gets (``TextToMotion.finish``, about 4 ms a motion
+    on one core) is not in these rows."""
+    from dataset_tools.representation import recover_from_ric
+
+    def finish(features: np.ndarray, clean: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        return recover_from_ric(features, 22).astype(np.float32), features
+
+    pipe.finish = finish
+    return pipe
+
+
 def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[], object]]:
     from dataset_tools.texts import tag_prompts
     from t2m.accel import onnx as onnx_backend
@@ -181,6 +195,7 @@ def generation_rows(orig: SimpleNamespace, batch: int) -> dict[str, Callable[[],
 
     rows = {"original": original}
     for precision, pipe in pipes.items():
+        _finishing_as_the_original(pipe)
         rows[f"ours_{precision}"] = lambda pipe=pipe: pipe.generate(
             [PROMPT] * batch, lengths=FRAMES, clean=False, seed=0, batch_size=batch
         )
@@ -448,6 +463,7 @@ def generation_rows_for_memory(orig: SimpleNamespace, side: str) -> Callable[[],
         copy_models=False,
         backend=backend,
     )
+    _finishing_as_the_original(pipe)
     return lambda: pipe.generate(PROMPT, lengths=FRAMES, clean=False, seed=0)
 
 
