@@ -227,6 +227,37 @@ def clean_joints(
     return out
 
 
+def features_with_joints(features: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """Features (T, D) of ``joints`` (T, J, 3) that share the root of ``features`` (T, D):
+    the root channels and the foot contacts are kept; joint positions (ric) and velocities are
+    the joints' in the features' own facing frame (so ``recover_from_ric`` gives the joints
+    back, to float32 rounding), the 6-D rotations come from inverse kinematics of the joints (the
+    last frame's velocity from a linear extrapolation). Float32.
+    """
+    features = np.asarray(features)
+    layout = FeatureLayout.for_dim(features.shape[-1])
+    num_frames, num_joints = len(features), layout.num_joints
+    if features.ndim != 2 or num_frames < 2:
+        raise ValueError(f"features must be (T >= 2, {layout.dim}), got {features.shape}")
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.shape != (num_frames, num_joints, 3):
+        raise ValueError(f"joints must be ({num_frames}, {num_joints}, 3), got {joints.shape}")
+    skeleton = skeleton_for(num_joints)
+    extended = np.concatenate([joints, 2 * joints[-1:] - joints[-2:-1]], axis=0)  # (T+1, J, 3)
+    facing, root = recover_root(features.astype(np.float64))  # (T, 4) world -> facing
+    facing_per_joint = np.broadcast_to(facing[:, None], (num_frames, num_joints, 4))
+    ric = joints.copy()
+    ric[..., [0, 2]] -= root[:, None, [0, 2]]
+    ric = qrot(facing_per_joint, ric)  # (T, J, 3)
+    velocity = qrot(facing_per_joint, extended[1:] - extended[:-1])  # (T, J, 3)
+    out = features.astype(np.float64).copy()
+    out[:, layout.ric] = ric[:, 1:].reshape(num_frames, -1)
+    out[:, layout.local_velocity] = velocity.reshape(num_frames, -1)
+    local = inverse_kinematics(extended, skeleton, smooth_sigma=FACING_SMOOTH_SIGMA, compat=True)
+    out[:, layout.rot6d] = quat_to_6d(local[:-1, 1:]).reshape(num_frames, -1)
+    return out.astype(np.float32)
+
+
 def clean_features(features: np.ndarray) -> np.ndarray:
     """Raw generated features (T, D) -> features of the cleaned motion (T, D), float32.
 
@@ -240,26 +271,14 @@ def clean_features(features: np.ndarray) -> np.ndarray:
     layout = FeatureLayout.for_dim(features.shape[-1])
     if features.ndim != 2 or len(features) < 2:
         raise ValueError(f"features must be (T >= 2, {layout.dim}), got {features.shape}")
-    num_frames, num_joints = len(features), layout.num_joints
-    skeleton = skeleton_for(num_joints)
-    joints = recover_from_ric(features.astype(np.float64), num_joints)
+    skeleton = skeleton_for(layout.num_joints)
+    joints = recover_from_ric(features.astype(np.float64), layout.num_joints)
     cleaned = clean_joints(joints, features[:, layout.foot_contact], skeleton)
-    extended = np.concatenate([cleaned, 2 * cleaned[-1:] - cleaned[-2:-1]], axis=0)  # (T+1, J, 3)
-    facing, root = recover_root(features.astype(np.float64))  # (T, 4) world -> facing
-    facing_per_joint = np.broadcast_to(facing[:, None], (num_frames, num_joints, 4))
-    ric = cleaned.copy()
-    ric[..., [0, 2]] -= root[:, None, [0, 2]]
-    ric = qrot(facing_per_joint, ric)  # (T, J, 3)
-    velocity = qrot(facing_per_joint, extended[1:] - extended[:-1])  # (T, J, 3)
-    out = features.astype(np.float64).copy()
-    out[:, layout.ric] = ric[:, 1:].reshape(num_frames, -1)
-    out[:, layout.local_velocity] = velocity.reshape(num_frames, -1)
-    local = inverse_kinematics(extended, skeleton, smooth_sigma=FACING_SMOOTH_SIGMA, compat=True)
-    out[:, layout.rot6d] = quat_to_6d(local[:-1, 1:]).reshape(num_frames, -1)
-    return out.astype(np.float32)
+    return features_with_joints(features, cleaned)
 
 
 __all__ = [
+    "features_with_joints",
     "BLEND_FRAMES",
     "CONTACT_THRESHOLD",
     "MAX_PLANT_HEIGHT_M",
