@@ -55,6 +55,17 @@ class OutputOptions:
         out = self.out or Path("outputs") / time.strftime(f"{prefix}%Y-%m-%d_%H-%M-%S")
         return check_out(out, self.overwrite)
 
+    def file_options(self) -> dict:
+        """Which files the writers (:func:`t2m.outputs.write_motions`) write, and whether they
+        may replace an earlier run's folder: the keyword arguments every command passes."""
+        return {
+            "render": self.render,
+            "bvh": self.bvh,
+            "glb": self.glb,
+            "smpl": self.smpl,
+            "overwrite": self.overwrite,
+        }
+
     def load_pipeline(self, need_length_model: bool) -> TextToMotion:
         """The models of ``--checkpoints`` on the chosen device, threads and precision; what is
         missing or mismatched is a one-line UsageError (the library's message names the make

@@ -94,11 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         out,
         frames=[segments[-1].stop],
         seed=config.seed,
-        render=config.render,
-        bvh=config.bvh,
-        glb=config.glb,
-        smpl=config.smpl,
-        overwrite=config.overwrite,
+        **config.file_options(),
         extra_info={
             "checkpoints": str(config.checkpoints),
             "precision": config.precision,

@@ -81,11 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         prompts,
         out,
         **config.generate_options(),
-        render=config.render,
-        bvh=config.bvh,
-        glb=config.glb,
-        smpl=config.smpl,
-        overwrite=config.overwrite,
+        **config.file_options(),
         extra_info={
             "checkpoints": str(config.checkpoints),
             "precision": config.precision,

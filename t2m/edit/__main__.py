@@ -230,11 +230,7 @@ def main(argv: list[str] | None = None) -> int:
         frames=frames,
         num_samples=config.num_samples,
         seed=config.seed,
-        render=config.render,
-        bvh=config.bvh,
-        glb=config.glb,
-        smpl=config.smpl,
-        overwrite=config.overwrite,
+        **config.file_options(),
         extra_info={
             "modes": [r.mode for r in requests],
             "checkpoints": str(config.checkpoints),
