@@ -1,4 +1,4 @@
-"""The hard keep's seams (:func:`t2m.edit.core.hard_keep`): a free run meets the kept frame in
+"""The hard keep's seams (:func:`t2m.edit.keep.hard_keep`): a free run meets the kept frame in
 value and in per-frame change, and the offset that makes it meet is eased out with zero slope at
 both ends (smoothstep), not cut off or ramped linearly.
 
@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.edit.core import EditPlan, hard_keep, joint_columns
+from t2m.edit.keep import hard_keep, joint_columns
+from t2m.edit.plan import EditPlan
 
 FRAMES, KEPT, BLEND, JOINT = 64, 8, 16, 5
 

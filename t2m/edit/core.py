@@ -20,11 +20,11 @@ frame 0's root at the origin facing +Z):
    (:mod:`t2m.edit.recover`) against the squared error on the finite ``target`` entries plus
    ``noise_weight * mean(eps^2)``, which keeps the noise likely under the prior;
 4. keeps the candidate with the smallest constraint error;
-5. hard-keeps (:func:`hard_keep`): kept features are copied, the generated side of every seam is
-   offset to meet the kept side and eased back over ``blend_frames`` (positions, facing and
+5. hard-keeps (:func:`t2m.edit.keep.hard_keep`): kept features are copied, the generated side
+   of every seam is offset to meet the kept side and eased back over ``blend_frames`` (positions, facing and
    velocities stay continuous), and the root's heading and floor position are bent smoothly so
    that every later kept stretch and every root target is met exactly;
-6. makes the result rigid on the model's skeleton (:func:`dataset_tools.rigid.finish_features`,
+6. makes the result rigid on the model's skeleton (:func:`t2m.edit.keep.finish_plan`,
    no foot clean-up): every joint not kept from the source is fitted from its parent at the
    skeleton's bone length, kept joints stay exactly where the source has them (a source is
    retargeted to that skeleton when it is prepared, so its kept bones already have those
@@ -47,33 +47,16 @@ from typing import Literal, get_args
 import numpy as np
 import torch
 
-from dataset_tools.representation import FeatureLayout, recover_from_ric
-from dataset_tools.rigid import finish_features
-from t2m.edit.recover import recover_from_ric_torch, yaw_rotate
-from t2m.edit.source import half_yaw_of
+from dataset_tools.representation import recover_from_ric
+from t2m.edit.keep import finish_plan
+from t2m.edit.plan import EditPlan
+from t2m.edit.recover import recover_from_ric_torch
 from t2m.inference.generation import text_batch
 
 logger = logging.getLogger(__name__)
 
 Method = Literal["auto", "optimize", "posterior", "best_of_n"]
 METHODS: tuple[str, ...] = get_args(Method)
-
-
-@dataclass(frozen=True)
-class EditPlan:
-    """One result to make (see the module docstring). ``num_frames`` is a whole number of
-    snippets; arrays are on the result's timeline."""
-
-    text: str
-    num_frames: int
-    target: np.ndarray  # (T, J, 3), NaN where free
-    keep: np.ndarray  # (T, J) bool
-    source_features: np.ndarray | None = None  # (T, D), used where keep
-    source_half_yaw: np.ndarray | None = None  # (T,), used where keep[:, 0]
-
-    def kept_mask(self) -> np.ndarray:
-        """(T, J) bool: joints copied from the source or given a target on each frame."""
-        return self.keep | np.isfinite(self.target).any(-1)
 
 
 @dataclass(frozen=True)
@@ -176,10 +159,7 @@ def generate_plans(
         )
         for index, (features, error) in zip(members, found):
             plan = plans[index]
-            # rigid on the model's skeleton, the joints kept from the source left where they are
-            kept = finish_features(
-                hard_keep(features, plan, settings.blend_frames), False, held=plan.keep
-            )
+            kept = finish_plan(features, plan, settings.blend_frames)
             joints = recover_from_ric(kept, pipe.spec.num_joints).astype(np.float32)
             results[index] = PlanResult(kept, joints, plan.kept_mask(), error)
     return results  # type: ignore[return-value]
@@ -289,154 +269,3 @@ def _optimise(noise: torch.Tensor, decode, steps: int, settings: SearchSettings)
         corrected = (first / (1 - 0.9**step)) / ((second / (1 - 0.999**step)).sqrt() + 1e-8)
         eps = eps - settings.learning_rate * corrected
     return eps
-
-
-# ---------------------------------------------------------------------------- the hard keep
-
-
-def joint_columns(num_joints: int) -> list[np.ndarray]:
-    """Feature columns that belong to each joint: the root owns the four root dimensions and
-    its velocity; joint j its ric, 6-D rotation and velocity; the feet their contact flags."""
-    layout = FeatureLayout(num_joints)
-    columns = []
-    for joint in range(num_joints):
-        lv = layout.local_velocity.start + 3 * joint
-        if joint == 0:
-            own = [*range(layout.root.start, layout.root.stop), lv, lv + 1, lv + 2]
-        else:
-            ric = layout.ric.start + 3 * (joint - 1)
-            rot = layout.rot6d.start + 6 * (joint - 1)
-            own = [*range(ric, ric + 3), *range(rot, rot + 6), lv, lv + 1, lv + 2]
-        columns.append(np.array(own))
-    if num_joints == 22:  # SMPL: ankles and feet carry the contact flags (left pair, right pair)
-        contact = layout.foot_contact.start
-        for joint, flag in ((7, 0), (10, 1), (8, 2), (11, 3)):
-            columns[joint] = np.append(columns[joint], contact + flag)
-    return columns
-
-
-def _ease(x: np.ndarray) -> np.ndarray:
-    """Smoothstep 3x^2 - 2x^3 on [0, 1] (zero slope at both ends), clipped outside."""
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
-
-
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of every run of False in a 1-D bool array."""
-    padded = np.concatenate([[True], flags, [True]])
-    change = np.flatnonzero(padded[1:] != padded[:-1])
-    return list(zip(change[::2], change[1::2]))
-
-
-def _seam_weights(start: int, stop: int, frames: int, blend: int) -> tuple[np.ndarray, np.ndarray]:
-    """Weights (stop-start,) of the offsets from the kept frame before (``start - 1``) and after
-    (``stop``) a free run: 1 at the kept frame, eased to 0 over ``blend`` frames; a run too
-    short for both ends to fade hands one offset over to the other."""
-    t = np.arange(start, stop, dtype=np.float64)
-    has_before, has_after = start > 0, stop < frames
-    span = stop - start + 1
-    if has_before and has_after and span <= 2 * blend:
-        rise = _ease((t - (start - 1)) / span)
-        return 1.0 - rise, rise
-    before = 1.0 - _ease((t - (start - 1)) / blend) if has_before else np.zeros_like(t)
-    after = 1.0 - _ease((stop - t) / blend) if has_after else np.zeros_like(t)
-    return before, after
-
-
-def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 16) -> np.ndarray:
-    """Features (T, D) that copy the plan's kept features and meet its root targets exactly.
-
-    1. per joint, kept frames take the source's features; every free run's generated features
-       are offset by the kept-minus-generated difference at the kept frame before and after it,
-       eased to nothing over ``blend`` frames (so the generated velocities carry on across);
-    2. the heading (integrated yaw) is bent smoothly so that frames whose root is kept face as
-       the source does;
-    3. the floor position of the root is bent smoothly so that frames whose root is kept stand
-       where the source does and root targets (x, z) are met; the root velocities are rewritten
-       from the bent path (in each frame's facing frame, as the representation stores them).
-    """
-    frames, num_joints = plan.keep.shape
-    features = generated.copy()
-    if plan.source_features is not None and plan.keep.any():
-        source = plan.source_features.astype(np.float64)
-        for joint, columns in enumerate(joint_columns(num_joints)):
-            kept = plan.keep[:, joint]
-            if not kept.any():
-                continue
-            features[np.ix_(kept, columns)] = source[np.ix_(kept, columns)]
-            for start, stop in _runs(kept):
-                before, after = _seam_weights(start, stop, frames, blend)
-                rows = np.arange(start, stop)
-                if start > 0:  # the kept frame before: meet its value and its rate of change
-                    correction = _seam_correction(source, generated, columns, start - 1, kept, +1)
-                    features[np.ix_(rows, columns)] += before[:, None] * correction(rows)
-                if stop < frames:  # the kept frame after
-                    correction = _seam_correction(source, generated, columns, stop, kept, -1)
-                    features[np.ix_(rows, columns)] += after[:, None] * correction(rows)
-    # 2.-3. the root's heading and floor path
-    anchors_yaw = plan.keep[:, 0] if plan.source_half_yaw is not None else np.zeros(frames, bool)
-    root_xz = np.full((frames, 2), np.nan)
-    if plan.keep[:, 0].any():
-        root_xz[plan.keep[:, 0]] = plan.target[plan.keep[:, 0], 0][:, [0, 2]]
-    given = np.isfinite(plan.target[:, 0, [0, 2]]).all(-1) & ~plan.keep[:, 0]
-    root_xz[given] = plan.target[given, 0][:, [0, 2]]
-    if anchors_yaw[1:].any():
-        half_yaw = half_yaw_of(features)
-        residual = _bend(np.where(anchors_yaw, plan.source_half_yaw - half_yaw, np.nan))
-        bent = half_yaw + residual
-        features[:-1, 0] = np.diff(bent)
-    if np.isfinite(root_xz[1:]).all(-1).any():
-        half_yaw = half_yaw_of(features)
-        path = recover_from_ric(features, num_joints)[:, 0][:, [0, 2]]
-        residual = np.stack([_bend(root_xz[:, axis] - path[:, axis]) for axis in range(2)], axis=-1)
-        bent = path + residual  # (T, 2)
-        step = np.zeros((frames - 1, 3))
-        step[:, [0, 2]] = np.diff(bent, axis=0)
-        local = yaw_rotate(torch.from_numpy(step), torch.from_numpy(2.0 * half_yaw[1:])).numpy()
-        features[:-1, 1:3] = local[:, [0, 2]]
-    return features
-
-
-def _seam_correction(
-    source: np.ndarray,
-    generated: np.ndarray,
-    columns: np.ndarray,
-    frame: int,
-    kept: np.ndarray,
-    direction: int,
-):
-    """The offset that makes the generated side of a seam meet kept ``frame`` in value and in
-    per-frame change: ``offset + change * (t - frame)`` for rows t on the free side (``direction``
-    +1: after ``frame``, -1: before it), to be eased out by the seam weights. The change is the
-    kept side's step next to the seam minus the generated one (zero when the kept side has one
-    frame only)."""
-    offset = source[frame, columns] - generated[frame, columns]
-    inner = frame - direction  # the kept neighbour on the far side of the seam
-    change = np.zeros_like(offset)
-    if 0 <= inner < len(kept) and kept[inner]:
-        kept_step = (source[frame, columns] - source[inner, columns]) * direction
-        generated_step = (
-            generated[frame + direction, columns] - generated[frame, columns]
-        ) * direction
-        change = kept_step - generated_step
-
-    def correction(rows: np.ndarray) -> np.ndarray:
-        return offset + change * (rows - frame)[:, None]
-
-    return correction
-
-
-def _bend(residual: np.ndarray) -> np.ndarray:
-    """(T,) correction that equals ``residual`` where it is finite, 0 at frame 0 when that is not
-    given (the representation starts every motion at the origin, facing +Z), eased between given
-    frames and held after the last."""
-    values = residual.copy()
-    if not np.isfinite(values[0]):
-        values[0] = 0.0
-    given = np.flatnonzero(np.isfinite(values))
-    out = np.empty_like(values)
-    for left, right in zip(given[:-1], given[1:]):
-        x = _ease((np.arange(left, right + 1) - left) / (right - left))
-        out[left : right + 1] = values[left] + (values[right] - values[left]) * x
-    out[given[-1] :] = values[given[-1]]
-    return out
