@@ -56,7 +56,10 @@ py = $(call quote,$(VENV_DIR)/bin/python)
 
 install: $(STAMP)
 
+# A VENV that is a link (to another checkout's environment) is refused: installing this checkout
+# editable into it would silently point that other checkout's commands at this code.
 $(STAMP): setup.cfg pyproject.toml
+	@if test -L $(call quote,$(VENV_DIR)); then echo "error: VENV $(VENV_DIR) is a symbolic link; installing into it would point its other users at this checkout: give this checkout its own environment (remove the link, or VENV=DIR)" >&2; exit 2; fi
 	test -x $(py) || $(call arg,PYTHON) -m venv $(call arg,VENV)
 	$(py) -m pip install -q --upgrade pip
 	$(py) -m pip install -q -e '.[test,onnx]'
