@@ -436,6 +436,7 @@ def test_command_serves_until_interrupted(tiny_run, tmp_path, stop, sigint_ignor
         (["--port", "70000"], "--port must be from 0 to 65535"),
         (["--keep-minutes", "0"], "--keep-minutes must be positive"),
         (["--checkpoints", "/nonexistent/run"], "no checkpoint folder"),
+        (["--live-streams", "-1"], "--live-streams must be from 0 to 256"),
     ],
 )
 def test_command_refuses_bad_options_in_one_line(argv, words, capsys):
@@ -444,6 +445,20 @@ def test_command_refuses_bad_options_in_one_line(argv, words, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert words in err and "\n" not in err
+
+
+def test_live_streams_option_reaches_the_server(monkeypatch):
+    """``--live-streams N`` is the live hub's cap; 0 turns live mode off with a sentence."""
+    from types import SimpleNamespace
+
+    from t2m.serve import live
+    from t2m.serve.__main__ import ServeConfig
+
+    assert ServeConfig().live_streams == 8
+    assert ServeConfig(live_streams=0).live_streams == 0
+    hub = live.LiveHub(SimpleNamespace(precision="fp32"), max_streams=0)
+    with pytest.raises(api.Busy, match="live mode is off"):
+        hub.open({"text": "a person walks"}, api.Limits())
 
 
 def test_limits_are_consistent():

@@ -41,6 +41,9 @@ class ServeConfig:
     request at a time)"""
     queue: int = field(default=16, metadata=option(metavar="N"))
     """requests waiting at most; more are answered 'busy' (HTTP 503)"""
+    live_streams: int = field(default=8, metadata=option(metavar="N"))
+    """live-mode streams at once (each a viewer's own generation thread, about 7 MB; one more
+    is refused with a sentence, HTTP 503); 0 turns live mode off"""
     work_dir: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """where the generated files go (default: a new temporary folder, removed on exit)"""
     log_level: Literal["info", "debug"] = "info"
@@ -55,6 +58,8 @@ class ServeConfig:
                 raise UsageError(f"--{name.replace('_', '-')} must be positive, got {value}")
         if self.batch_motions < 1 or self.queue < 1:
             raise UsageError("--batch-motions and --queue must be at least 1")
+        if not 0 <= self.live_streams <= 256:
+            raise UsageError(f"--live-streams must be from 0 to 256, got {self.live_streams}")
         check_threads(self.threads)
 
 
@@ -122,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             max_bytes=int(config.max_disk_mb * 2**20),
             max_batch_motions=config.batch_motions,
             max_queue=config.queue,
+            live_streams=config.live_streams,
         )
     except OSError as error:
         raise UsageError(

@@ -129,6 +129,8 @@ class LiveHub:
     def open(self, payload: object, limits: api.Limits) -> dict:
         """POST /api/live: check, make room, start a session (its first segment is made when
         the events connection asks for frames)."""
+        if self.max_streams == 0:
+            raise api.Busy("live mode is off on this server (started with --live-streams 0)")
         if not isinstance(payload, dict):
             raise UsageError('send a JSON object: {"text": ..., "seed": ...}')
         unknown = sorted(set(payload) - {"text", "seed", "precision"})
