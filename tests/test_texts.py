@@ -202,3 +202,22 @@ def test_older_checkpoints_fall_back_to_the_vocabulary(tiny_run, caplog):
     assert prepared.unknown_words == ()
     with pytest.raises(UsageError, match="no known word"):
         pipe.prepare(["qwxzv plughzz"])
+
+
+def test_tagging_from_several_threads_gives_the_serial_tags():
+    """The web app tags from its worker and from every live stream's thread: one pass at a time
+    (``texts._TAGGING``), each thread's result its own prompts' tags."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    prompts = [
+        f"a person {verb} {count} times then {other}"
+        for verb in ("jumps", "claps", "kicks", "waves")
+        for count in ("two", "3", "four")
+        for other in ("sits down", "walks to the left", "turns around")
+    ]
+    serial = [texts.tag_prompts([prompt]) for prompt in prompts]
+    with ThreadPoolExecutor(max_workers=6) as pool:
+        threaded = list(pool.map(lambda prompt: texts.tag_prompts([prompt]), prompts * 3))
+    assert threaded == serial * 3
+    assert texts._TAGGING.acquire(blocking=False)  # no pass left it held
+    texts._TAGGING.release()
