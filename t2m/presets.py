@@ -39,11 +39,25 @@ def paper() -> Config:
     # The release's training scripts divide the same std array by feat_bias = 5 once per
     # dataset they build (train and validation): its models saw root and contact std / 25.
     cfg.data.feature_bias = 25.0
+    # What the original code needs to run an export of this run as we do
+    # (python -m t2m.release.export): its networks take 300-d GloVe words, tag captions with its
+    # own motion-word lists and flip the backward word features.
+    cfg.data.word_vectors = PAPER_WORD_VECTORS
+    cfg.data.motion_words = "release"
+    cfg.generator.model.text.flip_backward_words = True
     return cfg
 
 
+PAPER_WORD_VECTORS = "glove/glove.6B.300d.txt"
+"""The paper preset's word vectors: GloVe 6B 300-d, looked for under ``glove/`` of the working
+folder (``--data.word_vectors=PATH`` elsewhere; a missing file stops training at once)."""
+
+
 PAPER_NOTES = """Sizes and optimisation settings of Guo et al. (CVPR 2022), for HumanML3D or KIT-ML
-on a GPU. Epoch counts are ours: an autoencoder epoch is one random 24-frame window per clip,
+on a GPU, with GloVe 6B 300-d word vectors (glove/glove.6B.300d.txt, or --data.word_vectors=PATH;
+from nlp.stanford.edu/projects/glove), the release's motion-word lists and the release's flip of
+the backward word features, so that python -m t2m.release.export writes a release the original
+code runs as we do (docs/release.md). Epoch counts are ours: an autoencoder epoch is one random 24-frame window per clip,
 and the generator's curriculum advances on validation patience, so step counts differ from the
 original scripts'. Normalisation as the release trained: root and foot-contact std divided by
 25 (data.feature_bias), as in the release's meta/std.npy."""
@@ -104,6 +118,11 @@ def demo() -> Config:
         patience=1_000,
         max_stage_epochs=2,
         final_epochs=17,
+        # The last 8 epochs' learning rates fall to a tenth (half cosine): at a constant rate
+        # the speed a caption gets swung by 10-50% between checkpoints 200 steps apart (runs
+        # read as too slow or too fast by the detectors); see DEMO_NOTES.
+        anneal_epochs=8,
+        anneal_to=0.1,
         whole_clips=True,
         epoch_steps=100,  # 25 epochs x 100 = 2,500 steps
         checkpoint_every=100,

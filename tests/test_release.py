@@ -2,8 +2,8 @@
 release (``../shared/reference/t2m-original``: random weights at small sizes, written by the
 original implementation) is reproduced by our models loaded through :mod:`t2m.release` up to float32 rounding: each side's
 distance to the float64 evaluation of the same weights within 16x the other's
-(:func:`tests.tolerances.assert_same_rounding`); sampling runs from the command line; export
-round-trips."""
+(:func:`tests.tolerances.assert_same_rounding`); sampling runs from the command line (export:
+``tests/test_release_export.py``)."""
 
 from __future__ import annotations
 
@@ -289,126 +289,6 @@ def test_sample_command_from_the_release_folder(tmp_path):
     assert (out / "sample00_rep00.bvh").is_file()
     info = np.load(out / "results.npy", allow_pickle=True).item()
     assert info["num_repetitions"] == 2 and info["motion"].shape[:3] == (2, 22, 3)
-
-
-@pytest.fixture(scope="module")
-def paper_codes_run(tiny_run, tiny_dataset, tiny_config, tmp_path_factory):
-    """``tiny_run`` with its generator and length model trained again as the paper's (the
-    ``tiny`` preset has the demo's count clock and count-reading length model, which the
-    release format does not hold)."""
-    from t2m.config import apply_overrides
-    from t2m.train import train_stage
-
-    run = tmp_path_factory.mktemp("paper_codes_run")
-    for stage in ("autoencoder", "evaluator"):
-        shutil.copytree(tiny_run / stage, run / stage)
-    config = apply_overrides(
-        tiny_config,
-        {"generator.model.count_clock": "false", "length.model.plan_inputs": "false"},
-    )
-    train_stage("generator", config, tiny_dataset, run)
-    train_stage("length", config, tiny_dataset, run)
-    return run
-
-
-@pytest.fixture(scope="module")
-def exported(paper_codes_run, tmp_path_factory):
-    from t2m.release.export import main
-
-    out = tmp_path_factory.mktemp("exported")
-    assert main(["--checkpoints", str(paper_codes_run), "--out", str(out)]) == 0
-    return out
-
-
-def test_export_refuses_a_generator_with_a_count_clock(tiny_run, tmp_path, capsys):
-    from t2m.release.export import main
-
-    assert main(["--checkpoints", str(tiny_run), "--out", str(tmp_path / "out")]) == 2
-    assert "count clock" in capsys.readouterr().err
-    assert not (tmp_path / "out").exists()
-
-
-def test_export_refuses_a_length_model_that_reads_counts(
-    tiny_run, paper_codes_run, tmp_path, capsys
-):
-    from t2m.release.export import main
-
-    run = tmp_path / "run"
-    shutil.copytree(paper_codes_run / "generator", run / "generator")
-    shutil.copytree(tiny_run / "length", run / "length")
-    assert main(["--checkpoints", str(run), "--out", str(tmp_path / "out")]) == 2
-    assert "count" in capsys.readouterr().err
-    assert not (tmp_path / "out").exists()
-
-
-def test_export_writes_the_release_layout_with_its_keys(exported):
-    dataset = exported / "checkpoints" / "t2m"
-    for ours, theirs in (
-        ("Comp_v6_KLD01/model/latest.tar", "Comp_v6_KLD01/model/latest.tar"),
-        ("length_est_bigru/model/latest.tar", "length_est_bigru/model/latest.tar"),
-        ("text_mot_match/model/finest.tar", "text_mot_match/model/finest.tar"),
-    ):
-        mine = torch.load(dataset / ours, map_location="cpu", weights_only=True)
-        reference = torch.load(
-            REFERENCE / "checkpoints" / "t2m" / theirs, map_location="cpu", weights_only=True
-        )
-        assert set(mine) == set(reference)
-        for entry, state in reference.items():
-            if isinstance(state, dict) and "param_groups" not in state:
-                # the tiny length MLP has two hidden layers, the release's three
-                head = ("output.",) if entry == "estimator" else ()
-                kept = {k for k in state if not k.startswith(head)}
-                assert {k for k in mine[entry] if not k.startswith(head)} == kept, entry
-    assert np.load(dataset / "Comp_v6_KLD01" / "meta" / "std.npy").shape == (263,)
-    assert read_opt(dataset / "text_mot_match" / "opt.txt")["dataset_name"] == "t2m"
-    assert is_release_folder(exported)
-
-
-@torch.no_grad()
-def test_export_round_trip_gives_identical_outputs(paper_codes_run, exported):
-    from t2m.train.stages import load_stage
-
-    run = paper_codes_run
-    generator, length = load_stage(run, "generator"), load_stage(run, "length")
-    evaluator = load_stage(run, "evaluator").models["evaluator"]
-    back = accelerated(load_release(exported))
-    back_evaluator = accelerate(load_release_evaluator(exported).evaluator)
-    assert torch.equal(back.initial_code, generator.initial_code)
-    np.testing.assert_array_equal(back.normalizer.std, generator.normalizer.std)
-    assert back.vectorizer.words == generator.vectorizer.words
-    assert not back.vae.config.text.flip_backward_words  # recorded in opt.txt
-    encoded = generator.vectorizer.encode_tokens("a/DET person/NOUN walk/VERB forward/ADV".split())
-    words = torch.from_numpy(np.stack([encoded.words] * 2))
-    pos = torch.from_numpy(np.stack([encoded.pos_onehot] * 2))
-    lengths = torch.tensor([encoded.length, encoded.length - 1])
-    vae = generator.models["vae"]
-    noise = torch.randn(2, 12, vae.config.latent_size, generator=torch.Generator().manual_seed(0))
-    codes = []
-    for model in (vae, back.vae):
-        features, sentence, mask = model.encode_text(words, pos, lengths)
-        steps = torch.tensor([12, 10])
-        codes.append(
-            model.generate(features, sentence, mask, steps, back.initial_code, noise=noise)
-        )
-    assert torch.equal(codes[0], codes[1])
-    assert torch.equal(generator.models["decoder"](codes[0]), back.decoder(codes[1]))
-    assert torch.equal(
-        length.models["length"](words, pos, lengths), back.length_model(words, pos, lengths)
-    )
-    motion = torch.randn(2, 40, 263, generator=torch.Generator().manual_seed(1))
-    frames = torch.tensor([40, 32])
-    assert torch.equal(
-        evaluator.embed_motion(motion, frames), back_evaluator.embed_motion(motion, frames)
-    )
-    assert torch.equal(
-        evaluator.embed_text(words, pos, lengths), back_evaluator.embed_text(words, pos, lengths)
-    )
-
-
-def test_export_refuses_to_overwrite(paper_codes_run, exported):
-    from t2m.release.export import main
-
-    assert main(["--checkpoints", str(paper_codes_run), "--out", str(exported)]) == 2
 
 
 def test_the_release_glove_folder_as_word_vectors_for_our_training():

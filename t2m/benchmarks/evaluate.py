@@ -52,12 +52,12 @@ WORDS = (
 def _untrained_stages(preset_name: str) -> dict:
     """eval, length and t2m stages of a preset's sizes with random weights, by name."""
     from t2m.data.normalization import Normalizer
-    from t2m.data.words import load_vectorizer
+    from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
     from t2m.presets import preset
     from t2m.train import ModelSizes, TrainedStage
 
     config = preset(preset_name)
-    vectorizer = load_vectorizer(config.data.word_vectors, config.data.max_text_tokens)
+    vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)  # timing only
     dims = ModelSizes(263, vectorizer.dim, 0, config.autoencoder.model.code_size)
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
     torch.manual_seed(0)

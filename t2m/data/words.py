@@ -222,7 +222,7 @@ class WordVectors:
     def compatible(self, other: WordVectors) -> bool:
         """True when both come from one vocabulary (same origin): a word either holds has the
         same vector in both, so one encoding of a prompt serves models trained on either."""
-        return self.origin == other.origin
+        return self.origin == other.origin and self.motion_words is other.motion_words
 
     def subset(self, keep: Iterable[str], margin: int = 0) -> WordVectors:
         """This vocabulary restricted to the words of ``keep`` that it holds, its first
@@ -255,8 +255,9 @@ class WordVectors:
         ``source``, ``dim``, ``size``, ``max_tokens`` and ``fingerprint`` (of the origin, which
         is what a resume and a second stage are checked against); a trainable vocabulary adds
         its ``words`` (a list); a subset (:meth:`subset`) its ``words`` (one string, a word a
-        line), its ``vectors`` (N, Dw) float32 tensor, its own ``table_fingerprint`` and, when
-        they are not ours, ``motion_words`` ("release": the original release's lists)."""
+        line), its ``vectors`` (N, Dw) float32 tensor and its own ``table_fingerprint``; a
+        pre-trained one with the original release's motion-word lists ``motion_words``
+        ("release")."""
         info: dict[str, Any] = {
             "source": str(self.source),
             "dim": int(self.dim),
@@ -274,8 +275,8 @@ class WordVectors:
             info["words"] = "\n".join(self.words)  # one string: unpickled 30x faster than a list
             info["vectors"] = torch.from_numpy(np.array(self.vectors, dtype=np.float32))
             info["table_fingerprint"] = self.fingerprint()
-            if self.motion_words is RELEASE_MOTION_WORDS:
-                info["motion_words"] = "release"
+        if not self.trainable and self.motion_words is RELEASE_MOTION_WORDS:
+            info["motion_words"] = "release"
         return info
 
     def token_ids(self, tokens: Sequence[str]) -> tuple[np.ndarray, np.ndarray, int]:
@@ -504,19 +505,60 @@ def read_glove_folder(folder: str | Path, max_tokens: int = 20) -> WordVectors:
     )
 
 
-_CACHE: dict[tuple[str, int], WordVectors] = {}
+_CACHE: dict[tuple[str, int, str], WordVectors] = {}
 
 
-def load_vectorizer(source: str, max_tokens: int = 20) -> WordVectors:
+MOTION_WORD_LISTS = {"ours": MOTION_WORDS, "release": RELEASE_MOTION_WORDS}
+"""``data.motion_words`` -> the lists (:mod:`t2m.lexicon`)."""
+
+
+GLOVE_DOWNLOAD = "https://nlp.stanford.edu/projects/glove/ (glove.6B.zip)"
+"""Where the GloVe files are published."""
+
+
+def check_word_vectors(source: str, option: str = "--data.word_vectors") -> None:
+    """UsageError (one line, naming ``option`` and where the vectors come from) when ``source``
+    names a GloVe file or release folder that is not there; cheap, so commands call it before
+    any long work."""
+    from dataset_tools.command import UsageError
+
+    if source.endswith(COUNTS_SUFFIX) and source != COUNTS_SUFFIX:
+        source = source[: -len(COUNTS_SUFFIX)]
+    if source in (BUILTIN_GLOVE, TRAINABLE) or Path(source).expanduser().exists():
+        return
+    raise UsageError(
+        f"{option}={source}: no such file; give a GloVe text file (glove.6B.300d.txt from "
+        f"{GLOVE_DOWNLOAD}) or the T2M release's glove/ folder"
+    )
+
+
+def load_vectorizer(source: str, max_tokens: int = 20, motion_words: str = "ours") -> WordVectors:
     """The pre-trained vocabulary named by ``source``: the built-in name, a GloVe text file or a
-    GloVe folder of the T2M release (:func:`read_glove_folder`).
+    GloVe folder of the T2M release (:func:`read_glove_folder`), with the motion-word lists
+    ``motion_words`` ("ours" or "release"; a release folder always reads with "release").
 
     Cached per process: the 400k-word table is loaded once. For ``trainable`` use
     :func:`build_trainable_vocabulary`.
     """
-    key = (source, max_tokens)
+    if motion_words not in MOTION_WORD_LISTS:
+        raise ValueError(
+            f"motion-word lists {motion_words!r}: not one of {', '.join(MOTION_WORD_LISTS)}"
+        )
+    key = (source, max_tokens, motion_words)
     if key in _CACHE:
         return _CACHE[key]
+    if motion_words != "ours" and not Path(source).expanduser().is_dir():
+        base = load_vectorizer(source, max_tokens)
+        vectorizer = WordVectors(
+            base.words,
+            base.vectors,
+            base.source,
+            max_tokens,
+            motion_words=MOTION_WORD_LISTS[motion_words],
+            origin=base.origin,
+        )
+        _CACHE[key] = vectorizer
+        return vectorizer
     if source.endswith(COUNTS_SUFFIX) and source != COUNTS_SUFFIX:
         base = load_vectorizer(source[: -len(COUNTS_SUFFIX)], max_tokens)
         vectors = np.concatenate(
@@ -638,7 +680,10 @@ def vectorizer_from_info(info: dict[str, Any]) -> WordVectors:
             info["words"], None, TRAINABLE, info["max_tokens"], dim=info["dim"]
         )
     else:
-        vectorizer = load_vectorizer(info["source"], info["max_tokens"])
+        lists = info.get("motion_words", "ours")
+        if lists not in MOTION_WORD_LISTS:
+            raise ValueError(f"vocabulary info: unknown motion-word lists {lists!r}")
+        vectorizer = load_vectorizer(info["source"], info["max_tokens"], lists)
     if vectorizer.fingerprint() != info["fingerprint"]:
         raise ValueError(
             f"word vectors {info['source']!r} differ from the ones this checkpoint was trained with"

@@ -10,16 +10,15 @@ load them strictly, and :func:`t2m.release.load_release` reads them back to iden
 The optimiser entries (``opt_*``) are fresh Adam states: the files serve inference and
 evaluation, not resuming the original's training.
 
-Our generators do not flip the backward word features unless trained with
-``--generator.model.text.flip_backward_words=true``; ``opt.txt`` records it for our loader, but
-the original code flips whatever it says: train with the flip for a generator that the original
-code runs as we do. The release's GloVe format has no room for our motion-word lists, so a
-vocabulary other than the release's own is read back with the release's lists (a few words such
-as "head" or "arms" then get their spaCy tag instead of a motion category).
-
-The original code fixes some sizes instead of reading them (300-d words; length estimator hidden
-512 with an MLP of 512, 256, 128 to 50 classes; evaluator text hidden 512, motion hidden 1024,
-embedding 512): a model of other sizes is exported, with a warning that only our loader reads it.
+A run is exported only when the original code would run it as we do
+(:func:`release_incompatibilities`); otherwise the command stops with one line naming every
+setting in the way and the overrides to retrain with. The original reads 300-d GloVe words, tags
+captions with its own motion-word lists (``data.motion_words=release``), flips the backward word
+features (``generator.model.text.flip_backward_words=true``; its format cannot record it), has
+no count clock, progress code or count-reading length model, and builds its length estimator
+(hidden 512, MLP 512, 256, 128, 50 classes) and evaluator (text hidden 512, motion hidden 1024,
+embedding 512) at fixed sizes. The ``paper`` preset meets all of it. Generator and autoencoder
+sizes are free: the original reads them from ``opt.txt``.
 """
 
 from __future__ import annotations
@@ -45,6 +44,7 @@ from dataset_tools.io import atomic_write, save_npy_atomic, write_text_atomic
 from dataset_tools.spec import HUMANML3D, KIT_ML
 from t2m.data.normalization import Normalizer
 from t2m.data.words import GLOVE_FOLDER_FILES, WordVectors
+from t2m.lexicon import RELEASE_MOTION_WORDS
 from t2m.models.temporal_vae import sinusoidal_table
 from t2m.release.keys import (
     EVALUATOR_KEYS,
@@ -71,16 +71,132 @@ RELEASE_DATASETS = {
 """Our dataset spec -> (the release's dataset folder, its generator's name)."""
 TABLE_ROWS = 300
 """Rows of the sinusoidal table the release stores with each recurrent block."""
-ORIGINAL_FIXED_SIZES = {
-    "word vectors": 300,
-    "length estimator text hidden": 512,
-    "length estimator MLP": (512, 256, 128),
-    "length classes": 50,
-    "evaluator text hidden": 512,
-    "evaluator motion hidden": 1024,
-    "evaluator embedding": 512,
+ORIGINAL_WORD_DIM = 300
+"""The word-vector size the original code builds every text encoder with."""
+ORIGINAL_LENGTH_SIZES = {"text.hidden_size": 512, "mlp_sizes": (512, 256, 128), "num_classes": 50}
+"""The length estimator the original code builds, whatever ``opt.txt`` says (hidden 512, an MLP
+of 512, 256, 128, and 200 // unit_length classes)."""
+ORIGINAL_EVALUATOR_SIZES = {
+    "text.hidden_size": 512,
+    "motion_hidden_size": 1024,
+    "embedding_size": 512,
 }
-"""Sizes the original code (and the evaluator wrappers copied from it) sets instead of reading."""
+"""The evaluator the original's wrapper (and the later papers' copies of it) builds."""
+PAPER_WORDS = "--data.word_vectors=glove/glove.6B.300d.txt"
+
+
+@dataclass(frozen=True)
+class Incompatibility:
+    """One setting of a run that the original code would not reproduce."""
+
+    what: str
+    """the setting and why, e.g. ``generator.model.count_clock=True (the release's ...)``"""
+    fix: str
+    """the override to retrain with, e.g. ``--generator.model.count_clock=false``"""
+
+
+def _value(value: Any) -> str:
+    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value).lower()
+
+
+def _sizes(section: str, model: Any, fixed: dict[str, Any], who: str) -> list[Incompatibility]:
+    found = []
+    for key, size in fixed.items():
+        ours = model
+        for part in key.split("."):
+            ours = getattr(ours, part)
+        ours = tuple(ours) if isinstance(size, tuple) else ours
+        if ours != size:
+            option = f"{section}.model.{key}"
+            found.append(
+                Incompatibility(
+                    f"{option}={_value(ours)} ({who} fixes {_value(size)})",
+                    f"--{option}={_value(size)}",
+                )
+            )
+    return found
+
+
+def release_incompatibilities(stages: dict[str, Any]) -> list[Incompatibility]:
+    """Every setting of ``stages`` (stage name -> :class:`~t2m.train.TrainedStage`) that the
+    original code would not reproduce: settings whose weights it cannot load, and settings whose
+    weights it loads but computes with differently (which it would do silently)."""
+    found: list[Incompatibility] = []
+    vocabularies = [stage.vectorizer for stage in stages.values()]
+    first = vocabularies[0]
+    if first is None or first.trainable:
+        found.append(
+            Incompatibility(
+                "data.word_vectors=trainable (the original reads pre-trained word vectors)",
+                PAPER_WORDS,
+            )
+        )
+    else:
+        if first.dim != ORIGINAL_WORD_DIM:
+            found.append(
+                Incompatibility(
+                    f"{first.dim}-d word vectors {Path(first.source).name} (the original's "
+                    f"networks take {ORIGINAL_WORD_DIM}-d GloVe)",
+                    PAPER_WORDS,
+                )
+            )
+        if first.motion_words is not RELEASE_MOTION_WORDS:
+            found.append(
+                Incompatibility(
+                    "data.motion_words=ours (the original tags captions with its own, shorter "
+                    "motion-word lists)",
+                    "--data.motion_words=release",
+                )
+            )
+        if any(other is None or not first.compatible(other) for other in vocabularies[1:]):
+            found.append(
+                Incompatibility(
+                    f"stages {', '.join(stages)} read different word vectors (the release "
+                    "holds one glove/ for all)",
+                    "one --data.word_vectors for every stage",
+                )
+            )
+    if "generator" in stages:
+        model = stages["generator"].config.generator.model
+        if not model.text.flip_backward_words:
+            found.append(
+                Incompatibility(
+                    "generator.model.text.flip_backward_words=false (the original flips the "
+                    "backward word features; its format cannot say otherwise)",
+                    "--generator.model.text.flip_backward_words=true",
+                )
+            )
+        if model.count_clock:
+            found.append(
+                Incompatibility(
+                    "generator.model.count_clock=true (the release's temporal VAE reads the "
+                    "time to arrival only, no count clock)",
+                    "--generator.model.count_clock=false",
+                )
+            )
+        if model.progress_frequencies:
+            found.append(
+                Incompatibility(
+                    f"generator.model.progress_frequencies={model.progress_frequencies} (the "
+                    "release's temporal VAE reads the time to arrival only)",
+                    "--generator.model.progress_frequencies=0",
+                )
+            )
+    if "length" in stages:
+        model = stages["length"].config.length.model
+        if model.plan_inputs:
+            found.append(
+                Incompatibility(
+                    "length.model.plan_inputs=true (the release's length estimator reads the "
+                    "text only, not the caption's count)",
+                    "--length.model.plan_inputs=false",
+                )
+            )
+        found += _sizes("length", model, ORIGINAL_LENGTH_SIZES, "the original")
+    if "evaluator" in stages:
+        model = stages["evaluator"].config.evaluator.model
+        found += _sizes("evaluator", model, ORIGINAL_EVALUATOR_SIZES, "the original's wrapper")
+    return found
 
 
 @dataclass
@@ -215,34 +331,6 @@ def release_options(stages: dict[str, Any], name: str, dataset: str) -> dict[str
     }
 
 
-def _size_warnings(stages: dict[str, Any]) -> list[str]:
-    stage = next(iter(stages.values()))
-    ours: dict[str, Any] = {"word vectors": stage.dims.word_dim}
-    if "length" in stages:
-        model = stages["length"].config.length.model
-        ours.update(
-            {
-                "length estimator text hidden": model.text.hidden_size,
-                "length estimator MLP": tuple(model.mlp_sizes),
-                "length classes": model.num_classes,
-            }
-        )
-    if "evaluator" in stages:
-        model = stages["evaluator"].config.evaluator.model
-        ours.update(
-            {
-                "evaluator text hidden": model.text.hidden_size,
-                "evaluator motion hidden": model.motion_hidden_size,
-                "evaluator embedding": model.embedding_size,
-            }
-        )
-    return [
-        f"{key} {value} (the original code fixes {ORIGINAL_FIXED_SIZES[key]})"
-        for key, value in ours.items()
-        if value != ORIGINAL_FIXED_SIZES[key]
-    ]
-
-
 def write_vocabulary(vectorizer: WordVectors, folder: Path) -> None:
     """The vocabulary as the release's GloVe folder: vectors (N, Dw), the words, word -> row."""
     data, words_file, index_file = (folder / name for name in GLOVE_FOLDER_FILES)
@@ -254,36 +342,24 @@ def write_vocabulary(vectorizer: WordVectors, folder: Path) -> None:
 
 
 def _check_exportable(stages: dict, name: str | None) -> tuple[str, str]:
-    """Refuse (UsageError, one line) what the release layout cannot hold and warn of sizes its
-    code cannot load; returns the dataset's folder and the generator's folder name."""
+    """Refuse (UsageError, one line) a run the release layout cannot hold or the original code
+    would not run as we do (naming every such setting and the overrides to retrain with);
+    returns the dataset's folder and the generator's folder name."""
     first = next(iter(stages.values()))
-    vectorizer = first.vectorizer
-    if vectorizer is None or vectorizer.trainable:
-        raise UsageError(
-            "the release format reads pre-trained word vectors; this run learned its own "
-            "(retrain with --data.word_vectors=<a GloVe file or the release's glove/>)"
-        )
     if first.spec.name not in RELEASE_DATASETS:
         raise UsageError(f"the release layout holds HumanML3D or KIT-ML, not {first.spec.name}")
     dataset, default_name = RELEASE_DATASETS[first.spec.name]
     name = name or default_name
     if name in (LENGTH_FOLDER, EVALUATOR_FOLDER) or not name or "/" in name:
         raise UsageError(f"--name {name!r} is not a generator folder name")
-    if "generator" in stages:
-        codes = stages["generator"].config.generator.model
-        if codes.count_clock or codes.progress_frequencies:
-            raise UsageError(
-                "the release's temporal VAE reads the time to arrival only; this generator also "
-                "reads a count clock or its progress (retrain it with "
-                "--generator.model.count_clock=false --generator.model.progress_frequencies=0)"
-            )
-    if "length" in stages and stages["length"].config.length.model.plan_inputs:
+    found = release_incompatibilities(stages)
+    if found:
+        fixes = " ".join(dict.fromkeys(item.fix for item in found))
         raise UsageError(
-            "the release's length estimator reads the text only; this one also reads the "
-            "caption's count (retrain it with --length.model.plan_inputs=false)"
+            "the original code would not run this export as we do: "
+            + "; ".join(item.what for item in found)
+            + f" (retrain with {fixes}, or start from --preset paper)"
         )
-    for warning in _size_warnings(stages):
-        logger.warning("the original code cannot load this export: %s", warning)
     return dataset, name
 
 

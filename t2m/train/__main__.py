@@ -32,6 +32,7 @@ from dataset_tools.command import (
 )
 from dataset_tools.io import check_output_folder
 from t2m.config import Config, apply_overrides
+from t2m.data.words import check_word_vectors
 from t2m.presets import PRESETS, preset
 from t2m.train.stages import STAGES, find_stage, train_stage
 
@@ -125,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         print(config.to_json())
         return 0
     stage = find_stage(options.stage).name
+    check_word_vectors(config.data.word_vectors)  # before any long work
     check_output_folder(options.run_dir(), "--checkpoints")
     start = time.time()
     stage_dir = train_stage(

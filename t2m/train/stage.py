@@ -97,7 +97,7 @@ def vocabulary_for(config: Config, dataset_dir: Path) -> WordVectors:
             data.trainable_word_dim,
             data.max_text_tokens,
         )
-    return load_vectorizer(data.word_vectors, data.max_text_tokens)
+    return load_vectorizer(data.word_vectors, data.max_text_tokens, data.motion_words)
 
 
 def load_stage_data(
