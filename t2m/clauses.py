@@ -345,3 +345,70 @@ def caption_count(tokens: Sequence[str]) -> int:
     """The repetition count of a caption of one clause (:func:`repetition_count`); 0 for a
     caption of several clauses, whose counts belong to its clauses (:func:`clause_captions`)."""
     return repetition_count(tokens) if len(split_clauses(tokens)) == 1 else 0
+
+
+SETTLE_TEXT = "a person stands still"
+"""The caption of a settling part: what a counted clause's spare time becomes
+(:func:`settle_counted`), and what a live stream's "stop" becomes (:mod:`t2m.live`)."""
+
+SETTLE_TOKENS = ("a/DET", "person/NOUN", "stand/VERB", "still/ADV")
+""":data:`SETTLE_TEXT` as prompts are tagged (either POS convention), so that a plan needs no
+tagger to use it."""
+
+MIN_SETTLE_SNIPPETS = 4
+"""A counted clause is split only when at least this many snippets (0.8 s at 20 fps) are spare."""
+
+
+def needed_snippets(means: Sequence[float]) -> np.ndarray:
+    """The snippets a counted clause keeps (int (N,), at least 1): the length the text2length
+    model expects for it (its mean), rounded. Not more: on the demo model every snippet beyond
+    it risks one more repetition (the mean plus one standard deviation, rounded up, made one
+    more jump, hop or punch in most samples), and not less (the mean less half a deviation cut
+    punches and hops short)."""
+    means = np.asarray(means, dtype=np.float64)
+    return np.maximum(np.floor(means + 0.5), 1).astype(np.int64)
+
+
+def settle_counted(
+    counts: Sequence[int],
+    snippets: Sequence[int],
+    needs: Sequence[int],
+    minimum: int = MIN_SETTLE_SNIPPETS,
+) -> list[tuple[int, int]]:
+    """A clause plan in which counts follow the text, not the length: ``(clause, snippets)`` in
+    order, ``clause`` the index of one of the caption's clauses or -1 for a settling part
+    (:data:`SETTLE_TEXT`). A clause that names a count (``counts[i]`` > 0) and was given at
+    least ``minimum`` snippets more than it needs (``needs[i]``, :func:`needed_snippets`)
+    keeps what it needs and a settling part after it takes the rest; every other clause keeps
+    its ``snippets[i]``. The parts' snippets sum to ``sum(snippets)``.
+
+    Why: the temporal VAE repeats an action at the pace it was trained on, whatever its count
+    clock says, so "jumps twice" stretched over 6 s jumps five or six times (demo model). Given
+    only the time two jumps take, it jumps twice; standing still is what it does with the
+    rest."""
+    if not len(counts) == len(snippets) == len(needs):
+        raise ValueError(f"{len(counts)} counts, {len(snippets)} lengths, {len(needs)} needs")
+    parts: list[tuple[int, int]] = []
+    for index, (count, given, need) in enumerate(zip(counts, snippets, needs)):
+        keep = max(int(need), 1)
+        if count > 0 and given - keep >= max(minimum, 1):
+            parts += [(index, keep), (-1, int(given) - keep)]
+        else:
+            parts.append((index, int(given)))
+    return parts
+
+
+def settled_captions(
+    captions: Sequence[Sequence[str]],
+    snippets: Sequence[int],
+    needs: Sequence[int],
+    settle: Sequence[str],
+    minimum: int = MIN_SETTLE_SNIPPETS,
+) -> list[tuple[list[str], int]]:
+    """:func:`settle_counted` on captions: a plan's standalone clause captions (``word/POS``
+    tokens, :func:`clause_captions`) with their snippets and needs -> ``(caption, snippets)``
+    in order, the settling parts' caption ``settle`` (the tokens of :data:`SETTLE_TEXT`). The
+    counts are the captions' own (:func:`repetition_count`)."""
+    counts = [repetition_count(c) for c in captions]
+    plan = settle_counted(counts, snippets, needs, minimum)
+    return [(list(settle) if i < 0 else list(captions[i]), n) for i, n in plan]

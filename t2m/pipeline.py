@@ -56,7 +56,14 @@ from dataset_tools.representation import recover_from_ric
 from dataset_tools.rigid import finish_features
 from dataset_tools.spec import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.accel import PRECISIONS as PRECISIONS
-from t2m.clauses import clause_captions, clause_targets, share_snippets
+from t2m.clauses import (
+    SETTLE_TOKENS,
+    clause_captions,
+    clause_targets,
+    needed_snippets,
+    settle_counted,
+    share_snippets,
+)
 from t2m.data.normalization import Normalizer
 from t2m.data.words import EncodedText, WordVectors
 from t2m.inference.conversion import BF16_EMULATED_COST as BF16_EMULATED_COST
@@ -374,12 +381,7 @@ class TextToMotion:
         flat = [c for item in clauses if len(item) > 1 for c in item]  # one clause: no sharing
         means, variances = np.ones(len(flat)), np.ones(len(flat))
         if self.length_model is not None and flat:
-            with torch.inference_mode():
-                logits = self._length_logits(flat, batch_size=256, clause=True)
-                probs = torch.softmax(logits.double(), -1).cpu().numpy()
-            units = np.arange(probs.shape[-1], dtype=np.float64)
-            means = probs @ units
-            variances = probs @ units**2 - means**2
+            means, variances = self.length_moments(flat, clause=True)
         out, start = [], 0
         for item, total_frames in zip(clauses, frames, strict=True):
             total = total_frames // unit
@@ -398,6 +400,22 @@ class TextToMotion:
                     share_snippets(total, clause_targets(total, means[part], variances[part]))
                 )
         return out
+
+    def length_moments(
+        self, encoded: Sequence[EncodedText], clause: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The text2length model's expected length of each caption and its variance, in snippets
+        (float64 (N,) each; ``clause``: as clauses of longer motions). Needs the length model."""
+        if self.length_model is None:
+            raise ValueError("no text2length model loaded (`make train-len`)")
+        if not encoded:
+            return np.zeros(0), np.zeros(0)
+        with torch.inference_mode():
+            logits = self._length_logits(encoded, batch_size=256, clause=clause)
+            probs = torch.softmax(logits.double(), -1).cpu().numpy()
+        units = np.arange(probs.shape[-1], dtype=np.float64)
+        means = probs @ units
+        return means, probs @ units**2 - means**2
 
     def sample_lengths(
         self,
@@ -551,21 +569,37 @@ class TextToMotion:
         generator: torch.Generator,
         noise: torch.Tensor | None = None,
         clauses: Sequence[Sequence[EncodedText]] | None = None,
+        settle: bool = True,
     ) -> list[np.ndarray]:
         """One batch: normalised-space generation -> de-normalised features (frames_i, D) each.
 
         ``noise``: the latent draws (B, max snippets, Z) (default: drawn from ``generator``);
         given by a caller that batches requests of different seeds (``t2m.serve``).
-        ``clauses``: per item, its clauses as standalone captions (:meth:`encode_clauses`):
-        an item with two or more is generated clause by clause (:meth:`_clause_codes`), the
-        others in one pass; None: every item in one pass."""
+        ``clauses``: per item, its clauses as standalone captions (:meth:`encode_clauses`; ()
+        for a caption of one clause): the clause plan (:meth:`clause_plan`), in which an item of
+        two or more clauses, or with ``settle`` a counted clause given more time than it needs,
+        is generated part by part (:func:`t2m.inference.generation.clause_codes`), the others
+        in one pass; None: every item in one pass (the paper's plan)."""
         unit = self.spec.snippet_length
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
         if clauses is not None and len(clauses) != len(encoded):
             raise ValueError(f"{len(clauses)} clause lists for {len(encoded)} captions")
-        planned = clauses is not None and any(len(c) > 1 for c in clauses)
-        if planned:
-            codes = self._clause_codes(encoded, clauses, frames, generator, noise)
+        lists, snippets = (
+            ([], [])
+            if clauses is None
+            else self.clause_plan(encoded, clauses, frames, settle=settle)
+        )
+        if any(len(parts) > 1 for parts in lists):
+            codes = clause_codes(
+                self.vae,
+                lists,
+                snippets,
+                self.initial_code,
+                generator,
+                noise,
+                self.device,
+                self.dtype,
+            )
         else:
             words, pos, text_lengths = text_batch(encoded, self.device, self.dtype)
             word_features, sentence, mask = self.vae.encode_text(words, pos, text_lengths)
@@ -583,24 +617,68 @@ class TextToMotion:
             self.decoder, self.normalizer, codes, num_snippets, frames, self.decoder_dtype
         )
 
-    def _clause_codes(
+    def clause_plan(
         self,
         encoded: Sequence[EncodedText],
         clauses: Sequence[Sequence[EncodedText]],
         frames: Sequence[int],
-        generator: torch.Generator,
-        noise: torch.Tensor | None,
-    ) -> torch.Tensor:
-        """Codes (B, max snippets, C) generated clause by clause
-        (:func:`t2m.inference.generation.clause_codes`), each item's snippets shared among its
-        clauses by :meth:`clause_snippets` (an item with fewer snippets than clauses, or of one
-        clause, runs as one)."""
+        settle: bool = True,
+    ) -> tuple[list[list[EncodedText]], list[list[int]]]:
+        """The clause plan of a batch: per item, the captions of its parts in order and their
+        snippets (summing to ``frames // snippet_length``). An item's clauses (``clauses[i]``,
+        standalone captions; () or one for a caption of one clause: ``encoded[i]``) share its
+        snippets by :meth:`clause_snippets` (an item with fewer snippets than clauses runs as
+        one). With ``settle`` (and a length model), a clause that names a count and was given
+        more time than it needs keeps what it needs and is followed by a part of
+        :data:`t2m.clauses.SETTLE_TEXT` (:meth:`settle_plan`)."""
         lists = [list(c) if len(c) > 1 else [e] for c, e in zip(clauses, encoded, strict=True)]
         snippets = self.clause_snippets(lists, frames)
         lists = [c if len(n) == len(c) else [e] for c, n, e in zip(lists, snippets, encoded)]
-        return clause_codes(
-            self.vae, lists, snippets, self.initial_code, generator, noise, self.device, self.dtype
-        )
+        if settle:
+            lists, snippets = self.settle_plan(lists, snippets)
+        return lists, snippets
+
+    def settle_plan(
+        self, lists: Sequence[Sequence[EncodedText]], snippets: Sequence[Sequence[int]]
+    ) -> tuple[list[list[EncodedText]], list[list[int]]]:
+        """Counts follow the text at any length: each item's parts (captions ``lists[i]`` with
+        ``snippets[i]`` snippets) with every counted part given at least
+        :data:`t2m.clauses.MIN_SETTLE_SNIPPETS` more than it needs split into what it needs
+        and a settling part after it (:func:`t2m.clauses.settle_counted`). What a part needs
+        is :func:`t2m.clauses.needed_snippets` of the text2length model's estimate: as a clause
+        for an item of several parts, as a whole caption for an item of one (the estimate its
+        drawn length comes from, so a length drawn near it is left as it is). Unchanged
+        without a length model or when the model was not trained on the settling caption's
+        words."""
+        lists = [list(parts) for parts in lists]
+        snippets = [list(n) for n in snippets]
+        filler = self._settle_caption()
+        counted = [(b, k) for b, parts in enumerate(lists) for k, c in enumerate(parts) if c.count]
+        if filler is None or self.length_model is None or not counted:
+            return lists, snippets
+        needs: dict[tuple[int, int], int] = {}
+        for clause in (False, True):
+            keys = [(b, k) for b, k in counted if (len(lists[b]) > 1) == clause]
+            means, _ = self.length_moments([lists[b][k] for b, k in keys], clause)
+            needs.update(zip(keys, needed_snippets(means).tolist()))
+        for b, parts in enumerate(lists):
+            plan = settle_counted(
+                [c.count for c in parts],
+                snippets[b],
+                [needs.get((b, k), 0) for k in range(len(parts))],
+            )
+            lists[b] = [filler if k < 0 else parts[k] for k, _ in plan]
+            snippets[b] = [n for _, n in plan]
+        return lists, snippets
+
+    def _settle_caption(self) -> EncodedText | None:
+        """:data:`t2m.clauses.SETTLE_TOKENS` encoded, or None when the model was not trained on
+        its words (then nothing settles)."""
+        if not hasattr(self, "_settle_encoded"):
+            words = [token.rpartition("/")[0] for token in SETTLE_TOKENS]
+            known = all(w in self.training_words for w in words)
+            self._settle_encoded = self.vectorizer.encode_tokens(SETTLE_TOKENS) if known else None
+        return self._settle_encoded
 
     def generate(
         self,
@@ -612,6 +690,7 @@ class TextToMotion:
         progress: bool = False,
         clean: bool = True,
         plan: str = "clauses",
+        settle: bool = True,
     ) -> list[list[GeneratedMotion]]:
         """Generate ``num_samples`` motions per prompt.
 
@@ -628,6 +707,10 @@ class TextToMotion:
                 made rigid only (:meth:`finish`).
             plan: ``"clauses"``: a prompt of several clauses is generated clause by clause
                 (:meth:`generate_features`); ``"whole"``: every prompt in one pass (the paper).
+            settle: with the clause plan, a clause that names a count ("jumps twice") and is
+                given more time than it needs does its count in the time it needs and stands
+                still for the rest (:meth:`settle_plan`); False: the count is spread over the
+                whole length (the model then repeats at its own pace: more repetitions).
 
         Returns:
             ``motions[prompt][sample]``.
@@ -662,6 +745,7 @@ class TextToMotion:
                 generator,
                 noise=noise,
                 clauses=[prepared[p].clauses for p, _ in batch] if plan == "clauses" else None,
+                settle=settle,
             )
             for (p, r), feats in zip(batch, features):
                 joints, feats = self.finish(feats, clean)

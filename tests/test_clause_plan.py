@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from t2m.evaluate.protocol import EvalConfig, deviations
-from t2m.inference.generation import text_batch
+from t2m.inference.generation import clause_codes, text_batch
 from t2m.models.temporal_vae import StepRollout
 from t2m.pipeline import PLANS
 
@@ -137,9 +137,22 @@ def test_clause_codes_chain_the_clauses(pipe):
         3, steps, pipe.vae.config.latent_size, generator=torch.Generator().manual_seed(0)
     )
     with torch.inference_mode():
-        codes = pipe._clause_codes([p.encoded for p in prepared], clauses, frames, None, noise)
+        planned, planned_shares = pipe.clause_plan(
+            [p.encoded for p in prepared], clauses, frames, settle=False
+        )
+        codes = clause_codes(
+            pipe.vae,
+            planned,
+            planned_shares,
+            pipe.initial_code,
+            None,
+            noise,
+            pipe.device,
+            pipe.dtype,
+        )
     lists = [list(c) if c else [p.encoded] for c, p in zip(clauses, prepared)]
     shares = pipe.clause_snippets(lists, frames)
+    assert planned_shares == shares
     vae = pipe.vae
     for b, (items, counts) in enumerate(zip(lists, shares)):
         previous, start, made = pipe.initial_code, 0, []
