@@ -43,7 +43,9 @@ command line, ``--batch`` JSON and the web API are made from; seconds):
 * ``compose``: ``timeline``: lines ``text#start#end`` or ``text#seconds`` (a list, a string or
   a file); one motion as long as the timeline (any length; windows of at most 9.8 s chained,
   each continuing from the last 2 s made), each stretch following its own prompt; ``text``
-  and ``source`` unused.
+  unused. With a ``source``, the result starts with the source (or its last ``keep_last``
+  seconds), kept exactly, and the timeline follows it: its first line starts where the kept
+  stretch ends (``text#seconds`` lines do), the first window continuing from its last 2 s.
 
 Results are in the model's frame: the source as the dataset's representation sees it
 (retargeted to the model's skeleton, on the floor, frame 0 at the origin facing +Z), so kept
@@ -70,7 +72,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from t2m.edit.core import EditPlan, PlanResult, SearchSettings, generate_plans
-from t2m.edit.modes import BODY_PARTS, MODES, read_timeline
+from t2m.edit.modes import BODY_PARTS, MODES, ComposePlan
 from t2m.edit.request import EditRequest
 from t2m.edit.source import half_yaw_of, load_source, prepare_source
 from t2m.motion import GeneratedMotion
@@ -129,11 +131,11 @@ def edit_batch(
     if num_samples < 1:
         raise UsageError(f"num_samples must be >= 1, got {num_samples}")
     plans: list[EditPlan | None] = []
-    timelines = []
+    timelines: list[ComposePlan | None] = []
     for request in requests:
         if request.mode == "compose":
             plans.append(None)
-            timelines.append(read_timeline(request.timeline, pipe.spec))
+            timelines.append(request.compose_plan(pipe.spec))
         else:
             plans.append(request.plan(pipe.spec))
             timelines.append(None)
@@ -146,8 +148,11 @@ def edit_batch(
     for i, timeline in enumerate(timelines):
         if timeline is None:
             continue
-        text = " / ".join(segment.text for segment in timeline)
-        for r, result in enumerate(compose(pipe, timeline, num_samples, generator, settings)):
+        text = " / ".join(segment.text for segment in timeline.segments)
+        composed = compose(
+            pipe, timeline.segments, num_samples, generator, settings, start=timeline.start
+        )
+        for r, result in enumerate(composed):
             results[(i, r)] = _motion(requests[i], text, i, r, result)
     return [[results[(i, r)] for r in range(num_samples)] for i in range(len(requests))]
 
@@ -166,11 +171,20 @@ def _motion(request: EditRequest, text: str, index: int, rep: int, result: PlanR
 
 
 def compose(
-    pipe, timeline, num_samples: int, generator, settings: SearchSettings
+    pipe,
+    timeline,
+    num_samples: int,
+    generator,
+    settings: SearchSettings,
+    start: np.ndarray | None = None,
 ) -> list[PlanResult]:
     """Chain the timeline's segments into one motion per sample: windows of at most the
     model's longest motion, each continuing (as ``continue`` does) from the last
-    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes."""
+    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes.
+
+    ``start``: features (K, D) the result starts with, kept exactly (a source's stretch,
+    :class:`t2m.edit.modes.ComposePlan`); the first window continues from them as the others
+    continue from the window before, and they are marked kept."""
     spec = pipe.spec
     unit = spec.snippet_length
     context = int(round(COMPOSE_CONTEXT_SECONDS * spec.fps)) // unit * unit
@@ -178,12 +192,14 @@ def compose(
     for segment in timeline:
         left = segment.stop - segment.start
         while left > 0:
-            first = not chunks
+            first = not chunks and start is None
             room = spec.max_frames - (0 if first else context)
             size = min(left, room // unit * unit)
             chunks.append((segment.text, size))
             left -= size
-    features: list[np.ndarray] = []  # per sample, what is made so far (T, D)
+    kept = 0 if start is None else len(start)
+    # per sample, what is made so far (T, D)
+    features: list[np.ndarray] = [] if start is None else [start] * num_samples
     total = sum(size for _, size in chunks)
     made_frames = 0
     for index, (text, size) in enumerate(chunks):
@@ -197,16 +213,16 @@ def compose(
                 text,
             )
         made_frames += size
-        if index == 0:
+        have = min(context, len(features[0]) // unit * unit) if features else 0
+        if not features:
             target = np.full((size, spec.num_joints, 3), np.nan)
             plans = [EditPlan(text, size, target, np.zeros(target.shape[:2], bool))] * num_samples
         else:
-            plans = [_continuation(text, made[-context:], size, spec) for made in features]
+            plans = [_continuation(text, made[len(made) - have :], size, spec) for made in features]
         results = generate_plans(pipe, plans, generator, settings)
-        if index == 0:
+        if not features:
             features = [result.features for result in results]
         else:
-            have = min(context, len(features[0]))
             features = [
                 np.concatenate([made, result.features[have:]])
                 for made, result in zip(features, results)
@@ -215,7 +231,9 @@ def compose(
     for r in range(num_samples):
         whole = features[r].astype(np.float32)
         joints = recover_from_ric(whole, spec.num_joints).astype(np.float32)
-        out.append(PlanResult(whole, joints, np.zeros(joints.shape[:2], bool), float("nan")))
+        marked = np.zeros(joints.shape[:2], bool)
+        marked[:kept] = True
+        out.append(PlanResult(whole, joints, marked, float("nan")))
     return out
 
 

@@ -8,6 +8,7 @@ Examples::
     python -m t2m.edit --text "a person walks" --mode path --path path.csv
     python -m t2m.edit --text "a person raises the left hand" --mode keys --keys targets.npy
     python -m t2m.edit --mode compose --timeline "a person walks forward#0#4" "a person waves#4#7"
+    python -m t2m.edit --mode compose --source take.bvh --keep-last 2 --timeline "a person sits down#3"
     python -m t2m.edit --batch edits.json --num-samples 3
 
 Writes what ``python -m t2m.sample`` writes (``sampleNN_repRR.npy``, ``_feats.npy``, mp4/gif
@@ -205,14 +206,12 @@ def main(argv: list[str] | None = None) -> int:
     out = config.output_folder("edit-")
     # 2. the models
     pipe = config.load_pipeline(need_length_model=False)
-    from t2m.edit.modes import read_timeline
-
     limits = config.max_timeline_lines, config.max_timeline_seconds
     frames = []
     for number, r in enumerate(requests):
         try:
             frames.append(
-                read_timeline(r.timeline, pipe.spec, *limits)[-1].stop
+                r.compose_plan(pipe.spec, *limits).num_frames
                 if r.mode == "compose"
                 else r.plan(pipe.spec).num_frames
             )

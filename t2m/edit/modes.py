@@ -372,13 +372,15 @@ def read_timeline(
     spec: DatasetSpec,
     max_lines: int | None = None,
     max_seconds: float | None = None,
+    start: int = 0,
 ) -> list[Segment]:
     """Timeline lines ``text#start#end`` (seconds) or ``text#seconds`` (starting where the
     previous one ends), or a file of them; blank lines skipped. Segments must follow each other
-    without gaps or overlaps (within half a frame) from 0 s; boundaries are rounded to whole
-    snippets. ``max_lines`` / ``max_seconds``: the most segments and the longest timeline
-    accepted (None: :data:`MAX_SECONDS` only); the message names the command's options that
-    raise them (``--max-timeline-lines``, ``--max-timeline-seconds``)."""
+    without gaps or overlaps (within half a frame) from ``start`` (frames: 0, or the end of a
+    kept source the timeline follows); boundaries are rounded to whole snippets from there.
+    ``max_lines`` / ``max_seconds``: the most segments and the longest timeline (after
+    ``start``) accepted (None: :data:`MAX_SECONDS` only); the message names the command's
+    options that raise them (``--max-timeline-lines``, ``--max-timeline-seconds``)."""
     whole, line_name = "the timeline", "timeline line"  # how messages name it
     if isinstance(lines, Path) or (
         isinstance(lines, str) and "\n" not in lines and "#" not in lines
@@ -396,51 +398,104 @@ def read_timeline(
                 "(--max-timeline-lines raises the limit)"
             )
     entries: list[tuple[str, float, float]] = []
-    cursor = 0.0
+    origin = start / spec.fps
+    cursor = origin
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         parts = [p.strip() for p in line.split("#")]
         try:
             if len(parts) == 3:
-                text, start, end = parts[0], float(parts[1]), float(parts[2])
+                text, begin, end = parts[0], float(parts[1]), float(parts[2])
             elif len(parts) == 2:
-                text, start = parts[0], cursor
-                end = start + float(parts[1])
+                text, begin = parts[0], cursor
+                end = begin + float(parts[1])
             else:
                 raise ValueError
         except ValueError:
             raise UsageError(
                 f"{line_name} {number}: give 'text#start#end' or 'text#seconds'"
             ) from None
-        if not text or not (math.isfinite(start) and math.isfinite(end)) or end <= start:
+        if not text or not (math.isfinite(begin) and math.isfinite(end)) or end <= begin:
             raise UsageError(f"{line_name} {number}: an empty prompt or end <= start")
         if end > MAX_SECONDS:
             raise UsageError(
                 f"{line_name} {number}: ends at {end:g} s; a timeline ends by {MAX_SECONDS:g} s"
             )
         half = 0.5 / spec.fps
-        if abs(start - cursor) > half:
-            kind = "a gap" if start > cursor else "an overlap"
+        if abs(begin - cursor) > half:
+            if not entries and origin:
+                raise UsageError(
+                    f"{line_name} {number}: starts at {begin:g} s; the timeline follows the "
+                    f"kept source, which ends at {origin:.2f} s (start the first line there, "
+                    "or give lines 'text#seconds')"
+                )
+            kind = "a gap" if begin > cursor else "an overlap"
             raise UsageError(
-                f"{line_name} {number}: starts at {start:g} s, the previous ends at "
+                f"{line_name} {number}: starts at {begin:g} s, the previous ends at "
                 f"{cursor:g} s ({kind}); segments must follow each other"
             )
-        if max_seconds is not None and end > max_seconds:
+        if max_seconds is not None and end - origin > max_seconds:
+            after = f" ({end - origin:g} s after the kept source)" if origin else ""
             raise UsageError(
-                f"{line_name} {number}: ends at {end:g} s, past the {max_seconds:g} s allowed "
-                "(--max-timeline-seconds raises the limit)"
+                f"{line_name} {number}: ends at {end:g} s{after}, past the {max_seconds:g} s "
+                "allowed (--max-timeline-seconds raises the limit)"
             )
-        entries.append((text, start, end))
+        entries.append((text, begin, end))
         cursor = end
     if not entries:
         raise UsageError(f"{whole} holds no segment")
     unit = spec.snippet_length
     segments = []
-    for number, (text, start, end) in enumerate(entries, start=1):
-        first = int(round(start * spec.fps / unit)) * unit
-        last = int(round(end * spec.fps / unit)) * unit
+    for number, (text, begin, end) in enumerate(entries, start=1):
+        first = start + int(round((begin - origin) * spec.fps / unit)) * unit
+        last = start + int(round((end - origin) * spec.fps / unit)) * unit
         if last <= first:
             raise UsageError(f"{whole}: segment {number} is shorter than one snippet")
         segments.append(Segment(text, first, last))
     return segments
+
+
+@dataclass(frozen=True)
+class ComposePlan:
+    """A compose request: the segments (frames on the result's timeline) and the features
+    (K, D) of the kept stretch of a source that starts the result (None: the result starts
+    from nothing); the segments then begin at frame K."""
+
+    segments: list[Segment]
+    start: np.ndarray | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return self.segments[-1].stop
+
+
+def plan_compose(
+    timeline: str | Path | Sequence[str],
+    spec: DatasetSpec,
+    source: PreparedSource | None = None,
+    keep_last: float | None = None,
+    max_lines: int | None = None,
+    max_seconds: float | None = None,
+) -> ComposePlan:
+    """The timeline's segments, after the source's last ``keep_last`` seconds (None: the whole
+    source) when there is a source: those frames are kept exactly (the dataset's features, as
+    in the source; the stretch's first frame at the origin facing +Z) and the timeline's lines
+    begin where they end (its first line must start there; ``text#seconds`` lines do)."""
+    if source is None:
+        return ComposePlan(read_timeline(timeline, spec, max_lines, max_seconds))
+    kept = source.num_frames
+    if keep_last is not None:
+        kept = _frames(keep_last, spec, "--keep-last")
+        if kept > source.num_frames:
+            raise UsageError(
+                f"--keep-last {keep_last:g} is more than the source "
+                f"({source.num_frames / spec.fps:.2f} s)"
+            )
+    if kept < spec.snippet_length:
+        raise UsageError(
+            f"compose keeps {kept / spec.fps:.2f} s of the source: at least one snippet "
+            f"({spec.snippet_length / spec.fps:.2f} s) is needed to continue from"
+        )
+    segments = read_timeline(timeline, spec, max_lines, max_seconds, start=kept)
+    return ComposePlan(segments, source.features[source.num_frames - kept :])

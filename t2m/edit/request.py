@@ -23,10 +23,12 @@ from t2m.edit.core import EditPlan
 from t2m.edit.modes import (
     BODY_PARTS,
     MODES,
+    ComposePlan,
     Mode,
     Part,
     check_seconds,
     plan_body,
+    plan_compose,
     plan_continue,
     plan_inbetween,
     plan_keys,
@@ -37,6 +39,8 @@ from t2m.edit.source import PreparedSource, load_source, prepare_source
 
 NEEDS_SOURCE = ("continue", "inbetween", "body")
 """The modes that edit a source motion (the others make a new one)."""
+TAKES_SOURCE = (*NEEDS_SOURCE, "compose")
+"""The modes that take a source motion: compose may start from one."""
 
 MAX_SOURCE_FPS = 1000.0
 """The highest ``source_fps`` taken (motion capture runs at up to a few hundred)."""
@@ -51,7 +55,8 @@ class EditRequest:
     text: str = ""
     """what the generated part does, e.g. "a person waves both hands" (not for compose)"""
     source: Path | np.ndarray | None = field(default=None, metadata=option(metavar="FILE"))
-    """the motion to edit: joints .npy (T, 22, 3) (a sampleNN_repRR.npy too) or .bvh"""
+    """the motion to edit (compose: to start from): joints .npy (T, 22, 3) (a sampleNN_repRR.npy
+    too) or .bvh"""
     seconds: float | None = field(default=None, metadata=option(metavar="S"))
     """length of the result (default: the source's, or up to the last path point)"""
     keep_seconds: float = field(default=2.0, metadata=option(metavar="S"))
@@ -60,6 +65,9 @@ class EditRequest:
     """inbetween: seconds of the source's start kept at the result's start (0.05: one pose)"""
     keep_end: float = field(default=1.0, metadata=option(metavar="S"))
     """inbetween: seconds of the source's end kept at the result's end"""
+    keep_last: float | None = field(default=None, metadata=option(metavar="S"))
+    """compose with a source: seconds of the source's end that start the result (default: the
+    whole source)"""
     part: Part = "lower"
     """body: the part kept from the source (lower keeps the root path and the legs)"""
     path: Path | np.ndarray | None = field(default=None, metadata=option(metavar="FILE"))
@@ -85,8 +93,10 @@ class EditRequest:
         """Each mode's inputs are there, and no source where a mode makes a new motion."""
         if self.mode in NEEDS_SOURCE and self.source is None:
             raise UsageError(f"--mode {self.mode} needs a --source motion")
-        if self.mode not in NEEDS_SOURCE and self.source is not None:
+        if self.mode not in TAKES_SOURCE and self.source is not None:
             raise UsageError(f"--mode {self.mode} takes no --source")
+        if self.keep_last is not None and (self.mode != "compose" or self.source is None):
+            raise UsageError("--keep-last is for --mode compose with a --source")
         if self.mode == "compose":
             if self.timeline is None:
                 raise UsageError("--mode compose needs a --timeline")
@@ -100,7 +110,7 @@ class EditRequest:
     def _check_numbers(self) -> None:
         """Every time from 0 to :data:`t2m.edit.modes.MAX_SECONDS`, the frame rate above 0 (a source at 0 fps
         is not one at the model's rate) and at most :data:`MAX_SOURCE_FPS`."""
-        for name in ("seconds", "keep_seconds", "keep_start", "keep_end"):
+        for name in ("seconds", "keep_seconds", "keep_start", "keep_end", "keep_last"):
             value = getattr(self, name)
             if value is not None:
                 check_seconds(value, "--" + name.replace("_", "-"))
@@ -147,6 +157,17 @@ class EditRequest:
                 keys, name = load_npy(keys, finite=False), f"--keys {keys}"
             return plan_keys(self.text, keys, spec, name)
         raise ValueError(f"{mode} has no single plan")
+
+    def compose_plan(
+        self, spec, max_lines: int | None = None, max_seconds: float | None = None
+    ) -> ComposePlan:
+        """A compose request's timeline, after the kept stretch of its source when it has one
+        (:func:`t2m.edit.modes.plan_compose`); ``max_lines`` / ``max_seconds`` as for
+        :func:`t2m.edit.modes.read_timeline`."""
+        if self.mode != "compose":
+            raise ValueError(f"{self.mode} is not compose")
+        source = None if self.source is None else self.prepared_source(spec)
+        return plan_compose(self.timeline, spec, source, self.keep_last, max_lines, max_seconds)
 
 
 _FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")

@@ -14,11 +14,12 @@ The request's fields are those of :class:`t2m.edit.EditRequest`, read by its sch
 
 Request (JSON): ``mode``; ``text`` (not for compose); ``source``: ``{"upload": {"name":
 "walk.bvh", "base64": ...}}`` or ``{"result": id, "motion": index}`` (continue, inbetween,
-body); ``keep_seconds`` (continue), ``keep_start`` / ``keep_end`` (inbetween), ``seconds``
-(continue, inbetween, path: the result's length), ``part`` (body), ``path``: ``[[seconds, x,
-z], ...]``, ``keys``: ``{"upload": {"name": "targets.npy", "base64": ...}}`` ((T, 22, 3), NaN
-where free), ``timeline``: ``["text#start#end" or "text#seconds", ...]`` (compose); ``samples``,
-``seed``, ``precision`` as for generate.
+body; compose may start from one); ``keep_seconds`` (continue), ``keep_start`` / ``keep_end``
+(inbetween), ``keep_last`` (compose with a source), ``seconds`` (continue, inbetween, path: the
+result's length), ``part`` (body), ``path``: ``[[seconds, x, z], ...]``, ``keys``: ``{"upload":
+{"name": "targets.npy", "base64": ...}}`` ((T, 22, 3), NaN where free), ``timeline``:
+``["text#start#end" or "text#seconds", ...]`` (compose; after a source, its first line starts
+where the kept source ends); ``samples``, ``seed``, ``precision`` as for generate.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ RUN_KEYS = ("samples", "seed", "precision")
 """The keys of an edit request that are not fields of :class:`t2m.edit.EditRequest`."""
 FILE_OPTIONS = ("mapping", "source_fps")
 """EditRequest fields about reading a source file, which the web does not take."""
-SECONDS_FIELDS = ("seconds", "keep_seconds", "keep_start", "keep_end")
+SECONDS_FIELDS = ("seconds", "keep_seconds", "keep_start", "keep_end", "keep_last")
 MAX_UPLOAD_BYTES = 4 * 2**20
 """bytes of an uploaded file (a 10 s BVH at 120 fps is about 1.5 MB)"""
 MAX_PATH_POINTS = 100
@@ -192,6 +193,11 @@ def parse_edit(app, payload: object, folder: Path) -> tuple:
     samples, seed, precision = run_options(payload, app.limits, app.pipe.device.type)
     try:
         request = EditRequest(**values)
+        if request.mode == "compose":  # the timeline, after the kept source when there is one
+            plan = request.compose_plan(app.pipe.spec)
+            kept = 0 if plan.start is None else len(plan.start)
+            if plan.num_frames - kept > MAX_TIMELINE_SECONDS * app.pipe.spec.fps:
+                raise UsageError(f"the timeline is longer than {MAX_TIMELINE_SECONDS:g} s")
     except UsageError as error:  # its checks name options; a request's keys are named here
         raise UsageError(json_terms(str(error))) from None
     return request, source_name, samples, seed, precision
@@ -256,6 +262,8 @@ def _read_uploads(app, values: dict, uploads: dict, folder: Path) -> str | None:
         if uploads.get("source") is None:
             raise UsageError(f"{mode} edits a motion: upload a BVH or .npy, or pick a motion")
         values["source"], source_name = _source(app, uploads["source"], folder)
+    elif mode == "compose" and uploads.get("source") is not None:  # starts from it
+        values["source"], source_name = _source(app, uploads["source"], folder)
     elif uploads.get("source") is not None:
         raise UsageError(f"{mode} makes a new motion and takes no source")
     if mode == "keys":
@@ -277,17 +285,12 @@ def _read_uploads(app, values: dict, uploads: dict, folder: Path) -> str | None:
 
 def _check_limits(app, values: dict) -> None:
     """The web's limits on checked fields: the text's characters, lengths in seconds, the
-    timeline's lines and its whole length."""
+    timeline's lines (its whole length is checked with the request, after the source)."""
     limits = app.limits
     if values["mode"] == "compose":
         values["text"] = ""
         for number, line in enumerate(values["timeline"], start=1):
             check_text(line, f"timeline line {number}", limits.max_prompt_chars)
-        from t2m.edit.modes import read_timeline
-
-        segments = read_timeline(values["timeline"], app.pipe.spec)
-        if segments[-1].stop > MAX_TIMELINE_SECONDS * app.pipe.spec.fps:
-            raise UsageError(f"the timeline is longer than {MAX_TIMELINE_SECONDS:g} s")
     else:
         values["text"] = check_text(values.get("text"), "edit text", limits.max_prompt_chars)
     for key in SECONDS_FIELDS:
