@@ -14,7 +14,7 @@ const HELP = {
   body: "keeps one part of the body on every frame and redoes the rest",
   path: "a new motion whose root passes through the points at their times",
   keys: "a new motion meeting joint targets from a .npy",
-  compose: "one motion following several prompts in turn",
+  compose: "one motion following several prompts in turn, after a source motion if one is chosen",
 };
 const MADE_SHADES = ["#d8d8d8", "#c4c4c4"];
 const PART_SHADE = "#9fd29f";
@@ -30,10 +30,11 @@ function pathRows() {
     .map((l) => l.trim().split(/[,;\s]+/).map(Number));
 }
 
-// The compose timeline's lines as [start, end, "made", text] spans (seconds).
-function composeSpans() {
-  let cursor = 0;
-  const list = [];
+// The compose timeline's lines as [start, end, "made", text] spans (seconds), after `kept`
+// seconds of a source (a "kept" span; 0 without one), where the lines begin.
+function composeSpans(kept) {
+  let cursor = kept;
+  const list = kept > 0 ? [[0, kept, "kept"]] : [];
   for (const line of $("edit-timeline-text").value.split("\n").filter((l) => l.trim())) {
     const parts = line.split("#");
     const start = parts.length === 3 ? Number(parts[1]) : cursor;
@@ -43,6 +44,15 @@ function composeSpans() {
     cursor = end;
   }
   return { length: Math.max(cursor, 1), spans: list };
+}
+
+// Seconds of the source that start a composed motion: none without a source, else the
+// "keep its last" field (empty: the whole source, when its length is known).
+function composeKept(sourceSeconds) {
+  if ($("edit-source-kind").value === "none") return 0;
+  const last = number("edit-keep-last");
+  if (last !== null) return sourceSeconds ? Math.min(last, sourceSeconds) : last;
+  return sourceSeconds || 0;
 }
 
 // The result's timeline for a mode: its length in seconds and [start, end, kind] spans, kind
@@ -69,7 +79,7 @@ function timeline(mode, sourceSeconds, maxSeconds) {
     const whole = number("edit-seconds") || last || maxSeconds;
     return { length: whole, spans: [[0, whole, "made"]], marks: rows.map((r) => r[0]) };
   }
-  if (mode === "compose") return composeSpans();
+  if (mode === "compose") return composeSpans(composeKept(sourceSeconds));
   return { length: maxSeconds, spans: [[0, maxSeconds, "made"]] };
 }
 
@@ -150,6 +160,11 @@ async function requestBody(page) {
   const request = { mode, ...page.settings() };
   if (mode !== "compose") request.text = $("edit-text").value;
   if (["continue", "inbetween", "body"].includes(mode)) request.source = await sourceOf(page.current());
+  if (mode === "compose" && $("edit-source-kind").value !== "none") {
+    request.source = await sourceOf(page.current());
+    const last = number("edit-keep-last");
+    if (last !== null) request.keep_last = last;
+  }
   if (mode === "continue") request.keep_seconds = number("edit-keep-seconds") ?? 0;
   if (mode === "inbetween") {
     request.keep_start = number("edit-keep-start") ?? 0;
@@ -213,8 +228,22 @@ export function setUpEditPanel(edit, page) {
     draw();
   }
 
+  // The source choices of a mode: "none" (a new motion) for compose only, and compose starts
+  // from none until a source is chosen.
+  let shownMode = null;
+  function sourceChoices(mode) {
+    const kind = $("edit-source-kind");
+    kind.querySelector('option[value="none"]').disabled = mode !== "compose";
+    const before = kind.value;
+    if (mode === "compose" && shownMode !== "compose") kind.value = "none";
+    if (mode !== "compose" && kind.value === "none") kind.value = "upload";
+    shownMode = mode;
+    if (kind.value !== before) kind.dispatchEvent(new Event("change"));
+  }
+
   function update() {
     const mode = $("edit-mode").value;
+    sourceChoices(mode);
     for (const row of document.querySelectorAll("#edit-panel [data-modes]")) {
       row.hidden = !row.dataset.modes.split(" ").includes(mode);
     }
@@ -232,14 +261,16 @@ export function setUpEditPanel(edit, page) {
   }
 
   $("edit-mode").addEventListener("change", update);
-  for (const id of ["edit-keep-seconds", "edit-keep-start", "edit-keep-end", "edit-seconds", "edit-path", "edit-timeline-text", "edit-part"]) {
+  for (const id of ["edit-keep-seconds", "edit-keep-start", "edit-keep-end", "edit-keep-last", "edit-seconds", "edit-path", "edit-timeline-text", "edit-part"]) {
     $(id).addEventListener("input", draw);
   }
   $("edit-source-kind").addEventListener("change", (e) => {
-    const current = e.target.value === "current";
-    $("edit-file").hidden = current;
-    $("edit-current").hidden = !current;
-    if (current) chooseCurrent(); else chooseUpload($("edit-file").files[0]);
+    const kind = e.target.value;
+    $("edit-file").hidden = kind !== "upload";
+    $("edit-current").hidden = kind !== "current";
+    if (kind === "current") chooseCurrent();
+    else if (kind === "upload") chooseUpload($("edit-file").files[0]);
+    else draw();
   });
   $("edit-current").addEventListener("change", chooseCurrent);
   $("edit-file").addEventListener("change", (e) => chooseUpload(e.target.files[0]));
