@@ -20,7 +20,12 @@ first. :func:`clean_joints` fixes it with three small steps, per foot:
    an ankle pushed towards the leg's full length is held back softly (:data:`SOFT_REACH`), so
    the knee never snaps straight (the lock is then partial).
 
-Everything else (root, spine, arms) is untouched. :func:`clean_features` does the same on raw
+Everything else (root, spine, arms) is untouched. ``held`` joints (an edit's joints kept from a
+source, :func:`clean_joints`) are never moved: a leg whose knee, ankle or foot is held on a frame
+is left exactly as given there, a contact run that reaches held frames is planted where the held
+foot stands, and the correction fades in over :data:`HELD_BLEND_FRAMES` frames away from them.
+
+:func:`clean_features` does the same on raw
 features and writes the cleaned joints back into them (the root and the model's contact
 channels kept), so features and joints stay consistent. Input and output joints (T, J, 3) are
 metres, y-up, the floor at y = 0, SMPL (22) or KIT (21) joints.
@@ -58,6 +63,8 @@ SOFT_REACH = 0.97
 """Hip-to-ankle distances beyond this share of the leg's length are approached softly."""
 MAX_PLANT_HEIGHT_M = 0.05
 """A contact run whose foot stays higher than this (median of its lowest joint) is not planted."""
+HELD_BLEND_FRAMES = 12
+"""Frames over which a leg's correction fades in after (and out before) frames it is held on."""
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -83,7 +90,11 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 
 def foot_offsets(
-    ankle: np.ndarray, toe: np.ndarray, contact: np.ndarray, blend: int | None = None
+    ankle: np.ndarray,
+    toe: np.ndarray,
+    contact: np.ndarray,
+    blend: int | None = None,
+    held: np.ndarray | None = None,
 ) -> np.ndarray:
     """(T, 3) translation of one foot (ankle and toe together) that plants it during contact.
 
@@ -98,6 +109,9 @@ def foot_offsets(
         ankle, toe: (T, 3) positions.
         contact: (T,) bool, the foot predicted on the floor.
         blend: frames of fade-in before the first run and fade-out after the last.
+        held: (T,) bool, frames where the foot must stay: a run that reaches them holds the toe
+            where it is on its held frames next to the free ones (not at the run's mean), so the
+            correction starts small where the foot is let go (:func:`clean_joints` fades it in).
     """
     blend = BLEND_FRAMES if blend is None else blend
     num_frames = len(toe)
@@ -111,8 +125,16 @@ def foot_offsets(
     ]
     for start, end in runs:
         run = slice(start, end)
-        offsets[run, 0] = toe[run, 0].mean() - toe[run, 0]
-        offsets[run, 2] = toe[run, 2].mean() - toe[run, 2]
+        anchor = np.array([toe[run, 0].mean(), 0.0, toe[run, 2].mean()])
+        if held is not None and held[run].any():
+            inside = held[run]
+            free = ~inside
+            # held frames next to a free one: where the foot is let go and taken back
+            edge = inside & (np.r_[free[1:], False] | np.r_[False, free[:-1]])
+            if edge.any():
+                anchor = toe[run][edge].mean(axis=0)
+        offsets[run, 0] = anchor[0] - toe[run, 0]
+        offsets[run, 2] = anchor[2] - toe[run, 2]
         offsets[run, 1] = np.clip(lowest[run], 0.0, PLANT_HEIGHT_M) - lowest[run]
     for (_, end), (start, _) in zip(runs[:-1], runs[1:]):  # gaps: from one run to the next
         gap = frames[end:start]
@@ -191,10 +213,29 @@ def two_bone_knee(
     return new_knee, new_ankle
 
 
+def _held_weights(held: np.ndarray) -> np.ndarray:
+    """(T,) share of a leg's correction to apply: 0 on ``held`` (T,) frames, eased up to 1 over
+    :data:`HELD_BLEND_FRAMES` frames away from the nearest one (smoothstep)."""
+    frames = np.arange(len(held))
+    rows = np.flatnonzero(held)
+    if rows.size == 0:
+        return np.ones(len(held))
+    nearest = np.abs(frames[:, None] - rows[None, :]).min(axis=1)
+    return _smoothstep(nearest / (HELD_BLEND_FRAMES + 1))
+
+
 def clean_joints(
-    joints: np.ndarray, contacts: np.ndarray, skeleton: SkeletonSpec | None = None
+    joints: np.ndarray,
+    contacts: np.ndarray,
+    skeleton: SkeletonSpec | None = None,
+    held: np.ndarray | None = None,
 ) -> np.ndarray:
     """Cleaned copy of joints (T, J, 3) given contact channels (T, 4) (see the module docstring).
+
+    ``held`` (T, J) bool: joints that must not move (an edit's kept joints). A leg is left exactly
+    as given on the frames where its knee, ankle or foot joints are held; elsewhere its correction
+    is faded in over :data:`HELD_BLEND_FRAMES` frames from those frames, and contact runs that
+    reach them plant the foot where it is held. None: the plain clean-up.
 
     Raises ValueError for shapes that do not fit.
     """
@@ -206,13 +247,23 @@ def clean_joints(
         raise ValueError(f"contacts must be ({len(joints)}, 4), got {contacts.shape}")
     skeleton = skeleton or skeleton_for(joints.shape[1])
     parents = skeleton.parents
+    if held is not None:
+        held = np.asarray(held, dtype=bool)
+        if held.shape != joints.shape[:2]:
+            raise ValueError(f"held must be {joints.shape[:2]}, got {held.shape}")
     planted = contacts > CONTACT_THRESHOLD
     out = joints.copy()
     for side, (ankle, toe) in enumerate((skeleton.feet_left, skeleton.feet_right)):
         knee = parents[ankle]
         hip = parents[knee]
         contact = planted[:, 2 * side] | planted[:, 2 * side + 1]
-        offsets = foot_offsets(joints[:, ankle], joints[:, toe], contact)
+        leg = sorted({knee, ankle, toe} | {j for j, p in enumerate(parents) if p == ankle})
+        frozen = None if held is None else held[:, leg].any(axis=1)
+        if frozen is not None and frozen.all():
+            continue
+        offsets = foot_offsets(joints[:, ankle], joints[:, toe], contact, held=frozen)
+        if frozen is not None and frozen.any():
+            offsets = offsets * _held_weights(frozen)[:, None]
         if not np.any(offsets):
             continue
         new_knee, new_ankle = two_bone_knee(
@@ -224,6 +275,8 @@ def clean_joints(
         for joint in range(skeleton.num_joints):
             if parents[joint] == ankle or joint == toe:
                 out[:, joint] = joints[:, joint] + (new_ankle - joints[:, ankle])
+        if frozen is not None:  # exactly as given (the IK of a zero offset rounds)
+            out[np.ix_(frozen, leg)] = joints[np.ix_(frozen, leg)]
     return out
 
 
@@ -281,6 +334,7 @@ __all__ = [
     "features_with_joints",
     "BLEND_FRAMES",
     "CONTACT_THRESHOLD",
+    "HELD_BLEND_FRAMES",
     "MAX_PLANT_HEIGHT_M",
     "MIN_CONTACT_FRAMES",
     "PLANT_HEIGHT_M",

@@ -1,24 +1,47 @@
-"""Finishing an edit's result: the hard keep (kept features copied, every seam eased, the root's
-heading and floor path bent to meet kept stretches and root targets), then the rigid fit on the
-model's skeleton that leaves kept joints where the source has them (steps 5-6 of
-:mod:`t2m.edit.core`)."""
+"""Finishing an edit's result: the hard keep (the generated side of every seam smoothed, kept
+features copied, every seam eased, the root's heading and floor path bent to meet kept stretches
+and root targets), then the rigid fit on the model's skeleton that leaves kept joints where the
+source has them, then the foot-contact clean-up that never moves a kept or targeted joint (steps
+5-6 of :mod:`t2m.edit.core`)."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
+from scipy.ndimage import gaussian_filter1d
 
+from dataset_tools.cleanup import clean_joints, features_with_joints
 from dataset_tools.representation import FeatureLayout, recover_from_ric
-from dataset_tools.rigid import finish_features
+from dataset_tools.rigid import rigid_joints
+from dataset_tools.skeleton import skeleton_for
 from t2m.edit.plan import EditPlan
 from t2m.edit.recover import yaw_rotate
 from t2m.edit.source import half_yaw_of
 
+SEAM_SMOOTH_SIGMA = 1.5
+"""Standard deviation (frames) of the Gaussian that smooths the generated side of a seam: the
+model's output is jerkiest just after the kept start it continues from (its own change from the
+read start to new motion), about twice the jerk of real motion over the 0.5 s there."""
+SEAM_SMOOTH_FRAMES = 8
+"""Frames over which that smoothing fades out into the free run (fully applied on the first)."""
 
-def finish_plan(generated: np.ndarray, plan: EditPlan, blend: int = 16) -> np.ndarray:
+
+def finish_plan(
+    generated: np.ndarray, plan: EditPlan, blend: int = 16, clean: bool = True
+) -> np.ndarray:
     """Features (T, D) of a finished result: :func:`hard_keep`, then rigid on the model's
-    skeleton (no foot clean-up), the joints kept from the source left where they are."""
-    return finish_features(hard_keep(generated, plan, blend), False, held=plan.keep)
+    skeleton, the joints kept from the source left where they are, then (``clean``) the
+    foot-contact clean-up (:func:`dataset_tools.cleanup.clean_joints`) with every kept or
+    targeted joint held: kept joints stay exactly where the rigid fit leaves them."""
+    features = hard_keep(generated, plan, blend)
+    layout = FeatureLayout.for_dim(features.shape[-1])
+    skeleton = skeleton_for(layout.num_joints)
+    joints = recover_from_ric(features.astype(np.float64), layout.num_joints)
+    joints = rigid_joints(joints, skeleton, held=plan.keep)
+    if clean:
+        contacts = features[:, layout.foot_contact]
+        joints = clean_joints(joints, contacts, skeleton, held=plan.kept_mask())
+    return features_with_joints(features, joints)
 
 
 def joint_columns(num_joints: int) -> list[np.ndarray]:
@@ -70,9 +93,38 @@ def _seam_weights(start: int, stop: int, frames: int, blend: int) -> tuple[np.nd
     return before, after
 
 
+def smooth_seams(
+    generated: np.ndarray,
+    keep: np.ndarray,
+    sigma: float = SEAM_SMOOTH_SIGMA,
+    frames: int = SEAM_SMOOTH_FRAMES,
+) -> np.ndarray:
+    """Generated features (T, D) smoothed next to seams: per joint with kept (``keep`` (T, J))
+    and free frames, its columns (not the contact flags) take a Gaussian of ``sigma`` frames of
+    themselves on kept frames and the first free one, eased back to the generated values over
+    ``frames`` more (smoothstep of the distance to the nearest kept frame). Joints kept on every
+    frame or none are unchanged."""
+    num_frames, num_joints = keep.shape
+    weights = np.zeros(generated.shape)
+    rows = np.arange(num_frames)
+    for joint, columns in enumerate(joint_columns(num_joints)):
+        kept = keep[:, joint]
+        if not kept.any() or kept.all():
+            continue
+        distance = np.abs(rows[:, None] - np.flatnonzero(kept)[None, :]).min(axis=1)
+        weights[:, columns] = 1.0 - _ease((distance[:, None] - 1.0) / frames)
+    if not weights.any():
+        return generated
+    weights[:, FeatureLayout(num_joints).foot_contact] = 0.0
+    values = generated.astype(np.float64)
+    smoothed = gaussian_filter1d(values, sigma, axis=0, mode="nearest")
+    return (values + weights * (smoothed - values)).astype(generated.dtype)
+
+
 def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 16) -> np.ndarray:
     """Features (T, D) that copy the plan's kept features and meet its root targets exactly.
 
+    0. the generated side of every seam is smoothed (:func:`smooth_seams`);
     1. per joint, kept frames take the source's features; every free run's generated features
        are offset by the kept-minus-generated difference at the kept frame before and after it,
        eased to nothing over ``blend`` frames (so the generated velocities carry on across);
@@ -85,6 +137,8 @@ def hard_keep(generated: np.ndarray, plan: EditPlan, blend: int = 16) -> np.ndar
     frames, num_joints = plan.keep.shape
     features = generated.copy()
     if plan.source_features is not None and plan.keep.any():
+        generated = smooth_seams(generated, plan.keep)
+        features = generated.copy()
         source = plan.source_features.astype(np.float64)
         for joint, columns in enumerate(joint_columns(num_joints)):
             kept = plan.keep[:, joint]
