@@ -22,10 +22,11 @@ Columns (per method):
   mean over entries and items / largest; ``before keep``: the same (root mean square per item,
   averaged) of the model's own output before the hard keep; ``miss >5 / >20 cm``: fraction of
   targeted entries farther than that (keys: the wrists are soft targets);
-* ``seam acc / jerk``: at each join, the largest over the frames within 2 of it of the largest
-  joint acceleration (m/s^2) and jerk (m/s^3) (second and third differences at 20 fps), median
-  over joins; ``plain`` and ``real`` give the same statistic at random frames of plain
-  generation and of the real test motions (the edits' sources; compose: its donors);
+* ``seam acc / jerk``: at each join, the largest over the 0.5 s around it (the frames within
+  0.25 s, :data:`SEAM_WINDOW_SECONDS`) of the largest joint acceleration (m/s^2) and jerk
+  (m/s^3) (second and third differences at 20 fps), median over joins; ``plain`` and ``real``
+  give the same statistic at random frames of plain generation and of the real test motions
+  (the edits' sources; compose: its donors);
 * ``semantic``: fraction of regenerated parts whose donor label the corpus' detectors recover
   (body: the upper-body action, and the source's walk still detected; compose: the fraction
   of segments recognised, each judged on its own 4 s);
@@ -282,10 +283,18 @@ def skating_ratio(joints: np.ndarray, fps: float) -> float:
     return float(skating.sum() / max(len(joints) - 1, 1))
 
 
+SEAM_WINDOW_SECONDS = 0.5
+"""The stretch around a join (or a random frame) whose acceleration and jerk are measured."""
+
+
 def seam_statistics(joints: np.ndarray, frame: int, fps: float) -> tuple[float, float]:
-    """(acceleration m/s^2, jerk m/s^3): the largest joint's, largest within 2 frames of ``frame``."""
-    lo, hi = max(frame - 3, 0), min(frame + 4, len(joints))
-    window = joints[lo:hi]
+    """(acceleration m/s^2, jerk m/s^3): the largest joint's, largest over the differences of the
+    frames within ``SEAM_WINDOW_SECONDS / 2`` of ``frame`` (a window that would leave the motion
+    is moved inside it)."""
+    half = max(int(round(SEAM_WINDOW_SECONDS * fps / 2)), 2)
+    size = min(2 * half + 3, len(joints))  # second differences centred on frame - half.. + half
+    lo = min(max(frame - half - 1, 0), len(joints) - size)
+    window = joints[lo : lo + size]
     acc = np.linalg.norm(np.diff(window, 2, axis=0), axis=-1).max() * fps**2
     jerk = np.linalg.norm(np.diff(window, 3, axis=0), axis=-1).max() * fps**3
     return float(acc), float(jerk)
