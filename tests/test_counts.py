@@ -1,0 +1,146 @@
+"""Counts follow the text at any length: a counted clause given more time than it needs does
+its count in the time it needs and stands still for the rest (t2m.clauses.settle_counted,
+TextToMotion.clause_plan), on the session's tiny models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from t2m.clauses import (
+    MIN_SETTLE_SNIPPETS,
+    SETTLE_TEXT,
+    SETTLE_TOKENS,
+    needed_snippets,
+    settle_counted,
+    settled_captions,
+)
+
+COUNTED = "a person jumps up and down twice"
+PLAIN = "a person walks forward"
+TWO_PARTS = "a person jumps up and down three times, then walks forward"
+
+
+def test_settle_counted_splits_only_counted_clauses_with_time_to_spare():
+    # one counted clause of 30 snippets that needs 12: 12, then 18 of settling
+    assert settle_counted([2], [30], [12]) == [(0, 12), (-1, 18)]
+    # no count: kept whole, however long
+    assert settle_counted([0], [30], [12]) == [(0, 30)]
+    # spare time below the minimum: kept whole
+    spare = MIN_SETTLE_SNIPPETS - 1
+    assert settle_counted([3], [12 + spare], [12]) == [(0, 12 + spare)]
+    assert settle_counted([3], [12 + MIN_SETTLE_SNIPPETS], [12])[1] == (-1, MIN_SETTLE_SNIPPETS)
+    # shorter than it needs: kept as given
+    assert settle_counted([3], [8], [12]) == [(0, 8)]
+    # the settling part follows its clause; the others keep their place and length
+    plan = settle_counted([0, 4, 0], [10, 25, 9], [0, 15, 0])
+    assert plan == [(0, 10), (1, 15), (-1, 10), (2, 9)]
+    assert sum(n for _, n in plan) == 44
+    with pytest.raises(ValueError, match="2 counts"):
+        settle_counted([1, 2], [10], [5])
+
+
+def test_needed_snippets_round_the_expected_length():
+    np.testing.assert_array_equal(needed_snippets([10.4, 10.5, 13.6, 0.2]), [10, 11, 14, 1])
+
+
+def test_settled_captions_read_the_counts_from_the_tokens():
+    jumps = "a/DET person/NOUN jump/VERB twice/ADV".split()
+    walks = "a/DET person/NOUN walk/VERB forward/ADV".split()
+    plan = settled_captions([walks, jumps], [20, 30], [0, 12], SETTLE_TOKENS)
+    assert plan == [(walks, 20), (jumps, 12), (list(SETTLE_TOKENS), 18)]
+
+
+def test_settle_tokens_are_the_settle_text_as_prompts_are_tagged():
+    from dataset_tools.texts import tag_prompts
+
+    for spacy_pos in (False, True):
+        (pairs,) = tag_prompts([SETTLE_TEXT], spacy_pos=spacy_pos)
+        assert tuple(f"{w}/{p}" for w, p in pairs) == SETTLE_TOKENS
+
+
+@pytest.fixture
+def settling(pipe, monkeypatch):
+    """The tiny pipeline as if its captions had said "a person stands still" (they never do:
+    without those words trained nothing settles)."""
+    words = {t.rpartition("/")[0] for t in SETTLE_TOKENS}
+    monkeypatch.setattr(pipe, "training_words", pipe.training_words | words)
+    pipe.__dict__.pop("_settle_encoded", None)  # the pipeline caches the settling caption
+    yield pipe
+    pipe.__dict__.pop("_settle_encoded", None)
+
+
+def _own_snippets(pipe, prepared) -> int:
+    means, _ = pipe.length_moments([prepared.encoded])
+    return int(needed_snippets(means)[0])
+
+
+def test_plan_splits_a_counted_clause_at_a_long_length_not_at_its_own(settling):
+    pipe = settling
+    unit = pipe.spec.snippet_length
+    counted, plain = pipe.prepare([COUNTED, PLAIN])
+    assert counted.encoded.count == 2 and counted.clauses == ()
+    own = max(_own_snippets(pipe, counted), pipe.spec.min_frames // unit)
+    longest = pipe.spec.max_frames // unit
+    assert longest - own >= MIN_SETTLE_SNIPPETS  # room to settle in the tiny spec
+    encoded = [counted.encoded, counted.encoded, plain.encoded]
+    frames = [own * unit, longest * unit, longest * unit]
+    lists, snippets = pipe.clause_plan(encoded, [(), (), ()], frames)
+    # at its own length: one part, as before
+    assert snippets[0] == [own] and lists[0] == [counted.encoded]
+    # at the longest: the count in the time it needs, then standing still
+    assert snippets[1] == [_own_snippets(pipe, counted), longest - _own_snippets(pipe, counted)]
+    assert lists[1][0] is counted.encoded
+    settle = pipe.vectorizer.encode_tokens(SETTLE_TOKENS)
+    np.testing.assert_array_equal(lists[1][1].words, settle.words)
+    assert lists[1][1].count == 0
+    # no count: never split
+    assert snippets[2] == [longest] and lists[2] == [plain.encoded]
+    # settle=False: the count spread over the whole length, as before
+    _, unsettled = pipe.clause_plan(encoded, [(), (), ()], frames, settle=False)
+    assert unsettled[1] == [longest]
+
+
+def test_a_counted_clause_of_several_settles_before_the_next(settling):
+    pipe = settling
+    (two,) = pipe.prepare([TWO_PARTS])
+    assert [c.count for c in two.clauses] == [3, 0]
+    means, _ = pipe.length_moments([two.clauses[0]], clause=True)
+    need = int(needed_snippets(means)[0])  # estimated as a clause of a longer motion
+    given = need + MIN_SETTLE_SNIPPETS + 3
+    lists, snippets = pipe.settle_plan([list(two.clauses)], [[given, 9]])
+    assert snippets == [[need, given - need, 9]]
+    assert lists[0][0] is two.clauses[0] and lists[0][2] is two.clauses[1]
+    settle = pipe.vectorizer.encode_tokens(SETTLE_TOKENS)
+    np.testing.assert_array_equal(lists[0][1].words, settle.words)
+    # the clause plan of such a prompt sums to its length whatever it splits
+    longest = pipe.spec.max_frames
+    _, planned = pipe.clause_plan([two.encoded], [two.clauses], [longest])
+    assert sum(planned[0]) == longest // pipe.spec.snippet_length
+
+
+def test_sampling_at_its_own_length_is_unchanged_and_a_long_length_settles(settling):
+    pipe = settling
+    unit = pipe.spec.snippet_length
+    (counted,) = pipe.prepare([COUNTED])
+    own = max(_own_snippets(pipe, counted), pipe.spec.min_frames // unit) * unit
+    longest = pipe.spec.max_frames
+    texts = [COUNTED, PLAIN]
+    for frames, same in ((own, True), (longest, False)):
+        settled = pipe.generate(texts, 2, [frames, frames], seed=3, clean=False)
+        spread = pipe.generate(texts, 2, [frames, frames], seed=3, clean=False, settle=False)
+        for prompt, (a_samples, b_samples) in enumerate(zip(settled, spread)):
+            for a, b in zip(a_samples, b_samples):
+                assert a.features.shape == b.features.shape == (frames, a.features.shape[1])
+                equal = np.array_equal(a.features, b.features)
+                # the prompt without a count never changes
+                assert equal if (same or prompt == 1) else not equal
+
+
+def test_nothing_settles_without_the_settle_words(pipe):
+    """The tiny captions never say "stands still": the plan keeps a counted clause whole."""
+    assert "still" not in pipe.training_words
+    (counted,) = pipe.prepare([COUNTED])
+    longest = pipe.spec.max_frames
+    _, snippets = pipe.clause_plan([counted.encoded], [()], [longest])
+    assert snippets == [[longest // pipe.spec.snippet_length]]
