@@ -160,6 +160,12 @@ def test_paper_training_without_its_glove_file_stops_at_once(
     assert not run.exists()  # refused before any work
 
 
+def test_a_missing_glove_file_is_one_line_naming_the_download(tmp_path):
+    with pytest.raises(UsageError, match="no such file.*nlp.stanford.edu") as error:
+        load_vectorizer(str(tmp_path / "glove.6B.300d.txt"))
+    assert "\n" not in str(error.value)
+
+
 def test_the_release_motion_word_lists_on_a_glove_file(tmp_path, monkeypatch):
     from t2m.data import words as words_module
 

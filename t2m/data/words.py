@@ -516,18 +516,19 @@ GLOVE_DOWNLOAD = "https://nlp.stanford.edu/projects/glove/ (glove.6B.zip)"
 """Where the GloVe files are published."""
 
 
-def check_word_vectors(source: str, option: str = "--data.word_vectors") -> None:
-    """UsageError (one line, naming ``option`` and where the vectors come from) when ``source``
-    names a GloVe file or release folder that is not there; cheap, so commands call it before
-    any long work."""
+def check_word_vectors(source: str, option: str | None = "--data.word_vectors") -> None:
+    """UsageError (one line, naming ``option`` when given and where the vectors come from) when
+    ``source`` names a GloVe file or release folder that is not there; cheap, so commands call
+    it before any long work."""
     from dataset_tools.command import UsageError
 
     if source.endswith(COUNTS_SUFFIX) and source != COUNTS_SUFFIX:
         source = source[: -len(COUNTS_SUFFIX)]
     if source in (BUILTIN_GLOVE, TRAINABLE) or Path(source).expanduser().exists():
         return
+    named = f"{option}={source}" if option else f"word vectors {source}"
     raise UsageError(
-        f"{option}={source}: no such file; give a GloVe text file (glove.6B.300d.txt from "
+        f"{named}: no such file; give a GloVe text file (glove.6B.300d.txt from "
         f"{GLOVE_DOWNLOAD}) or the T2M release's glove/ folder"
     )
 
@@ -582,6 +583,7 @@ def load_vectorizer(source: str, max_tokens: int = 20, motion_words: str = "ours
             words, vectors = load_glove_file(path)
             vectorizer = WordVectors(words, vectors, str(path.resolve()), max_tokens)
         else:
+            check_word_vectors(source, None)  # a missing file: one line naming the download
             raise ValueError(
                 f"word vectors {source!r}: not {BUILTIN_GLOVE!r}, 'trainable', a GloVe file "
                 "or a GloVe folder of the T2M release"
