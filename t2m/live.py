@@ -16,7 +16,10 @@ already shown. Its length comes from the text2length model unless the prompt fix
 segment ends and no new prompt came, the same prompt goes on with a new segment (a walk keeps
 walking). A new prompt cuts the running segment at a snippet boundary and starts its own from
 there. ``"stop"``, ``"stand still"`` and the like (:data:`SETTLE_COMMANDS`) become
-:data:`SETTLE_TEXT`, which the model knows: the figure settles and stays.
+:data:`SETTLE_TEXT`, which the model knows: the figure settles and stays. A prompt that names a
+count ("jumps twice") is done once: its first segment lasts what the count needs
+(:meth:`t2m.pipeline.TextToMotion.count_parts`; the rest of a fixed length is standing still),
+and the segments after it, until a new prompt, are :data:`SETTLE_TEXT`.
 
 The recurrent state never runs longer than one segment: every segment starts from what was
 *shown* (features, read afresh), not from a state carried for minutes, so nothing accumulates;
@@ -54,6 +57,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric, recover_root
 from dataset_tools.rotations import qinv, qrot
+from t2m.clauses import SETTLE_TEXT
 from t2m.edit import COMPOSE_CONTEXT_SECONDS, _continuation
 from t2m.edit.core import EditPlan, SearchSettings, generate_plans
 from t2m.edit.modes import read_timeline
@@ -79,8 +83,6 @@ FINISH_LOOKBACK_FRAMES = 32
 lock see this far back)."""
 MAX_REWIND_SECONDS = 5.0
 """How far before the last pulled frame a prompt may take over (a consumer's read-ahead)."""
-SETTLE_TEXT = "a person stands still"
-"""What a settle command becomes."""
 SETTLE_COMMANDS = frozenset(
     {"stop", "halt", "freeze", "rest", "idle", "stand", "stand still", "stay still", "be still"}
 )
@@ -139,6 +141,7 @@ class _Segment:
     prompt: int
     start: int  # stream frame of its first new frame
     raw: np.ndarray  # (frames, D) its new raw features (hard-kept onto what came before)
+    rest: int = 0  # frames its prompt's fixed length left to settle in (a counted prompt)
 
 
 @dataclass
@@ -249,10 +252,7 @@ class LiveStream:
         if len(text) > MAX_PROMPT_CHARS:
             raise UsageError(f"the prompt has {len(text)} characters; at most {MAX_PROMPT_CHARS}")
         text = settle_text(" ".join(text.split()))
-        if text not in self._prepared:  # no known word: UsageError now, not at its boundary
-            if len(self._prepared) > 256:
-                self._prepared.clear()
-            self._prepared[text] = self.pipe.prepare([text])
+        self._prepare(text)  # no known word: UsageError now, not at its boundary
         frames = None
         if seconds is None and self.pipe.length_model is None:
             seconds = UNSIZED_SECONDS
@@ -319,18 +319,31 @@ class LiveStream:
         prompt = self.prompts[prompt_index]
         index = len(self._segments)
         generator = torch.Generator(self.pipe.device).manual_seed(segment_seed(self.seed, index))
-        if prompt.frames is None:
-            prepared = self._prepared.get(prompt.text) or self.pipe.prepare([prompt.text])
-            frames = self.pipe.sample_lengths(prepared, generator)[0]
+        prepared = self._prepare(prompt.text)
+        # A prompt that names a count ("jumps twice") does it once, in the time it needs
+        # (TextToMotion.count_parts); the rest of its fixed length, and every segment after it
+        # until a new prompt, is standing still.
+        counted = prepared[0].encoded.count > 0 and not prepared[0].clauses
+        last = self._segments[-1] if self._segments else None
+        earlier = last if last is not None and last.prompt == prompt_index else None
+        text = SETTLE_TEXT if counted and earlier else prompt.text
+        if counted and earlier and earlier.rest:
+            frames = earlier.rest
+        elif prompt.frames is None:
+            frames = self.pipe.sample_lengths(self._prepare(text), generator)[0]
         else:
             frames = prompt.frames
         tail = self._raw_tail(frame)
         frames = max(unit, min(frames, (spec.max_frames - len(tail)) // unit * unit))
+        rest = 0
+        if counted and not earlier:
+            parts = self.pipe.count_parts(prepared[0], frames)
+            frames, rest = parts[0][1], sum(n for _, n in parts[1:])
         if len(tail):
-            plan = _continuation(prompt.text, tail, frames, spec)
+            plan = _continuation(text, tail, frames, spec)
         else:
             target = np.full((frames, spec.num_joints, 3), np.nan)
-            plan = EditPlan(prompt.text, frames, target, np.zeros(target.shape[:2], bool))
+            plan = EditPlan(text, frames, target, np.zeros(target.shape[:2], bool))
         _quiet.on = True
         try:
             (result,) = generate_plans(self.pipe, [plan], generator, self.settings)
@@ -339,7 +352,15 @@ class LiveStream:
         raw = result.features[len(tail) :].astype(np.float32)
         if self._segments:  # only the running segment is read on: free the others' frames
             self._segments[-1].raw = raw[:0]
-        self._segments.append(_Segment(index, prompt_index, frame, raw))
+        self._segments.append(_Segment(index, prompt_index, frame, raw, rest))
+
+    def _prepare(self, text: str) -> list:
+        """``pipe.prepare([text])``, tagged once per stream."""
+        if text not in self._prepared:
+            if len(self._prepared) > 256:
+                self._prepared.clear()
+            self._prepared[text] = self.pipe.prepare([text])
+        return self._prepared[text]
 
     def _raw_tail(self, frame: int) -> np.ndarray:
         """The raw features of the ``context_frames`` before ``frame`` (fewer at the start)."""

@@ -45,7 +45,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Collection, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +57,7 @@ from dataset_tools.rigid import finish_features
 from dataset_tools.spec import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.accel import PRECISIONS as PRECISIONS
 from t2m.clauses import (
+    SETTLE_TEXT,
     SETTLE_TOKENS,
     clause_captions,
     clause_targets,
@@ -121,6 +122,8 @@ class GenerationBatch:
         noise: the latent draws of each run of ``batch_size`` items in that order,
             (items, their longest length in snippets, Z) each.
         batch_size: motions generated together.
+        fixed: whether each item's length was given (True) or drawn from the text2length model,
+            in that order: where counted clauses settle (:meth:`TextToMotion.settle_plan`).
     """
 
     prepared: list[PreparedText]
@@ -128,6 +131,7 @@ class GenerationBatch:
     frames: list[int]
     noise: list[torch.Tensor]
     batch_size: int
+    fixed: list[bool] = field(default_factory=list)
 
     def batches(self) -> Iterator[tuple[list[tuple[int, int]], list[int], torch.Tensor]]:
         """(items, frames, noise) of each run of the models."""
@@ -559,7 +563,8 @@ class TextToMotion:
             )
             for chunk in (ordered[s : s + batch_size] for s in range(0, len(ordered), batch_size))
         ]
-        return GenerationBatch(prepared, order, ordered, noise, batch_size)
+        given = [fixed[p] is not None for p, _ in order]
+        return GenerationBatch(prepared, order, ordered, noise, batch_size, given)
 
     @torch.inference_mode()
     def generate_features(
@@ -569,7 +574,7 @@ class TextToMotion:
         generator: torch.Generator,
         noise: torch.Tensor | None = None,
         clauses: Sequence[Sequence[EncodedText]] | None = None,
-        settle: bool = True,
+        settle: bool | Sequence[bool] = False,
     ) -> list[np.ndarray]:
         """One batch: normalised-space generation -> de-normalised features (frames_i, D) each.
 
@@ -579,7 +584,8 @@ class TextToMotion:
         for a caption of one clause): the clause plan (:meth:`clause_plan`), in which an item of
         two or more clauses, or with ``settle`` a counted clause given more time than it needs,
         is generated part by part (:func:`t2m.inference.generation.clause_codes`), the others
-        in one pass; None: every item in one pass (the paper's plan)."""
+        in one pass; None: every item in one pass (the paper's plan). ``settle``: for every
+        item, or per item (the lengths the user fixed, :attr:`GenerationBatch.fixed`)."""
         unit = self.spec.snippet_length
         num_snippets = torch.tensor([f // unit for f in frames], dtype=torch.long)
         if clauses is not None and len(clauses) != len(encoded):
@@ -622,20 +628,26 @@ class TextToMotion:
         encoded: Sequence[EncodedText],
         clauses: Sequence[Sequence[EncodedText]],
         frames: Sequence[int],
-        settle: bool = True,
+        settle: bool | Sequence[bool] = True,
     ) -> tuple[list[list[EncodedText]], list[list[int]]]:
         """The clause plan of a batch: per item, the captions of its parts in order and their
         snippets (summing to ``frames // snippet_length``). An item's clauses (``clauses[i]``,
         standalone captions; () or one for a caption of one clause: ``encoded[i]``) share its
         snippets by :meth:`clause_snippets` (an item with fewer snippets than clauses runs as
-        one). With ``settle`` (and a length model), a clause that names a count and was given
-        more time than it needs keeps what it needs and is followed by a part of
-        :data:`t2m.clauses.SETTLE_TEXT` (:meth:`settle_plan`)."""
+        one). With ``settle`` (for all items, or per item; and a length model), a clause that
+        names a count and was given more time than it needs keeps what it needs and is followed
+        by a part of :data:`t2m.clauses.SETTLE_TEXT` (:meth:`settle_plan`)."""
         lists = [list(c) if len(c) > 1 else [e] for c, e in zip(clauses, encoded, strict=True)]
         snippets = self.clause_snippets(lists, frames)
         lists = [c if len(n) == len(c) else [e] for c, n, e in zip(lists, snippets, encoded)]
-        if settle:
-            lists, snippets = self.settle_plan(lists, snippets)
+        flags = [settle] * len(lists) if isinstance(settle, bool) else list(settle)
+        if len(flags) != len(lists):
+            raise ValueError(f"{len(flags)} settle flags for {len(lists)} items")
+        chosen = [b for b, flag in enumerate(flags) if flag]
+        if chosen:
+            settled = self.settle_plan([lists[b] for b in chosen], [snippets[b] for b in chosen])
+            for b, parts, shares in zip(chosen, *settled):
+                lists[b], snippets[b] = parts, shares
         return lists, snippets
 
     def settle_plan(
@@ -670,6 +682,26 @@ class TextToMotion:
             lists[b] = [filler if k < 0 else parts[k] for k, _ in plan]
             snippets[b] = [n for _, n in plan]
         return lists, snippets
+
+    def count_parts(self, text: str | PreparedText, frames: int) -> list[tuple[str, int]]:
+        """One prompt's length as the plans that generate a prompt in one pass (edits, compose,
+        the live stream) should make it, so that its count follows the text: ``[(text,
+        frames)]``, or, for a prompt of one clause that names a count ("jumps twice") given at
+        least :data:`t2m.clauses.MIN_SETTLE_SNIPPETS` snippets more than it needs, ``[(text,
+        needed frames), (SETTLE_TEXT, the rest)]``: the same decision as the clause plan's
+        (:meth:`settle_plan`), as (prompt, frames) pairs. ``frames`` is cut to whole snippets,
+        the remainder left with the last part. A prompt of several clauses comes back whole:
+        its counted clauses settle where it is generated clause by clause
+        (:meth:`generate_features` with its clauses)."""
+        prepared = self.prepare([text])[0] if isinstance(text, str) else text
+        unit = self.spec.snippet_length
+        if prepared.clauses or frames // unit < 1:
+            return [(prepared.text, frames)]
+        _, (snippets,) = self.settle_plan([[prepared.encoded]], [[frames // unit]])
+        if len(snippets) < 2:
+            return [(prepared.text, frames)]
+        first = snippets[0] * unit
+        return [(prepared.text, first), (SETTLE_TEXT, frames - first)]
 
     def _settle_caption(self) -> EncodedText | None:
         """:data:`t2m.clauses.SETTLE_TOKENS` encoded, or None when the model was not trained on
@@ -707,10 +739,11 @@ class TextToMotion:
                 made rigid only (:meth:`finish`).
             plan: ``"clauses"``: a prompt of several clauses is generated clause by clause
                 (:meth:`generate_features`); ``"whole"``: every prompt in one pass (the paper).
-            settle: with the clause plan, a clause that names a count ("jumps twice") and is
-                given more time than it needs does its count in the time it needs and stands
-                still for the rest (:meth:`settle_plan`); False: the count is spread over the
-                whole length (the model then repeats at its own pace: more repetitions).
+            settle: with the clause plan and a length given in ``lengths``, a clause that names
+                a count ("jumps twice") and is given more time than it needs does its count in
+                the time it needs and stands still for the rest (:meth:`settle_plan`); False:
+                the count is spread over the whole length (the model then repeats at its own
+                pace: more repetitions). Drawn lengths are the model's own and never settle.
 
         Returns:
             ``motions[prompt][sample]``.
@@ -738,6 +771,7 @@ class TextToMotion:
         # 3.-4. the models, batch by batch
         results: dict[tuple[int, int], GeneratedMotion] = {}
         bar = tqdm(total=len(planned.items), desc="generating", unit="motion", disable=not progress)
+        fixed = dict(zip(planned.items, planned.fixed, strict=True))
         for batch, frames, noise in planned.batches():
             features = self.generate_features(
                 [prepared[p].encoded for p, _ in batch],
@@ -745,7 +779,7 @@ class TextToMotion:
                 generator,
                 noise=noise,
                 clauses=[prepared[p].clauses for p, _ in batch] if plan == "clauses" else None,
-                settle=settle,
+                settle=[settle and fixed[item] for item in batch],
             )
             for (p, r), feats in zip(batch, features):
                 joints, feats = self.finish(feats, clean)

@@ -137,6 +137,38 @@ def test_sampling_at_its_own_length_is_unchanged_and_a_long_length_settles(settl
                 assert equal if (same or prompt == 1) else not equal
 
 
+def test_drawn_lengths_never_settle(settling):
+    """A length drawn from the text2length model is the model's own: left as it is, even a
+    long draw (settling those made the demo model's MM-Dist worse)."""
+    pipe = settling
+    texts = [COUNTED] * 6
+    settled = pipe.generate(texts, 2, None, seed=1, clean=False)
+    spread = pipe.generate(texts, 2, None, seed=1, clean=False, settle=False)
+    for a_samples, b_samples in zip(settled, spread):
+        for a, b in zip(a_samples, b_samples):
+            np.testing.assert_array_equal(a.features, b.features)
+    planned = pipe.plan([COUNTED, PLAIN], 2, [None, 120])
+    assert planned.fixed == [planned.items[i][0] == 1 for i in range(4)]
+
+
+def test_the_web_worker_settles_as_generate_does(settling):
+    from t2m.serve.worker import GenerationJob, generate_jobs
+
+    pipe = settling
+    longest = pipe.spec.max_frames
+    job = GenerationJob([COUNTED, COUNTED], [longest, None], 2, seed=4, precision="fp32")
+    generate_jobs(pipe, [job])
+    motions, _ = job.result
+    expected = pipe.generate(job.texts, 2, job.frames, seed=4)
+    unsettled = pipe.generate(job.texts, 2, job.frames, seed=4, settle=False)
+    for got, want in zip(motions, expected):
+        for a, b in zip(got, want):
+            np.testing.assert_allclose(a.joints, b.joints, atol=1e-5)
+    # the fixed length settles, the drawn one does not
+    assert not np.allclose(motions[0][0].joints, unsettled[0][0].joints, atol=1e-3)
+    np.testing.assert_allclose(motions[1][0].joints, unsettled[1][0].joints, atol=1e-5)
+
+
 def test_nothing_settles_without_the_settle_words(pipe):
     """The tiny captions never say "stands still": the plan keeps a counted clause whole."""
     assert "still" not in pipe.training_words
@@ -144,3 +176,44 @@ def test_nothing_settles_without_the_settle_words(pipe):
     longest = pipe.spec.max_frames
     _, snippets = pipe.clause_plan([counted.encoded], [()], [longest])
     assert snippets == [[longest // pipe.spec.snippet_length]]
+
+
+def _recorded_segments(monkeypatch) -> list[tuple[str, int]]:
+    """(text, new frames) of each segment a live stream generates from here on."""
+    import t2m.live
+
+    seen: list[tuple[str, int]] = []
+    original = t2m.live.generate_plans
+
+    def recording(pipe, plans, generator, settings):
+        results = original(pipe, plans, generator, settings)
+        for plan in plans:
+            kept = int(plan.keep.any(axis=1).sum())
+            seen.append((plan.text, plan.num_frames - kept))
+        return results
+
+    monkeypatch.setattr(t2m.live, "generate_plans", recording)
+    return seen
+
+
+def test_live_counted_prompt_counts_once_then_settles(settling, monkeypatch):
+    pipe = settling
+    unit = pipe.spec.snippet_length
+    seen = _recorded_segments(monkeypatch)
+    (counted,) = pipe.prepare([COUNTED])
+    need = _own_snippets(pipe, counted) * unit
+    stream = pipe.stream(COUNTED, seed=0, seconds=6.0, finish=False)
+    fixed = pipe._clamp(6.0 * pipe.spec.fps)
+    assert fixed - need >= MIN_SETTLE_SNIPPETS * unit
+    for _ in range((fixed + fixed + 8) // unit):
+        stream.next_snippet()
+    # the count in the time it needs, the rest of its 6 s standing, then standing on
+    assert seen[:3] == [(COUNTED, need), (SETTLE_TEXT, fixed - need), (SETTLE_TEXT, fixed)]
+    assert all(s.text == COUNTED for s in [stream.next_snippet()])  # still the user's prompt
+    # a new prompt without a count goes on as before: the same prompt, segment after segment
+    seen.clear()
+    stream.prompt(PLAIN, seconds=2.0)
+    plain = pipe._clamp(2.0 * pipe.spec.fps)
+    for _ in range((2 * plain + 8) // unit):
+        stream.next_snippet()
+    assert seen[:2] == [(PLAIN, plain), (PLAIN, plain)]

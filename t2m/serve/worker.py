@@ -72,6 +72,7 @@ class _Rows:
     items: list[tuple[int, int]]  # (prompt, sample), longest first
     frames: list[int]
     noise: torch.Tensor  # (len(items), max snippets of the job, Z)
+    fixed: list[bool]  # each item's length given (not drawn): its counted clauses settle
 
 
 LENGTH_BATCH = 256
@@ -90,7 +91,7 @@ def _prepare_job(pipe: TextToMotion, job: GenerationJob) -> _Rows:
         batch_size=max(LENGTH_BATCH, job.num_motions),
     )
     (noise,) = planned.noise
-    return _Rows(job, planned.prepared, planned.items, planned.frames, noise)
+    return _Rows(job, planned.prepared, planned.items, planned.frames, noise, planned.fixed)
 
 
 def generate_jobs(pipe: TextToMotion, jobs: list[GenerationJob]) -> None:
@@ -105,14 +106,15 @@ def generate_jobs(pipe: TextToMotion, jobs: list[GenerationJob]) -> None:
     if not prepared_jobs:
         return
     steps = max(rows.noise.shape[1] for rows in prepared_jobs)
-    encoded, clauses, frames, noise = [], [], [], []
+    encoded, clauses, frames, noise, fixed = [], [], [], [], []
     for rows in prepared_jobs:
         encoded += [rows.prepared[p].encoded for p, _ in rows.items]
         clauses += [rows.prepared[p].clauses for p, _ in rows.items]  # clause by clause
         frames += rows.frames
+        fixed += rows.fixed  # as TextToMotion.generate: counts settle at given lengths
         noise.append(torch.nn.functional.pad(rows.noise, (0, 0, 0, steps - rows.noise.shape[1])))
     features = pipe.generate_features(
-        encoded, frames, generator=None, noise=torch.cat(noise), clauses=clauses
+        encoded, frames, generator=None, noise=torch.cat(noise), clauses=clauses, settle=fixed
     )
     start = 0
     for rows in prepared_jobs:
