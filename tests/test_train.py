@@ -495,3 +495,67 @@ def test_runtime_sets_the_threads_each_epoch_asks_for():
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
+
+
+def test_learning_rates_fall_over_the_last_epochs_of_the_last_length(tiny_config):
+    """``anneal_epochs``: a half cosine from the full rates to ``anneal_to`` over the last
+    epochs of the last curriculum length; full rates everywhere else."""
+    import math
+
+    from t2m.train.generator import anneal_scale
+
+    section = apply_overrides(
+        tiny_config,
+        {
+            "generator.start_snippets": "10",
+            "generator.end_snippets": "16",
+            "generator.curriculum_step": "6",
+            "generator.max_stage_epochs": "2",
+            "generator.final_epochs": "4",
+            "generator.anneal_epochs": "4",
+            "generator.anneal_to": "0.2",
+        },
+    ).generator
+    assert anneal_scale(Curriculum(snippets=10, stage_epochs=1), section) == 1.0
+    scales = [anneal_scale(Curriculum(16, stage_epochs=k), section) for k in range(6)]
+    assert scales[:2] == [1.0, 1.0]  # 6 epochs at the last length, the last 4 annealed
+    expected = [0.2 + 0.8 * (1 + math.cos(math.pi * k / 4)) / 2 for k in (1, 2, 3, 4)]
+    assert scales[2:] == pytest.approx(expected) and scales[-1] == pytest.approx(0.2)
+    assert all(a > b for a, b in zip(scales[1:], scales[2:], strict=False))
+    longer = apply_overrides(tiny_config, {"generator.anneal_epochs": "50"}).generator
+    last = longer.max_stage_epochs + longer.final_epochs - 1
+    first = Curriculum(longer.end_snippets, stage_epochs=0)
+    assert anneal_scale(first, longer) < 1.0  # more than the length has: all of them
+    assert anneal_scale(Curriculum(longer.end_snippets, stage_epochs=last), longer) == 0.1
+    off = apply_overrides(tiny_config, {"generator.anneal_epochs": "0"}).generator
+    assert anneal_scale(Curriculum(off.end_snippets, stage_epochs=last), off) == 1.0
+    for value in ("0", "1.5"):
+        with pytest.raises(ValueError, match="anneal_to in"):
+            apply_overrides(tiny_config, {"generator.anneal_to": value})
+
+
+def test_generator_trains_its_last_epochs_at_the_annealed_rates(
+    tiny_dataset, tiny_config, tiny_run, tmp_path
+):
+    shutil.copytree(tiny_run / "autoencoder", tmp_path / "autoencoder")
+    overrides = {
+        "generator.start_snippets": "10",
+        "generator.end_snippets": "10",
+        "generator.max_stage_epochs": "1",
+        "generator.final_epochs": "2",
+        "generator.anneal_epochs": "2",
+        "generator.anneal_to": "0.25",
+        "generator.log_every": "1",
+    }
+    config = apply_overrides(tiny_config, overrides)
+    train_stage("generator", config, tiny_dataset, tmp_path)
+    records = [
+        json.loads(line)
+        for line in (tmp_path / "generator" / "metrics.jsonl").read_text().splitlines()
+    ]
+    scales = {r["epoch"]: r["lr_scale"] for r in records if r.get("split") == "train"}
+    assert list(scales.values()) == pytest.approx([1.0, 0.625, 0.25])
+    groups = read_checkpoint(tmp_path / "generator" / "latest.pt")["optimizer"]["param_groups"]
+    rates = [group["lr"] for group in groups]
+    section = config.generator
+    assert rates == pytest.approx([0.25 * section.lr, 0.25 * section.decoder_lr])

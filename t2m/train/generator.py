@@ -6,7 +6,8 @@ when the validation reconstruction has not improved for ``patience`` epochs or a
 ``max_stage_epochs`` epochs (:class:`Curriculum`); only clips long enough for the current length
 are used. Scheduled
 sampling: per batch, with probability ``teacher_forcing`` the ground-truth previous codes are fed,
-otherwise the model's own (detached) predictions.
+otherwise the model's own (detached) predictions. With ``anneal_epochs`` the learning rates fall
+over the last epochs of the last length (:func:`anneal_scale`), so the weights settle.
 
 With ``whole_clips`` (the ``demo`` preset) every training clip takes part at every curriculum
 length: one shorter than the length is trained whole, with the caption that describes all of it,
@@ -153,6 +154,22 @@ class Curriculum:
         return improved
 
 
+def anneal_scale(curriculum: Curriculum, section: GeneratorStageConfig) -> float:
+    """The share of the learning rates for the epoch about to train: 1, except over the last
+    ``anneal_epochs`` epochs of the last curriculum length (all of its epochs if it has fewer),
+    where it falls along a half cosine to ``anneal_to`` at the last one (epoch k of n:
+    ``to + (1 - to) * (1 + cos(pi (k + 1) / n)) / 2``)."""
+    if not section.anneal_epochs or curriculum.snippets < section.end_snippets:
+        return 1.0
+    limit = section.max_stage_epochs + section.final_epochs
+    epochs = min(section.anneal_epochs, limit)
+    index = curriculum.stage_epochs - (limit - epochs)
+    if index < 0:
+        return 1.0
+    fall = 0.5 * (1.0 + math.cos(math.pi * min(index + 1, epochs) / epochs))
+    return section.anneal_to + (1.0 - section.anneal_to) * fall
+
+
 def curriculum_lengths(section: GeneratorStageConfig) -> list[int]:
     """The crop lengths (snippets) the curriculum trains, in order: ``start_snippets`` up by
     ``curriculum_step`` to ``end_snippets``."""
@@ -186,6 +203,11 @@ def announce_curriculum(run: StageRun, data: MotionTextData, spec_min_frames: in
     )
     if section.patience < section.max_stage_epochs + section.final_epochs:
         detail += f"; at most: {section.patience} epochs without progress end a length"
+    if section.anneal_epochs:
+        detail += (
+            f"; over the last {section.anneal_epochs} the learning rates fall to "
+            f"{section.anneal_to:g} of their value"
+        )
     run.announce(epochs, steps, items_at(lengths[0]), detail)
 
 
@@ -288,13 +310,19 @@ def train_generator(job: StageJob) -> Path:
             )
             curriculum.done = True
             break
+        # the learning rates of this epoch (set each epoch, so a resume sets them too)
+        scale = anneal_scale(curriculum, section)
+        for group, rate in zip(
+            optimizer.param_groups, (section.lr, section.decoder_lr), strict=True
+        ):
+            group["lr"] = rate * scale
         description = f"generator epoch {run.progress.epoch + 1} ({frames} frames)"
         if not run.train_epoch(
             batches,
             description,
             losses_on(data.train, snippets, True),
             trainable_parameters,
-            log_extra={"snippets": snippets},
+            log_extra={"snippets": snippets, "lr_scale": scale},
         ):
             break
         # 4. end of epoch: validate on the clips long enough, then move along the curriculum;
