@@ -22,8 +22,9 @@ first. :func:`clean_joints` fixes it with three small steps, per foot:
 
 Everything else (root, spine, arms) is untouched. ``held`` joints (an edit's joints kept from a
 source, :func:`clean_joints`) are never moved: a leg whose knee, ankle or foot is held on a frame
-is left exactly as given there, a contact run that reaches held frames is planted where the held
-foot stands, and the correction fades in over :data:`HELD_BLEND_FRAMES` frames away from them.
+is left exactly as given there, a contact run that reaches held frames is planted at its mean
+over its free frames, and the correction fades in over :data:`HELD_BLEND_FRAMES` frames away
+from held frames.
 
 :func:`clean_features` does the same on raw
 features and writes the cleaned joints back into them (the root and the model's contact
@@ -109,9 +110,9 @@ def foot_offsets(
         ankle, toe: (T, 3) positions.
         contact: (T,) bool, the foot predicted on the floor.
         blend: frames of fade-in before the first run and fade-out after the last.
-        held: (T,) bool, frames where the foot must stay: a run that reaches them holds the toe
-            where it is on its held frames next to the free ones (not at the run's mean), so the
-            correction starts small where the foot is let go (:func:`clean_joints` fades it in).
+        held: (T,) bool, frames where the foot must stay (:func:`clean_joints` fades the
+            correction out there): a run that reaches them holds the toe at its mean over the
+            run's other frames.
     """
     blend = BLEND_FRAMES if blend is None else blend
     num_frames = len(toe)
@@ -126,13 +127,8 @@ def foot_offsets(
     for start, end in runs:
         run = slice(start, end)
         anchor = np.array([toe[run, 0].mean(), 0.0, toe[run, 2].mean()])
-        if held is not None and held[run].any():
-            inside = held[run]
-            free = ~inside
-            # held frames next to a free one: where the foot is let go and taken back
-            edge = inside & (np.r_[free[1:], False] | np.r_[False, free[:-1]])
-            if edge.any():
-                anchor = toe[run][edge].mean(axis=0)
+        if held is not None and held[run].any() and not held[run].all():
+            anchor = toe[run][~held[run]].mean(axis=0)  # where the free frames put the foot
         offsets[run, 0] = anchor[0] - toe[run, 0]
         offsets[run, 2] = anchor[2] - toe[run, 2]
         offsets[run, 1] = np.clip(lowest[run], 0.0, PLANT_HEIGHT_M) - lowest[run]
@@ -235,7 +231,7 @@ def clean_joints(
     ``held`` (T, J) bool: joints that must not move (an edit's kept joints). A leg is left exactly
     as given on the frames where its knee, ankle or foot joints are held; elsewhere its correction
     is faded in over :data:`HELD_BLEND_FRAMES` frames from those frames, and contact runs that
-    reach them plant the foot where it is held. None: the plain clean-up.
+    reach them plant the foot at its mean over their free frames. None: the plain clean-up.
 
     Raises ValueError for shapes that do not fit.
     """

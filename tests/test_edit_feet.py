@@ -1,0 +1,141 @@
+"""An edit's foot-contact clean-up (:func:`t2m.edit.keep.finish_plan`, with
+:func:`dataset_tools.cleanup.clean_joints`'s ``held`` joints): it plants the sliding feet of the
+regenerated frames and never moves a kept joint.
+
+Synthetic features: the regenerated motion stands on bent knees, both feet predicted planted,
+while the whole body sways 12 cm sideways at 1 Hz, feet included (so they skate, as they do when
+a bent root path drags them); the source is a procedural walk. Plans: its first 24 frames kept
+(as ``continue`` keeps them), or its lower body kept throughout (as ``body`` with ``lower``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dataset_tools import cleanup
+from dataset_tools.kinematics import forward_kinematics
+from dataset_tools.representation import FeatureLayout, process_motion, recover_from_ric
+from dataset_tools.rotations import axis_angle_to_quat
+from dataset_tools.skeleton import SMPL
+from t2m.edit.keep import finish_plan
+from t2m.edit.plan import EditPlan
+from t2m.edit.source import half_yaw_of
+from t2m.evaluate.edit_bench import skating_ratio
+from tests.conftest import synth_joints
+
+FRAMES, KEPT, FPS = 80, 24, 20.0
+LOWER = [0, 1, 2, 4, 5, 7, 8, 10, 11]  # the root and both legs
+
+
+def sliding_walk_features(seed: int) -> np.ndarray:
+    """Features (FRAMES, 263) of a gliding walk on the floor, contacts where a toe is the lower."""
+    joints = synth_joints("walk_forward", FRAMES + 1, np.random.default_rng(seed))
+    joints = joints.astype(np.float64)
+    joints[..., 1] -= joints[..., 1].min()
+    features, recovered = process_motion(joints)
+    left_lower = recovered[:, 10, 1] <= recovered[:, 11, 1]
+    contacts = np.stack([left_lower, left_lower, ~left_lower, ~left_lower], axis=1)
+    features[:, FeatureLayout(22).foot_contact] = contacts
+    return features.astype(np.float32)
+
+
+def swaying_stance_features() -> np.ndarray:
+    """Features (FRAMES, 263) of the swaying stance, both feet in contact throughout."""
+    t = np.arange(FRAMES + 1) / FPS
+    axis_angles = np.zeros((FRAMES + 1, 22, 3))
+    axis_angles[:, [1, 2, 7, 8], 0] = -0.4  # hips and ankles against the bent knees
+    axis_angles[:, [4, 5], 0] = 0.8
+    root = np.zeros((FRAMES + 1, 3))
+    root[:, 0] = 0.12 * np.sin(2 * np.pi * t)
+    joints = forward_kinematics(axis_angle_to_quat(axis_angles), root, SMPL.offsets, SMPL)
+    joints[..., 1] -= joints[..., 1].min()
+    features, _ = process_motion(joints)
+    features[:, FeatureLayout(22).foot_contact] = 1.0
+    return features.astype(np.float32)
+
+
+def plan_of(source: np.ndarray, keep: np.ndarray) -> EditPlan:
+    target = np.full((FRAMES, 22, 3), np.nan)
+    target[keep] = recover_from_ric(source.astype(np.float64), 22)[keep]
+    kept_source = np.where(keep.any(axis=1)[:, None], source, np.nan)
+    return EditPlan("a person walks", FRAMES, target, keep, kept_source, half_yaw_of(source))
+
+
+def kept_start() -> np.ndarray:
+    keep = np.zeros((FRAMES, 22), bool)
+    keep[:KEPT] = True
+    return keep
+
+
+def kept_legs() -> np.ndarray:
+    keep = np.zeros((FRAMES, 22), bool)
+    keep[:, LOWER] = True
+    return keep
+
+
+@pytest.fixture(scope="module")
+def walks() -> tuple[np.ndarray, np.ndarray]:
+    return sliding_walk_features(3), swaying_stance_features()
+
+
+@pytest.mark.parametrize("keep", [kept_start(), kept_legs()], ids=["start", "legs"])
+def test_the_clean_up_never_moves_a_kept_joint(walks, keep):
+    source, generated = walks
+    plan = plan_of(source, keep)
+    cleaned = recover_from_ric(finish_plan(generated, plan), 22)
+    rigid = recover_from_ric(finish_plan(generated, plan, clean=False), 22)
+    # kept joints exactly where the finishing without the clean-up leaves them (its rigid fit
+    # holds them at the source's positions: within float32 rounding of the targets)
+    np.testing.assert_array_equal(cleaned[keep], rigid[keep])
+    np.testing.assert_allclose(cleaned[keep], plan.target[keep], rtol=0, atol=1e-5)
+    moved = np.abs(cleaned - rigid).max(axis=-1) > 1e-3
+    if keep[:, 7].all():  # legs kept throughout: nothing for the clean-up to move
+        assert not moved.any()
+    else:  # it did plant the regenerated feet
+        assert moved[KEPT:, [7, 8, 10, 11]].any()
+
+
+def test_the_clean_up_plants_the_regenerated_feet(walks):
+    source, generated = walks
+    plan = plan_of(source, kept_start())
+    cleaned = recover_from_ric(finish_plan(generated, plan), 22)
+    rigid = recover_from_ric(finish_plan(generated, plan, clean=False), 22)
+    before = skating_ratio(rigid[KEPT:], FPS)
+    after = skating_ratio(cleaned[KEPT:], FPS)
+    # the sway skates on a third of the frames (0.35 observed); planted, on few (0.02 observed)
+    assert before > 0.25 and after < 0.25 * before, (before, after)
+
+
+def test_the_correction_fades_in_from_the_kept_frames(walks):
+    source, generated = walks
+    plan = plan_of(source, kept_start())
+    cleaned = recover_from_ric(finish_plan(generated, plan), 22)
+    rigid = recover_from_ric(finish_plan(generated, plan, clean=False), 22)
+    feet = [7, 8, 10, 11]
+    change = np.linalg.norm(cleaned[:, feet] - rigid[:, feet], axis=-1).max(axis=-1)  # (T,)
+    later = change[KEPT + cleanup.HELD_BLEND_FRAMES :].max()
+    assert later > 0.05  # the lock moves the feet by centimetres once faded in
+    # no step where the feet are let go: the first free frames are corrected by a small share
+    assert change[KEPT] < 0.05 * later, (change[KEPT], later)
+    step = np.linalg.norm(np.diff(cleaned[:, feet], axis=0), axis=-1).max(axis=-1)
+    plain_step = np.linalg.norm(np.diff(rigid[:, feet], axis=0), axis=-1).max(axis=-1)
+    seam = slice(KEPT - 2, KEPT + 3)
+    assert step[seam].max() <= plain_step[seam].max() + 0.01
+
+
+def test_clean_joints_leaves_held_joints_exactly(walks):
+    joints = recover_from_ric(walks[1].astype(np.float64), 22)
+    contacts = walks[1][:, FeatureLayout(22).foot_contact]
+    held = np.zeros((FRAMES, 22), bool)
+    held[30:45, 7] = True  # the left ankle for a while: the whole left leg stays there
+    held[::7, 11] = True  # the right foot now and then
+    cleaned = cleanup.clean_joints(joints, contacts, held=held)
+    np.testing.assert_array_equal(cleaned[30:45][:, [4, 7, 10]], joints[30:45][:, [4, 7, 10]])
+    np.testing.assert_array_equal(cleaned[held], joints[held])
+    assert np.abs(cleaned - joints).max() > 0.05  # and the rest was cleaned
+    # None is the plain clean-up; a mask of the wrong shape is refused
+    plain = cleanup.clean_joints(joints, contacts)
+    np.testing.assert_array_equal(cleanup.clean_joints(joints, contacts, held=None), plain)
+    with pytest.raises(ValueError, match="held must be"):
+        cleanup.clean_joints(joints, contacts, held=held[:, :5])
