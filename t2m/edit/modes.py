@@ -232,7 +232,14 @@ def plan_inbetween(
 
 
 def plan_body(text: str, source: PreparedSource, spec: DatasetSpec, part: str) -> EditPlan:
-    """Keep the joints of ``part`` (:data:`BODY_PARTS`) on every frame; regenerate the rest."""
+    """Keep the joints of ``part`` (:data:`BODY_PARTS`) on every frame; regenerate the rest.
+
+    Targets, which the search judges its candidates by (and ``--method optimize`` optimises
+    towards): ``lower``, which keeps the root path, the source's positions of its joints; the
+    other parts hang from a regenerated body that the finishing fits them to (they keep their
+    pose and follow that body, its floor position and facing the new motion's), so their
+    targets are the source's heights of their joints: where the part ends up depends on how
+    the body under it is made."""
     if spec.num_joints != 22:
         raise UsageError("body edits name SMPL joints: they need a 22-joint (HumanML3D) model")
     if part not in BODY_PARTS:
@@ -251,6 +258,8 @@ def plan_body(text: str, source: PreparedSource, spec: DatasetSpec, part: str) -
     keep[:, joints] = True
     if 0 in joints:  # absolute positions are targets only where the root path is kept
         target[:, joints] = source.joints[:frames, joints]
+    else:  # heights, which neither the floor path nor the facing changes
+        target[:, joints, 1] = source.joints[:frames, joints, 1]
     rows = np.arange(frames)
     return EditPlan(
         text,
