@@ -377,24 +377,38 @@ def settle_counted(
 ) -> list[tuple[int, int]]:
     """A clause plan in which counts follow the text, not the length: ``(clause, snippets)`` in
     order, ``clause`` the index of one of the caption's clauses or -1 for a settling part
-    (:data:`SETTLE_TEXT`). A clause that names a count (``counts[i]`` > 0) and was given at
-    least ``minimum`` snippets more than it needs (``needs[i]``, :func:`needed_snippets`)
-    keeps what it needs and a settling part after it takes the rest; every other clause keeps
-    its ``snippets[i]``. The parts' snippets sum to ``sum(snippets)``.
+    (:data:`SETTLE_TEXT`). A clause that names a count (``counts[i]`` > 0) given more snippets
+    than it needs (``needs[i]``, :func:`needed_snippets`) keeps what it needs; the surplus goes
+    to a settling part after it when it is at least ``minimum`` snippets, else to a neighbouring
+    clause without a count (the next, else the one before), else it stays. Every other clause
+    keeps its ``snippets[i]`` (plus what it takes over). The parts' snippets sum to
+    ``sum(snippets)``.
 
     Why: the temporal VAE repeats an action at the pace it was trained on, whatever its count
-    clock says, so "jumps twice" stretched over 6 s jumps five or six times (demo model). Given
-    only the time two jumps take, it jumps twice; standing still is what it does with the
-    rest."""
+    clock says, so "jumps twice" stretched over 6 s jumps five or six times (demo model), and
+    even two snippets over its time often make one more clap or jump. Given only the time the
+    count takes, it makes the count; standing still (or the clause beside it) takes the rest."""
     if not len(counts) == len(snippets) == len(needs):
         raise ValueError(f"{len(counts)} counts, {len(snippets)} lengths, {len(needs)} needs")
+    sizes = [int(n) for n in snippets]
+    settle = [0] * len(sizes)
+    for index, (count, need) in enumerate(zip(counts, needs)):
+        surplus = sizes[index] - max(int(need), 1)
+        if count <= 0 or surplus <= 0:
+            continue
+        if surplus >= max(minimum, 1):
+            sizes[index] -= surplus
+            settle[index] = surplus
+            continue
+        free = [j for j in (index + 1, index - 1) if 0 <= j < len(sizes) and counts[j] <= 0]
+        if free:
+            sizes[index] -= surplus
+            sizes[free[0]] += surplus
     parts: list[tuple[int, int]] = []
-    for index, (count, given, need) in enumerate(zip(counts, snippets, needs)):
-        keep = max(int(need), 1)
-        if count > 0 and given - keep >= max(minimum, 1):
-            parts += [(index, keep), (-1, int(given) - keep)]
-        else:
-            parts.append((index, int(given)))
+    for index, size in enumerate(sizes):
+        parts.append((index, size))
+        if settle[index]:
+            parts.append((-1, settle[index]))
     return parts
 
 

@@ -36,6 +36,10 @@ def test_settle_counted_splits_only_counted_clauses_with_time_to_spare():
     plan = settle_counted([0, 4, 0], [10, 25, 9], [0, 15, 0])
     assert plan == [(0, 10), (1, 15), (-1, 10), (2, 9)]
     assert sum(n for _, n in plan) == 44
+    # a small surplus goes to a neighbour without a count (the next, else the one before)
+    assert settle_counted([3, 0], [14, 10], [12, 0]) == [(0, 12), (1, 12)]
+    assert settle_counted([0, 3], [10, 14], [0, 12]) == [(0, 12), (1, 12)]
+    assert settle_counted([2, 3], [10, 14], [10, 12]) == [(0, 10), (1, 14)]  # none free: stays
     with pytest.raises(ValueError, match="2 counts"):
         settle_counted([1, 2], [10], [5])
 

@@ -1,6 +1,7 @@
 """Counts at any length: does "jumps twice" make two jumps at whatever length the user fixes?
 
-``python -m t2m.benchmarks.counts --checkpoints RUN --dataset DATA [--samples 4] [--settle both]``
+``python -m t2m.benchmarks.counts --checkpoints RUN --dataset DATA [--samples 4] [--settle both]
+[--mode generate|live|compose]``
 
 For each counted action of the demo corpus (those its detectors count: jump, hop, punch, squat,
 clap), each count 1-4 written as people write it ("a person jumps in place twice.", "a person
@@ -13,14 +14,20 @@ against the label the prompt states (:func:`dataset_tools.synth.matching.label_m
 whole motion: the action's events counted, its side where it has one). ``--settle both`` runs
 every cell with and without :meth:`~t2m.pipeline.TextToMotion.generate`'s ``settle`` (a counted
 clause given more time than it needs ends with the model's "stands still"), the same draws for
-both. The table gives the share right per action and length; the JSON lines also the counts the
-detectors found. ``--dataset`` is the demo corpus the model trained on: its ``labels.json``
+both. ``--mode live`` scores the first frames of a live stream (:class:`t2m.live.LiveStream`,
+its segment length fixed to the length, seed ``--seed`` + sample), ``--mode compose`` a
+``compose`` of a one-line timeline (one posterior draw per window, as the live stream searches);
+both at the fixed lengths only, and there "no settle" keeps the prompt whole where
+:meth:`~t2m.pipeline.TextToMotion.count_parts` would split it, while "settle" splits the compose
+timeline's line as count_parts does (what compose does once it asks count_parts). The table
+gives the share right per action and length; the JSON lines also the counts the detectors found. ``--dataset`` is the demo corpus the model trained on: its ``labels.json``
 gives the counts each action was trained with (marked in the table).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
 from collections import Counter
@@ -76,6 +83,82 @@ def expected_frames(pipe, texts: list[str]) -> list[int]:
     return [pipe._clamp(max(1, round(m)) * unit) for m in means]
 
 
+def _generated(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]:
+    """Joints of ``samples`` motions per prompt from :meth:`TextToMotion.generate`."""
+    options = {} if settle is None else {"settle": settle}
+    motions = pipe.generate(
+        texts,
+        num_samples=samples,
+        lengths=lengths,
+        seed=seed,
+        clean=False,
+        plan="clauses",
+        batch_size=64,
+        **options,
+    )
+    layout = FeatureLayout.for_dim(pipe.spec.feature_dim)
+    return [[recover_from_ric(m.features, layout.num_joints) for m in made] for made in motions]
+
+
+@contextlib.contextmanager
+def _unsplit(pipe, settle: bool | None):
+    """With ``settle`` False, :meth:`TextToMotion.count_parts` keeps every prompt whole (what
+    plans did before it), for the live and compose rows."""
+    if settle is not False:
+        yield
+        return
+    pipe.count_parts = lambda text, frames: [(getattr(text, "text", text), frames)]
+    try:
+        yield
+    finally:
+        del pipe.count_parts
+
+
+def _live(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]:
+    """World joints of the first ``length`` frames of a live stream of each prompt with its
+    segment length fixed to it (seed ``seed`` + sample), unfinished."""
+    from t2m.live import LiveStream
+
+    unit, out = pipe.spec.snippet_length, []
+    with _unsplit(pipe, settle):
+        for text, frames in zip(texts, lengths, strict=True):
+            made = []
+            for sample in range(samples):
+                stream = LiveStream(
+                    pipe, text, seed + sample, seconds=frames / pipe.spec.fps, finish=False
+                )
+                made.append(
+                    np.concatenate([stream.next_snippet().joints for _ in range(frames // unit)])
+                )
+            out.append(made)
+    return out
+
+
+def _composed(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]:
+    """Joints of ``compose`` of a one-line timeline per prompt (its fixed length), with
+    ``settle`` the line split as :meth:`TextToMotion.count_parts` splits it: what compose does
+    once it asks count_parts for its lines' parts."""
+    from t2m.edit import SearchSettings
+
+    fps, out = pipe.spec.fps, []
+    settings = SearchSettings(method="posterior", candidates=1)
+    with _unsplit(pipe, settle):
+        for text, frames in zip(texts, lengths, strict=True):
+            lines, start = [], 0
+            for part, size in pipe.count_parts(text, frames):
+                lines.append(f"{part}#{start / fps:g}#{(start + size) / fps:g}")
+                start += size
+            made = pipe.edit(
+                "", "compose", timeline=lines, num_samples=samples, seed=seed, settings=settings
+            )
+            out.append([m.joints for m in made])
+    return out
+
+
+MODES = {"generate": _generated, "live": _live, "compose": _composed}
+"""What makes the motions: plain generation, a live stream, a compose timeline."""
+
+
 def measure(
     pipe,
     actions: list[str],
@@ -84,9 +167,11 @@ def measure(
     samples: int,
     seed: int,
     settle: bool | None,
+    mode: str = "generate",
 ) -> list[dict]:
     """One row per (action, count, length): the prompt, its frames (None: drawn), the share of
-    ``samples`` motions with the right count and the counts found."""
+    ``samples`` motions with the right count and the counts found. ``mode``: what makes the
+    motions (:data:`MODES`; the live stream and compose at fixed lengths only)."""
     texts, labels = [], []
     for action in actions:
         template, params = ACTIONS[action]
@@ -94,30 +179,17 @@ def measure(
             texts.append(template.format(count=COUNT_PHRASES[count]))
             labels.append((action, {**params, "count": count}))
     base = expected_frames(pipe, texts)
-    options = {} if settle is None else {"settle": settle}
+    unit = pipe.spec.snippet_length
     rows = []
-    for column in ("own", *ratios):
+    for column in ("own", *ratios) if mode == "generate" else ratios:
         if column == "own":
             lengths = None
         else:
-            lengths = [pipe._clamp(round(b * column / 4) * 4) for b in base]
-        motions = pipe.generate(
-            texts,
-            num_samples=samples,
-            lengths=lengths,
-            seed=seed,
-            clean=False,
-            plan="clauses",
-            batch_size=64,
-            **options,
-        )
+            lengths = [pipe._clamp(round(b * column / unit) * unit) for b in base]
+        motions = MODES[mode](pipe, texts, lengths, samples, seed, settle)
         for text, (action, params), own, made in zip(texts, labels, base, motions, strict=True):
             found, right = [], 0
-            for motion in made:
-                features = motion.features
-                joints = recover_from_ric(
-                    features, FeatureLayout.for_dim(features.shape[-1]).num_joints
-                )
+            for joints in made:
                 facts = detect_labels(joints, pipe.spec.fps)
                 found.append(detected_count(facts, action, params))
                 right += label_matches(facts, {"action": action, "params": params})
@@ -128,10 +200,11 @@ def measure(
                     "text": text,
                     "length": column,
                     "expected_frames": own,
-                    "frames": [len(m.features) for m in made],
+                    "frames": [len(j) for j in made],
                     "right": right / len(made),
                     "found": dict(sorted(Counter(found).items())),
                     "settle": settle,
+                    "mode": mode,
                 }
             )
     return rows
@@ -190,6 +263,12 @@ def main(argv: list[str] | None = None) -> None:
         default="default",
         help="the pipeline's settle option (default: the pipeline's default)",
     )
+    parser.add_argument(
+        "--mode",
+        choices=tuple(MODES),
+        default="generate",
+        help="what makes the motions: plain generation, a live stream, a compose timeline",
+    )
     parser.add_argument("--out", type=Path, help="also write the rows as JSON lines here")
     args = parser.parse_args(argv)
     actions = [a for a in args.actions.split(",") if a]
@@ -210,7 +289,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     rows = []
     for mode in modes:
-        rows += measure(pipe, actions, counts, RATIOS, args.samples, args.seed, mode)
+        rows += measure(pipe, actions, counts, RATIOS, args.samples, args.seed, mode, args.mode)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
