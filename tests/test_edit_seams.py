@@ -85,3 +85,14 @@ def test_the_generated_side_of_a_seam_is_smoothed():
     smoothed = smooth_seams(generated, keep)
     np.testing.assert_array_equal(smoothed[:, foot[-1]], generated[:, foot[-1]])
     assert np.abs(smoothed[KEPT, foot[:-1]] - generated[KEPT, foot[:-1]]).min() > 0.3
+
+
+def test_the_benchmark_measures_the_half_second_around_a_seam():
+    from t2m.evaluate.edit_bench import seam_statistics
+
+    joints = np.zeros((60, 22, 3))
+    joints[35, 3, 0] = 0.01  # a 1 cm blip 5 frames after a join at 30
+    acc, jerk = seam_statistics(joints, 30, 20.0)
+    assert acc == pytest.approx(2 * 0.01 * 400) and jerk == pytest.approx(3 * 0.01 * 8000)
+    assert seam_statistics(joints, 25, 20.0) == (0.0, 0.0)  # 10 frames away: outside
+    assert seam_statistics(joints, 58, 20.0) == (0.0, 0.0)  # near the end: the window moves in
