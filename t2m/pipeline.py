@@ -20,7 +20,9 @@ Steps of :meth:`TextToMotion.generate`:
    generated clause by clause (:mod:`t2m.clauses`): each clause, as a caption of its own, gets
    the length the text2length model expects for it plus a variance-weighted share of the rest
    (:meth:`TextToMotion.clause_snippets`), and continues from the code
-   the previous clause ended on; ``plan="whole"`` is the paper's single pass over the prompt;
+   the previous clause ended on; at a length the user fixed, a clause that names a count keeps
+   the time it needs and stands still for the rest (:meth:`TextToMotion.settle_plan`);
+   ``plan="whole"`` is the paper's single pass over the prompt;
 4. de-normalise the features with the statistics stored in the checkpoint, make the motion
    rigid on the model's skeleton and clean up its foot contacts (:meth:`TextToMotion.finish`)
    and recover joints (the spec's number) with ``dataset_tools.representation.recover_from_ric``.
@@ -654,14 +656,14 @@ class TextToMotion:
         self, lists: Sequence[Sequence[EncodedText]], snippets: Sequence[Sequence[int]]
     ) -> tuple[list[list[EncodedText]], list[list[int]]]:
         """Counts follow the text at any length: each item's parts (captions ``lists[i]`` with
-        ``snippets[i]`` snippets) with every counted part given at least
-        :data:`t2m.clauses.MIN_SETTLE_SNIPPETS` more than it needs split into what it needs
-        and a settling part after it (:func:`t2m.clauses.settle_counted`). What a part needs
-        is :func:`t2m.clauses.needed_snippets` of the text2length model's estimate: as a clause
-        for an item of several parts, as a whole caption for an item of one (the estimate its
-        drawn length comes from, so a length drawn near it is left as it is). Unchanged
-        without a length model or when the model was not trained on the settling caption's
-        words."""
+        ``snippets[i]`` snippets) with every counted part given more than it needs cut to what
+        it needs, the surplus a settling part after it (at least
+        :data:`t2m.clauses.MIN_SETTLE_SNIPPETS`) or given to a neighbouring part without a
+        count (:func:`t2m.clauses.settle_counted`). What a part needs is
+        :func:`t2m.clauses.needed_snippets` of the text2length model's estimate: as a clause for
+        an item of several parts, as a whole caption for an item of one (the estimate its own
+        length comes from, so a length at it is left as it is). Unchanged without a length
+        model or when the model was not trained on the settling caption's words."""
         lists = [list(parts) for parts in lists]
         snippets = [list(n) for n in snippets]
         filler = self._settle_caption()

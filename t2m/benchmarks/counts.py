@@ -20,7 +20,9 @@ its segment length fixed to the length, seed ``--seed`` + sample), ``--mode comp
 both at the fixed lengths only, and there "no settle" keeps the prompt whole where
 :meth:`~t2m.pipeline.TextToMotion.count_parts` would split it, while "settle" splits the compose
 timeline's line as count_parts does (what compose does once it asks count_parts). The table
-gives the share right per action and length; the JSON lines also the counts the detectors found. ``--dataset`` is the demo corpus the model trained on: its ``labels.json``
+gives the share right per action and length; the JSON lines also the counts the detectors found.
+``--two-clauses`` adds prompts of two clauses, one of them counted (:data:`TWO_CLAUSES`), at 1-3
+times their expected length, scored as the evaluation scores them. ``--dataset`` is the demo corpus the model trained on: its ``labels.json``
 gives the counts each action was trained with (marked in the table).
 """
 
@@ -38,7 +40,7 @@ import torch
 
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.synth.detectors import detect_labels
-from dataset_tools.synth.matching import COUNTED_EVENTS, label_matches
+from dataset_tools.synth.matching import COUNTED_EVENTS, align_segments, label_matches
 
 COUNT_PHRASES = {1: "once", 2: "twice", 3: "three times", 4: "four times"}
 ACTIONS = {
@@ -51,6 +53,19 @@ ACTIONS = {
 """Per counted action: the prompt (in the corpus' training wording) and the label's other
 parameters."""
 RATIOS = (1.0, 1.5, 2.0, 3.0)
+TWO_CLAUSES = (
+    ("a person jumps in place twice, then waves the right hand.",
+     [("jump", {"count": 2}), ("wave", {"side": "right"})]),
+    ("a person claps three times, then walks forward.",
+     [("clap", {"count": 3}), ("walk", {"direction": "forward"})]),
+    ("a person squats twice, then raises the left hand.",
+     [("squat", {"count": 2}), ("raise", {"side": "left"})]),
+    ("a person walks forward, then jumps in place three times.",
+     [("walk", {"direction": "forward"}), ("jump", {"count": 3})]),
+    ("a person punches with the left fist twice, then kicks with the right leg.",
+     [("punch", {"side": "left", "count": 2}), ("kick", {"side": "right"})]),
+)  # fmt: skip
+"""Prompts of two clauses, one counted, with their segment labels (``--two-clauses``)."""
 
 
 def trained_counts(dataset: Path) -> dict[str, list[int]]:
@@ -210,6 +225,50 @@ def measure(
     return rows
 
 
+def measure_two_clauses(
+    pipe, ratios: tuple[float, ...], samples: int, seed: int, settle: bool | None
+) -> list[dict]:
+    """:data:`TWO_CLAUSES` generated at 1-3 times their expected length (the sum of their
+    clauses' expected lengths as clauses), scored as the evaluation scores: both segments found
+    in order, the counted events in their own segment
+    (:func:`dataset_tools.synth.matching.align_segments`, the boundaries searched around the
+    clauses' expected shares)."""
+    texts = [text for text, _ in TWO_CLAUSES]
+    means = [pipe.length_moments(list(p.clauses), clause=True)[0] for p in pipe.prepare(texts)]
+    unit, rows = pipe.spec.snippet_length, []
+    for ratio in ratios:
+        lengths = [pipe._clamp(round(m.sum() * ratio) * unit) for m in means]
+        motions = _generated(pipe, texts, lengths, samples, seed, settle)
+        for (text, labels), mean, frames, made in zip(TWO_CLAUSES, means, lengths, motions):
+            edges = np.concatenate([[0.0], np.cumsum(mean) / mean.sum()]) * frames
+            segments = [
+                {"action": action, "params": params, "start": edges[i], "end": edges[i + 1]}
+                for i, (action, params) in enumerate(labels)
+            ]
+            right = [
+                all(align_segments(joints, pipe.spec.fps, segments, frames).matches)
+                for joints in made
+            ]
+            rows.append(
+                {"text": text, "length": ratio, "frames": frames, "right": float(np.mean(right)),
+                 "settle": settle}
+            )  # fmt: skip
+    return rows
+
+
+def two_clause_table(rows: list[dict]) -> str:
+    """Markdown: share right per prompt and length, one row per settle mode."""
+    columns = list(dict.fromkeys(r["length"] for r in rows))
+    names = {None: "", False: " (no settle)", True: " (settle)"}
+    lines = ["| prompt | " + " | ".join(f"{c:g}x" for c in columns) + " |"]
+    lines.append("|" + " --- |" * (len(columns) + 1))
+    for text in dict.fromkeys(r["text"] for r in rows):
+        for mode in dict.fromkeys(r["settle"] for r in rows):
+            cells = [f"{r['right']:.2f}" for r in rows if r["text"] == text and r["settle"] == mode]
+            lines.append(f"| {text}{names[mode]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def table(rows: list[dict], trained: dict[str, list[int]], counts: list[int]) -> str:
     """Markdown: share right per action (counts pooled) and length, one row per settle mode;
     counts in parentheses are none the corpus trained the action with; the last rows pool all
@@ -269,6 +328,11 @@ def main(argv: list[str] | None = None) -> None:
         default="generate",
         help="what makes the motions: plain generation, a live stream, a compose timeline",
     )
+    parser.add_argument(
+        "--two-clauses",
+        action="store_true",
+        help="also prompts of two clauses, one counted (plain generation)",
+    )
     parser.add_argument("--out", type=Path, help="also write the rows as JSON lines here")
     args = parser.parse_args(argv)
     actions = [a for a in args.actions.split(",") if a]
@@ -290,12 +354,22 @@ def main(argv: list[str] | None = None) -> None:
     rows = []
     for mode in modes:
         rows += measure(pipe, actions, counts, RATIOS, args.samples, args.seed, mode, args.mode)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
     for row in rows:
         print(json.dumps(row))
     print(table(rows, trained_counts(args.dataset), counts))
+    if args.two_clauses:
+        pairs = [
+            r
+            for mode in modes
+            for r in measure_two_clauses(pipe, RATIOS, args.samples, args.seed, mode)
+        ]
+        for row in pairs:
+            print(json.dumps(row))
+        print(two_clause_table(pairs))
+        rows += pairs
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
     print(f"{len(rows) * args.samples} motions in {time.perf_counter() - started:.0f} s")
 
 
