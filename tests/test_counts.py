@@ -105,6 +105,17 @@ def test_plan_splits_a_counted_clause_at_a_long_length_not_at_its_own(settling):
     assert unsettled[1] == [longest]
 
 
+def test_count_parts_give_the_plan_as_prompts_and_frames(settling):
+    pipe = settling
+    unit, longest = pipe.spec.snippet_length, pipe.spec.max_frames
+    (counted,) = pipe.prepare([COUNTED])
+    need = _own_snippets(pipe, counted) * unit
+    assert pipe.count_parts(COUNTED, longest) == [(COUNTED, need), (SETTLE_TEXT, longest - need)]
+    assert pipe.count_parts(counted, need) == [(COUNTED, need)]
+    assert pipe.count_parts(PLAIN, longest) == [(PLAIN, longest)]
+    assert pipe.count_parts(TWO_PARTS, longest) == [(TWO_PARTS, longest)]  # its clauses settle
+
+
 def test_a_counted_clause_of_several_settles_before_the_next(settling):
     pipe = settling
     (two,) = pipe.prepare([TWO_PARTS])
