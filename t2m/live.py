@@ -261,6 +261,7 @@ class LiveStream:
                 frames = self.pipe._clamp(float(seconds) * self.spec.fps)
             except (TypeError, ValueError) as error:
                 raise UsageError(f"segment length: {error}") from None
+            self.pipe.warn_short_counts(self._prepare(text), [frames])
         start = self.boundary(at)
         earliest = self.frame - int(MAX_REWIND_SECONDS * self.spec.fps)
         if start < max(earliest, 0):

@@ -87,6 +87,10 @@ from t2m.motion import GeneratedMotion
 
 logger = logging.getLogger(__name__)
 
+SHORT_COUNT_SHARE = 0.9
+"""A fixed length under this share of what a prompt's count needs gets a warning
+(:meth:`TextToMotion.warn_short_counts`)."""
+
 PLANS = ("clauses", "whole")
 """How a prompt is generated: clause by clause (:mod:`t2m.clauses`) or in one pass (the paper)."""
 
@@ -705,6 +709,34 @@ class TextToMotion:
         first = snippets[0] * unit
         return [(prepared.text, first), (SETTLE_TEXT, frames - first)]
 
+    def count_frames(self, prepared: Sequence[PreparedText]) -> list[int]:
+        """The frames each prompt's count needs (:func:`t2m.clauses.needed_snippets` of the
+        text2length model's estimate): 0 for a prompt without a count, of several clauses, or
+        without a length model."""
+        counted = [i for i, p in enumerate(prepared) if p.encoded.count and not p.clauses]
+        out = [0] * len(prepared)
+        if self.length_model is None or not counted:
+            return out
+        means, _ = self.length_moments([prepared[i].encoded for i in counted])
+        for i, need in zip(counted, needed_snippets(means).tolist()):
+            out[i] = int(need) * self.spec.snippet_length
+        return out
+
+    def warn_short_counts(self, prepared: Sequence[PreparedText], frames: Sequence[int]) -> None:
+        """Warn (once per prompt) where a length the user fixed is under
+        :data:`SHORT_COUNT_SHARE` of what the prompt's count needs: there the model makes fewer
+        repetitions than asked (demo model, at 0.75 of the need: 0.29 right, against 0.95)."""
+        needs = self.count_frames(prepared)
+        for item, given, need in zip(prepared, frames, needs, strict=True):
+            if need and given < SHORT_COUNT_SHARE * need:
+                logger.warning(
+                    "prompt %r names a count that needs about %.1f s; at %.1f s it may be done "
+                    "fewer times",
+                    item.text,
+                    need / self.spec.fps,
+                    given / self.spec.fps,
+                )
+
     def _settle_caption(self) -> EncodedText | None:
         """:data:`t2m.clauses.SETTLE_TOKENS` encoded, or None when the model was not trained on
         its words (then nothing settles)."""
@@ -770,6 +802,13 @@ class TextToMotion:
             by_clause=plan == "clauses",
         )
         prepared = planned.prepared
+        if settle and plan == "clauses":
+            given = {
+                p: frames
+                for (p, _), frames, fixed in zip(planned.items, planned.frames, planned.fixed)
+                if fixed
+            }
+            self.warn_short_counts([prepared[p] for p in given], list(given.values()))
         # 3.-4. the models, batch by batch
         results: dict[tuple[int, int], GeneratedMotion] = {}
         bar = tqdm(total=len(planned.items), desc="generating", unit="motion", disable=not progress)

@@ -4,6 +4,8 @@ TextToMotion.clause_plan), on the session's tiny models."""
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -15,6 +17,7 @@ from t2m.clauses import (
     settle_counted,
     settled_captions,
 )
+from t2m.pipeline import SHORT_COUNT_SHARE
 
 COUNTED = "a person jumps up and down twice"
 PLAIN = "a person walks forward"
@@ -182,6 +185,22 @@ def test_the_web_worker_settles_as_generate_does(settling):
     # the fixed length settles, the drawn one does not
     assert not np.allclose(motions[0][0].joints, unsettled[0][0].joints, atol=1e-3)
     np.testing.assert_allclose(motions[1][0].joints, unsettled[1][0].joints, atol=1e-5)
+
+
+def test_a_length_too_short_for_the_count_is_named(settling, caplog):
+    pipe = settling
+    (counted,) = pipe.prepare([COUNTED])
+    need = pipe.count_frames([counted])[0]
+    shortest = pipe.spec.min_frames
+    assert need == _own_snippets(pipe, counted) * pipe.spec.snippet_length
+    assert shortest < SHORT_COUNT_SHARE * need  # the tiny model's count needs more than that
+    with caplog.at_level(logging.WARNING, logger="t2m.pipeline"):
+        pipe.generate([COUNTED, PLAIN], 1, [need, need], clean=False)
+        assert "names a count" not in caplog.text
+        pipe.generate([COUNTED, PLAIN], 1, [shortest, shortest], clean=False)
+    assert caplog.text.count("names a count that needs about") == 1
+    assert repr(COUNTED) in caplog.text
+    assert pipe.count_frames(pipe.prepare([PLAIN, TWO_PARTS])) == [0, 0]
 
 
 def test_nothing_settles_without_the_settle_words(pipe):

@@ -52,7 +52,7 @@ ACTIONS = {
 }
 """Per counted action: the prompt (in the corpus' training wording) and the label's other
 parameters."""
-RATIOS = (1.0, 1.5, 2.0, 3.0)
+
 TWO_CLAUSES = (
     ("a person jumps in place twice, then waves the right hand.",
      [("jump", {"count": 2}), ("wave", {"side": "right"})]),
@@ -314,6 +314,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--samples", type=int, default=4, help="motions per prompt and length")
     parser.add_argument("--actions", default=",".join(ACTIONS), help="comma-separated")
     parser.add_argument("--counts", default="1,2,3,4", help="comma-separated, 1..4")
+    parser.add_argument(
+        "--ratios", default="1,1.5,2,3", help="fixed lengths, as multiples of the expected one"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     parser.add_argument(
@@ -337,6 +340,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     actions = [a for a in args.actions.split(",") if a]
     counts = [int(c) for c in args.counts.split(",") if c]
+    try:
+        ratios = tuple(float(r) for r in args.ratios.split(",") if r)
+    except ValueError:
+        parser.error(f"--ratios: numbers separated by commas, got {args.ratios!r}")
+    if not ratios or min(ratios) <= 0:
+        parser.error("--ratios: give positive multiples")
     unknown = [a for a in actions if a not in ACTIONS] + [
         c for c in counts if c not in (1, 2, 3, 4)
     ]
@@ -353,7 +362,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     rows = []
     for mode in modes:
-        rows += measure(pipe, actions, counts, RATIOS, args.samples, args.seed, mode, args.mode)
+        rows += measure(pipe, actions, counts, ratios, args.samples, args.seed, mode, args.mode)
     for row in rows:
         print(json.dumps(row))
     print(table(rows, trained_counts(args.dataset), counts))
@@ -361,7 +370,7 @@ def main(argv: list[str] | None = None) -> None:
         pairs = [
             r
             for mode in modes
-            for r in measure_two_clauses(pipe, RATIOS, args.samples, args.seed, mode)
+            for r in measure_two_clauses(pipe, ratios, args.samples, args.seed, mode)
         ]
         for row in pairs:
             print(json.dumps(row))
