@@ -17,9 +17,9 @@ segment ends and no new prompt came, the same prompt goes on with a new segment 
 walking). A new prompt cuts the running segment at a snippet boundary and starts its own from
 there. ``"stop"``, ``"stand still"`` and the like (:data:`SETTLE_COMMANDS`) become
 :data:`SETTLE_TEXT`, which the model knows: the figure settles and stays. A prompt that names a
-count ("jumps twice") is done once: its first segment lasts what the count needs
-(:meth:`t2m.pipeline.TextToMotion.count_parts`; the rest of a fixed length is standing still),
-and the segments after it, until a new prompt, are :data:`SETTLE_TEXT`.
+count ("jumps twice", "jumps twice, then waves") is done once: its first segment lasts what
+the count needs (:meth:`t2m.pipeline.TextToMotion.count_parts`; the rest of a fixed length is
+standing still), and the segments after it, until a new prompt, are :data:`SETTLE_TEXT`.
 
 The recurrent state never runs longer than one segment: every segment starts from what was
 *shown* (features, read afresh), not from a state carried for minutes, so nothing accumulates;
@@ -324,7 +324,7 @@ class LiveStream:
         # A prompt that names a count ("jumps twice") does it once, in the time it needs
         # (TextToMotion.count_parts); the rest of its fixed length, and every segment after it
         # until a new prompt, is standing still.
-        counted = prepared[0].encoded.count > 0 and not prepared[0].clauses
+        counted = prepared[0].encoded.count > 0 or any(c.count for c in prepared[0].clauses)
         last = self._segments[-1] if self._segments else None
         earlier = last if last is not None and last.prompt == prompt_index else None
         text = SETTLE_TEXT if counted and earlier else prompt.text

@@ -59,6 +59,7 @@ from dataset_tools.rigid import finish_features
 from dataset_tools.spec import HUMANML3D, DatasetSpec, spec_for_dim
 from t2m.accel import PRECISIONS as PRECISIONS
 from t2m.clauses import (
+    MIN_SETTLE_SNIPPETS,
     SETTLE_TEXT,
     SETTLE_TOKENS,
     clause_captions,
@@ -691,23 +692,29 @@ class TextToMotion:
 
     def count_parts(self, text: str | PreparedText, frames: int) -> list[tuple[str, int]]:
         """One prompt's length as the plans that generate a prompt in one pass (edits, compose,
-        the live stream) should make it, so that its count follows the text: ``[(text,
-        frames)]``, or, for a prompt of one clause that names a count ("jumps twice") given at
-        least :data:`t2m.clauses.MIN_SETTLE_SNIPPETS` snippets more than it needs, ``[(text,
-        needed frames), (SETTLE_TEXT, the rest)]``: the same decision as the clause plan's
-        (:meth:`settle_plan`), as (prompt, frames) pairs. ``frames`` is cut to whole snippets,
-        the remainder left with the last part. A prompt of several clauses comes back whole:
-        its counted clauses settle where it is generated clause by clause
-        (:meth:`generate_features` with its clauses)."""
+        the live stream) should make it, so that its counts follow the text: ``[(text,
+        frames)]``, or, for a prompt that names a count ("jumps twice"; "jumps twice, then
+        waves") given at least :data:`t2m.clauses.MIN_SETTLE_SNIPPETS` snippets more than it
+        needs, ``[(text, needed frames), (SETTLE_TEXT, the rest)]``. What a prompt of one
+        clause needs is its count's time (:meth:`count_frames`, the clause plan's decision,
+        :meth:`settle_plan`); a prompt of several, the sum of its clauses' expected lengths (in
+        one pass its clauses cannot settle each on its own). ``frames`` is cut to whole
+        snippets, the remainder left with the last part."""
         prepared = self.prepare([text])[0] if isinstance(text, str) else text
         unit = self.spec.snippet_length
-        if prepared.clauses or frames // unit < 1:
-            return [(prepared.text, frames)]
-        _, (snippets,) = self.settle_plan([[prepared.encoded]], [[frames // unit]])
-        if len(snippets) < 2:
-            return [(prepared.text, frames)]
-        first = snippets[0] * unit
-        return [(prepared.text, first), (SETTLE_TEXT, frames - first)]
+        whole = [(prepared.text, frames)]
+        if self.length_model is None or self._settle_caption() is None:
+            return whole
+        if prepared.clauses:
+            if not any(c.count for c in prepared.clauses):
+                return whole
+            means, _ = self.length_moments(list(prepared.clauses), clause=True)
+            need = int(needed_snippets(means).sum()) * unit
+        else:
+            need = self.count_frames([prepared])[0]
+        if not need or frames // unit - need // unit < MIN_SETTLE_SNIPPETS:
+            return whole
+        return [(prepared.text, need), (SETTLE_TEXT, frames - need)]
 
     def count_frames(self, prepared: Sequence[PreparedText]) -> list[int]:
         """The frames each prompt's count needs (:func:`t2m.clauses.needed_snippets` of the

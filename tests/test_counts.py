@@ -108,7 +108,7 @@ def test_plan_splits_a_counted_clause_at_a_long_length_not_at_its_own(settling):
     assert unsettled[1] == [longest]
 
 
-def test_count_parts_give_the_plan_as_prompts_and_frames(settling):
+def test_count_parts_give_the_plan_as_prompts_and_frames(settling, monkeypatch):
     pipe = settling
     unit, longest = pipe.spec.snippet_length, pipe.spec.max_frames
     (counted,) = pipe.prepare([COUNTED])
@@ -116,7 +116,12 @@ def test_count_parts_give_the_plan_as_prompts_and_frames(settling):
     assert pipe.count_parts(COUNTED, longest) == [(COUNTED, need), (SETTLE_TEXT, longest - need)]
     assert pipe.count_parts(counted, need) == [(COUNTED, need)]
     assert pipe.count_parts(PLAIN, longest) == [(PLAIN, longest)]
-    assert pipe.count_parts(TWO_PARTS, longest) == [(TWO_PARTS, longest)]  # its clauses settle
+    # several clauses: the sum of their expected lengths (faked here), then standing
+    fake = lambda encoded, clause=False: (np.full(len(encoded), 5.5), np.ones(len(encoded)))  # noqa: E731
+    monkeypatch.setattr(pipe, "length_moments", fake)
+    assert pipe.count_parts(TWO_PARTS, longest) == [(TWO_PARTS, 48), (SETTLE_TEXT, longest - 48)]
+    assert pipe.count_parts(TWO_PARTS, 60) == [(TWO_PARTS, 60)]  # 3 snippets to spare: whole
+    assert pipe.count_parts("a person walks forward, then waves", longest)[0][1] == longest
 
 
 def test_a_counted_clause_of_several_settles_before_the_next(settling):

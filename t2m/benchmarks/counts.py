@@ -226,9 +226,14 @@ def measure(
 
 
 def measure_two_clauses(
-    pipe, ratios: tuple[float, ...], samples: int, seed: int, settle: bool | None
+    pipe,
+    ratios: tuple[float, ...],
+    samples: int,
+    seed: int,
+    settle: bool | None,
+    mode: str = "generate",
 ) -> list[dict]:
-    """:data:`TWO_CLAUSES` generated at 1-3 times their expected length (the sum of their
+    """:data:`TWO_CLAUSES` made (``mode``, :data:`MODES`) at 1-3 times their expected length (the sum of their
     clauses' expected lengths as clauses), scored as the evaluation scores: both segments found
     in order, the counted events in their own segment
     (:func:`dataset_tools.synth.matching.align_segments`, the boundaries searched around the
@@ -238,7 +243,7 @@ def measure_two_clauses(
     unit, rows = pipe.spec.snippet_length, []
     for ratio in ratios:
         lengths = [pipe._clamp(round(m.sum() * ratio) * unit) for m in means]
-        motions = _generated(pipe, texts, lengths, samples, seed, settle)
+        motions = MODES[mode](pipe, texts, lengths, samples, seed, settle)
         for (text, labels), mean, frames, made in zip(TWO_CLAUSES, means, lengths, motions):
             edges = np.concatenate([[0.0], np.cumsum(mean) / mean.sum()]) * frames
             segments = [
@@ -334,7 +339,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--two-clauses",
         action="store_true",
-        help="also prompts of two clauses, one counted (plain generation)",
+        help="also prompts of two clauses, one counted, made as --mode makes them",
     )
     parser.add_argument("--out", type=Path, help="also write the rows as JSON lines here")
     args = parser.parse_args(argv)
@@ -370,7 +375,7 @@ def main(argv: list[str] | None = None) -> None:
         pairs = [
             r
             for mode in modes
-            for r in measure_two_clauses(pipe, ratios, args.samples, args.seed, mode)
+            for r in measure_two_clauses(pipe, ratios, args.samples, args.seed, mode, args.mode)
         ]
         for row in pairs:
             print(json.dumps(row))
