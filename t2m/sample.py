@@ -69,7 +69,14 @@ def main(argv: list[str] | None = None) -> int:
     prompts = config.prompts_for()
     out = config.output_folder()
     # 2. the models
-    pipe = config.load_pipeline(need_length_model=any(p.frames is None for p in prompts))
+    # (the length model also where every length is given, when trained: a counted clause
+    # keeps the time its count needs, TextToMotion.settle_plan)
+    try:
+        pipe = config.load_pipeline(need_length_model=True)
+    except UsageError:
+        if any(p.frames is None for p in prompts):
+            raise
+        pipe = config.load_pipeline(need_length_model=False)
     try:
         pipe.prepare([p.text for p in prompts])  # refuses a prompt with no known word
     except ValueError as error:

@@ -256,3 +256,26 @@ def test_live_counted_prompt_counts_once_then_settles(settling, monkeypatch):
     for _ in range((2 * plain + 8) // unit):
         stream.next_snippet()
     assert seen[:2] == [(PLAIN, plain), (PLAIN, plain)]
+
+
+def test_sampling_at_given_lengths_loads_the_length_model(tiny_run, tmp_path, monkeypatch):
+    """t2m.sample with every length given still loads the text2length stage where it is
+    trained: without it nothing could settle."""
+    from t2m.pipeline import TextToMotion
+    from t2m.sample import main
+
+    loads = []
+    original = TextToMotion.from_checkpoints.__func__
+
+    def recording(cls, *args, **kwargs):
+        pipe = original(cls, *args, **kwargs)
+        loads.append(pipe.length_model is not None)
+        return pipe
+
+    monkeypatch.setattr(TextToMotion, "from_checkpoints", classmethod(recording))
+    out = tmp_path / "out"
+    code = main(
+        ["--text", COUNTED, "--checkpoints", str(tiny_run), "--out", str(out), "--render", "none",
+         "--length", "120"]
+    )  # fmt: skip
+    assert code == 0 and loads == [True]
