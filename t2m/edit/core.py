@@ -10,16 +10,26 @@ frame 0's root at the origin facing +Z):
 
 :func:`generate_plans` then
 
-1. encodes the leading whole snippets that keep every joint with the frozen movement encoder
-   and runs the temporal VAE's posterior over them, teacher-forced (``prefix_state``): the state
-   the model would be in after the kept start, had it made it (``use_posterior``);
+1. encodes the leading whole snippets that keep every joint (the kept start) with the frozen
+   movement encoder, and starts the text's part as the clause plan starts a clause
+   (:func:`t2m.inference.generation.clause_codes`): the GRU states from the text's own sentence
+   feature, the last kept code as the previous code, and the time codes (time to arrival,
+   count clock) of a motion as long as the text's stretch (:func:`free_snippets`: up to a kept
+   end, or the result's end). Reading the kept start with the posterior under the new text
+   (``prefix_state``), and clocks that counted the kept start as part of the text's motion,
+   made the regenerated part go on doing what the source did (the edit benchmark's continue:
+   a quarter fewer regenerated parts recognised before the finishing);
 2. draws ``candidates`` noise sequences per result for the remaining snippets, in one batch;
 3. where targets lie past the kept start's next snippet (an end to reach, a body part, a path,
    keys), optimises the noise ``eps`` of the prior's ``z = mu + sigma * eps`` (``steps`` Adam
    steps) through the generator, the movement decoder and the differentiable joint recovery
    (:mod:`t2m.edit.recover`) against the squared error on the finite ``target`` entries plus
    ``noise_weight * mean(eps^2)``, which keeps the noise likely under the prior;
-4. keeps the candidate with the smallest constraint error;
+4. keeps the candidate with the smallest constraint error; where every target is hard-kept (no
+   optimisation: continue, inbetween, body, compose), every candidate is finished (steps 5-6)
+   and the one whose mean movement code over the text's stretch is closest to that of fresh
+   starts of the text (:func:`_stretch_means`) is kept: the one that does most what the text
+   does on its own, not the one that best continues the kept motion;
 5. hard-keeps (:func:`t2m.edit.keep.hard_keep`): kept features are copied, the generated side
    of every seam is offset to meet the kept side and eased back over ``blend_frames`` (positions, facing and
    velocities stay continuous), and the root's heading and floor position are bent smoothly so
@@ -33,7 +43,7 @@ frame 0's root at the origin facing +Z):
 
 Method ``posterior`` skips step 3; ``auto`` (the default) runs it only for plans with targets the
 hard keep cannot guarantee; ``best_of_n`` (the baseline) skips steps 1 and 3: N prior samples, the
-closest kept. All hard-keep.
+closest to the constraints kept. All hard-keep.
 """
 
 from __future__ import annotations
@@ -56,6 +66,10 @@ from t2m.inference.generation import text_batch
 logger = logging.getLogger(__name__)
 
 Method = Literal["auto", "optimize", "posterior", "best_of_n"]
+
+SETTLE_SNIPPETS = 4
+"""Snippets (0.8 s) after a kept start in which the motion turns from the kept one to the text's;
+the candidate choice by the text (:func:`_atypicality`) looks past them."""
 METHODS: tuple[str, ...] = get_args(Method)
 
 
@@ -64,7 +78,7 @@ class SearchSettings:
     """How hard to search for a result that meets the constraints.
 
     Attributes:
-        method: "optimize" (read the kept start with the posterior, optimise the noise against
+        method: "optimize" (continue from the kept start, optimise the noise against
             constraints past it, keep the best candidate), "posterior" (the same without the
             optimisation), "auto" (optimize where the plan has targets the hard keep cannot
             guarantee, :func:`has_soft_targets`: keys on joints other than the root's floor
@@ -103,6 +117,18 @@ class PlanResult:
     soft_error: float
 
 
+@dataclass(frozen=True)
+class Candidates:
+    """One plan's candidates from the search: features (N, T, D) before finishing, constraint
+    error (N,) (mean squared, m^2), and where the text chooses among them, ``reference`` (C,):
+    the mean code of the plan's text made on its own (:func:`_stretch_means`); else None."""
+
+    features: np.ndarray
+    error: np.ndarray
+    reference: np.ndarray | None
+    constrained: bool
+
+
 def has_soft_targets(plan: EditPlan) -> bool:
     """Whether the plan targets something the hard keep cannot guarantee: a joint that is not
     kept from a source, other than the root's floor position (which the keep bends to)."""
@@ -131,11 +157,11 @@ def generate_plans(
 ) -> list[PlanResult]:
     """Make every plan's result (plans of one length and prefix are batched together)."""
     unit = pipe.spec.snippet_length
-    use_posterior = settings.method != "best_of_n"
-    if use_posterior and pipe.encoder is None:
-        logger.warning("no movement encoder loaded: the kept start is not read by the posterior")
-        use_posterior = False
-    prefixes = [known_prefix_snippets(p, unit) if use_posterior else 0 for p in plans]
+    from_start = settings.method != "best_of_n"
+    if from_start and pipe.encoder is None:
+        logger.warning("no movement encoder loaded: the edit does not continue from the kept start")
+        from_start = False
+    prefixes = [known_prefix_snippets(p, unit) if from_start else 0 for p in plans]
     results: list[PlanResult | None] = [None] * len(plans)
     groups: dict[tuple[int, int, int], list[int]] = {}
     for index, plan in enumerate(plans):
@@ -157,12 +183,34 @@ def generate_plans(
         found = _search(
             pipe, [plans[i] for i in members], frames, known, generator, settings, steps
         )
-        for index, (features, error) in zip(members, found):
+        for index, candidates in zip(members, found):
             plan = plans[index]
-            kept = finish_plan(features, plan, settings.blend_frames)
+            if candidates.reference is None:
+                best = int(np.argmin(candidates.error))
+                kept = finish_plan(candidates.features[best], plan, settings.blend_frames)
+            else:  # each finished, the one closest to what the text makes on its own kept
+                finished = np.stack(
+                    [finish_plan(f, plan, settings.blend_frames) for f in candidates.features]
+                )
+                means = _stretch_means(pipe, finished, known, free_snippets(plan, unit, known))
+                best = int(np.argmin(((means - candidates.reference) ** 2).sum(-1)))
+                kept = finished[best]
             joints = recover_from_ric(kept, pipe.spec.num_joints).astype(np.float32)
+            error = float("nan")
+            if candidates.constrained:
+                error = math.sqrt(float(candidates.error[best]))
             results[index] = PlanResult(kept, joints, plan.kept_mask(), error)
     return results  # type: ignore[return-value]
+
+
+def free_snippets(plan: EditPlan, unit: int, known: int) -> int:
+    """Snippets from the end of the kept start to the next snippet whose every joint is kept
+    (a kept end), or to the result's end: the stretch the plan's text is made for."""
+    total = plan.num_frames // unit
+    if plan.source_features is None:
+        return total - known
+    later = np.flatnonzero(plan.keep.all(axis=1)[known * unit :])
+    return total - known if not len(later) else max(1, -(-int(later[0]) // unit))
 
 
 def _search(
@@ -173,9 +221,9 @@ def _search(
     generator: torch.Generator,
     settings: SearchSettings,
     steps: int,
-) -> list[tuple[np.ndarray, float]]:
-    """Steps 1-4 of the module docstring for plans of one length and known prefix: the chosen
-    candidate's decoded features (T, D) and its constraint error, per plan."""
+) -> list[Candidates]:
+    """Steps 1-3 of the module docstring for plans of one length and known prefix: every
+    plan's :class:`Candidates`."""
     vae, device, dtype = pipe.vae, pipe.device, pipe.dtype
     unit, num_joints = pipe.spec.snippet_length, pipe.spec.num_joints
     total = frames // unit
@@ -184,24 +232,26 @@ def _search(
     batch = len(plans) * draws
     encoded = [item.encoded for item in pipe.prepare([p.text for p in plans])]
     encoded = [item for item in encoded for _ in range(draws)]  # plan-major
+    free = torch.tensor(
+        [free_snippets(p, unit, known) for p in plans], device=device
+    ).repeat_interleave(draws)  # (B,)
     with torch.no_grad():
         words, pos, text_lengths = text_batch(encoded, pipe.device, dtype)
         word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
         context = vae.word_context(word_features, mask)
-        left = torch.full((batch,), total, dtype=torch.long, device=device)
         counts = torch.tensor([e.count for e in encoded], device=device)
         known_codes = None
+        fresh = vae.initial_state(sentence, pipe.initial_code)
+        state = fresh
         if known:
             source = np.stack([p.source_features[: known * unit] for p in plans])  # (P, K*4, D)
             normalised = pipe.normalizer.normalize(torch.from_numpy(source).to(device))
             known_codes = pipe.encoder(normalised[..., : pipe.encoder_input_size].float())
             known_codes = known_codes.to(dtype).repeat_interleave(draws, dim=0)  # (B, K, C)
-            state = vae.prefix_state(
-                word_features, sentence, mask, known_codes, pipe.initial_code, left, counts=counts
-            )
-        else:
-            state = vae.initial_state(sentence, pipe.initial_code)
-        time_codes = vae.time_codes(left - known, total - known, left, counts)
+            # The text's own start, fed the last kept code: as the clause plan starts a clause.
+            state = vae.initial_state(sentence, known_codes[:, -1])
+        # The text's clocks (time to arrival, count clock) run over its own stretch only.
+        time_codes = vae.time_codes(free, total - known, free, counts)
     noise = torch.randn(
         batch, total - known, vae.config.latent_size, generator=generator, device=device
     )
@@ -215,10 +265,13 @@ def _search(
     target = torch.nan_to_num(target).to(device)
     count = finite.flatten(1).sum(1).clamp(min=1)
 
-    def decode(eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """eps (B, S', Z) -> de-normalised features (B, T, D), squared error per item (B,)."""
+    def decode(eps: torch.Tensor, made: list | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """eps (B, S', Z) -> de-normalised features (B, T, D), squared error per item (B,);
+        the codes made (B, S', C) appended to ``made`` if given."""
         _, outputs = vae.rollout(state, context, time_codes, eps.to(dtype))
         codes = outputs.code
+        if made is not None:
+            made.append(codes)
         if known_codes is not None:
             codes = torch.cat([known_codes, codes], dim=1)
         normalised = pipe.decoder(codes.to(pipe.decoder_dtype)).float()
@@ -227,22 +280,55 @@ def _search(
         error = ((joints - target) ** 2 * finite).flatten(1).sum(1) / count
         return features, error
 
-    # The posterior has read the kept start; optimise only for constraints past its next snippet.
+    # The kept start is where the text starts from; optimise for constraints past its next snippet.
     if steps and bool(finite[:, (known + 1) * unit :].any()):
         if pipe.precision == "int8":  # dynamically quantised layers have no backward
             logger.warning("int8 models cannot be optimised through: the edit keeps the best draw")
         else:
             noise = _optimise(noise, decode, steps, settings)
+    by_text = [
+        draws > 1 and not steps and settings.method != "best_of_n" and not has_soft_targets(p)
+        for p in plans
+    ]
+    references = None
     with torch.no_grad():
         features, error = decode(noise)
-    features = features.view(len(plans), draws, frames, -1).cpu().numpy()
+        if any(by_text):  # what the text makes on its own: fresh starts, decoded as one piece
+            draw = torch.randn(noise.shape, generator=generator, device=device)
+            made = vae.rollout(fresh, context, time_codes, draw.to(dtype))[1].code
+            if known_codes is not None:
+                made = torch.cat([known_codes, made], dim=1)
+            decoded = pipe.decoder(made.to(pipe.decoder_dtype)).float()
+            fresh_features = pipe.normalizer.denormalize(decoded).cpu().numpy()
+            references = _stretch_means(pipe, fresh_features, known, free.cpu().numpy())
+            references = references.reshape(len(plans), draws, -1).mean(1)  # (P, C)
+    features = features.view(len(plans), draws, frames, -1).cpu().numpy().astype(np.float64)
     error = error.view(len(plans), draws).cpu().numpy()
-    chosen = []
-    for row in range(len(plans)):
-        best = int(np.argmin(error[row]))
-        rms = math.sqrt(float(error[row, best])) if constrained[row] else float("nan")
-        chosen.append((features[row, best].astype(np.float64), rms))
-    return chosen
+    return [
+        Candidates(
+            features[row],
+            error[row],
+            references[row] if by_text[row] else None,
+            constrained[row],
+        )
+        for row in range(len(plans))
+    ]
+
+
+def _stretch_means(pipe, features: np.ndarray, known: int, free: int | np.ndarray) -> np.ndarray:
+    """(N, C) mean movement-encoder code of features (N, T, D) over the text's stretch: the
+    ``free`` (N,) snippets after the ``known`` kept ones, less the first
+    :data:`SETTLE_SNIPPETS` (the change from the kept motion) where the stretch is longer."""
+    tensor = torch.from_numpy(np.asarray(features, dtype=np.float32)).to(pipe.device)
+    normalised = pipe.normalizer.normalize(tensor)[..., : pipe.encoder_input_size]
+    with torch.no_grad():
+        codes = pipe.encoder(normalised.float()).float().cpu().numpy()  # (N, S, C)
+    free = np.broadcast_to(np.asarray(free), (len(codes),))
+    steps = np.arange(codes.shape[1])[None, :]
+    settle = np.where(free > SETTLE_SNIPPETS, SETTLE_SNIPPETS, 0)[:, None]
+    weights = ((steps >= known + settle) & (steps < known + free[:, None])).astype(np.float32)
+    weights /= np.maximum(weights.sum(1, keepdims=True), 1.0)
+    return (codes * weights[..., None]).sum(1)
 
 
 def _optimise(noise: torch.Tensor, decode, steps: int, settings: SearchSettings) -> torch.Tensor:
