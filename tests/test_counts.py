@@ -8,6 +8,7 @@ import logging
 
 import numpy as np
 import pytest
+import torch
 
 from t2m.clauses import (
     MIN_SETTLE_SNIPPETS,
@@ -279,3 +280,32 @@ def test_sampling_at_given_lengths_loads_the_length_model(tiny_run, tmp_path, mo
          "--length", "120"]
     )  # fmt: skip
     assert code == 0 and loads == [True]
+
+
+def test_compose_makes_a_counted_segment_as_its_count_then_standing(settling, monkeypatch):
+    """compose cuts a counted segment as count_parts does: the count in the time it needs, the
+    rest standing still; a segment without a count is made whole."""
+    import t2m.edit
+    from t2m.edit import SearchSettings
+    from t2m.edit.modes import Segment
+
+    pipe = settling
+    unit = pipe.spec.snippet_length
+    seen: list[tuple[str, int]] = []
+    original = t2m.edit.generate_plans
+
+    def recording(pipe, plans, generator, settings):
+        for plan in plans[:1]:
+            seen.append((plan.text, plan.num_frames - int(plan.keep.any(axis=1).sum())))
+        return original(pipe, plans, generator, settings)
+
+    monkeypatch.setattr(t2m.edit, "generate_plans", recording)
+    (counted,) = pipe.prepare([COUNTED])
+    need = _own_snippets(pipe, counted) * unit
+    longest = pipe.spec.max_frames // unit * unit
+    timeline = [Segment(COUNTED, 0, longest), Segment(PLAIN, longest, longest + 2 * unit)]
+    (result,) = t2m.edit.compose(
+        pipe, timeline, 1, torch.Generator().manual_seed(0), SearchSettings(candidates=1)
+    )
+    assert seen == [(COUNTED, need), (SETTLE_TEXT, longest - need), (PLAIN, 2 * unit)]
+    assert len(result.features) == longest + 2 * unit

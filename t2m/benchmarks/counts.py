@@ -18,8 +18,8 @@ both. ``--mode live`` scores the first frames of a live stream (:class:`t2m.live
 its segment length fixed to the length, seed ``--seed`` + sample), ``--mode compose`` a
 ``compose`` of a one-line timeline (one posterior draw per window, as the live stream searches);
 both at the fixed lengths only, and there "no settle" keeps the prompt whole where
-:meth:`~t2m.pipeline.TextToMotion.count_parts` would split it, while "settle" splits the compose
-timeline's line as count_parts does (what compose does once it asks count_parts). The table
+:meth:`~t2m.pipeline.TextToMotion.count_parts` would split it, while "settle" lets them split
+it (compose and the live stream ask count_parts for every line and prompt). The table
 gives the share right per action and length; the JSON lines also the counts the detectors found.
 ``--two-clauses`` adds prompts of two clauses, one of them counted (:data:`TWO_CLAUSES`), at 1-3
 times their expected length, scored as the evaluation scores them. ``--dataset`` is the demo corpus the model trained on: its ``labels.json``
@@ -150,21 +150,22 @@ def _live(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]
 
 
 def _composed(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]:
-    """Joints of ``compose`` of a one-line timeline per prompt (its fixed length), with
-    ``settle`` the line split as :meth:`TextToMotion.count_parts` splits it: what compose does
-    once it asks count_parts for its lines' parts."""
+    """Joints of ``compose`` of a one-line timeline per prompt (its fixed length); compose
+    splits a counted line as :meth:`TextToMotion.count_parts` does, unless ``settle`` is
+    False."""
     from t2m.edit import SearchSettings
 
     fps, out = pipe.spec.fps, []
     settings = SearchSettings(method="posterior", candidates=1)
     with _unsplit(pipe, settle):
         for text, frames in zip(texts, lengths, strict=True):
-            lines, start = [], 0
-            for part, size in pipe.count_parts(text, frames):
-                lines.append(f"{part}#{start / fps:g}#{(start + size) / fps:g}")
-                start += size
             made = pipe.edit(
-                "", "compose", timeline=lines, num_samples=samples, seed=seed, settings=settings
+                "",
+                "compose",
+                timeline=[f"{text}#0#{frames / fps:g}"],
+                num_samples=samples,
+                seed=seed,
+                settings=settings,
             )
             out.append([m.joints for m in made])
     return out

@@ -180,7 +180,10 @@ def compose(
 ) -> list[PlanResult]:
     """Chain the timeline's segments into one motion per sample: windows of at most the
     model's longest motion, each continuing (as ``continue`` does) from the last
-    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes.
+    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes. A segment
+    whose prompt names a count and lasts longer than the count needs is made as that count
+    followed by standing still (:meth:`t2m.pipeline.TextToMotion.count_parts`; needs the length
+    model, else the segment is made whole).
 
     ``start``: features (K, D) the result starts with, kept exactly (a source's stretch,
     :class:`t2m.edit.modes.ComposePlan`); the first window continues from them as the others
@@ -190,13 +193,15 @@ def compose(
     context = int(round(COMPOSE_CONTEXT_SECONDS * spec.fps)) // unit * unit
     chunks = []  # (text, frames)
     for segment in timeline:
-        left = segment.stop - segment.start
-        while left > 0:
-            first = not chunks and start is None
-            room = spec.max_frames - (0 if first else context)
-            size = min(left, room // unit * unit)
-            chunks.append((segment.text, size))
-            left -= size
+        # a counted prompt keeps the time its count needs, then stands (TextToMotion.count_parts)
+        for text, frames in pipe.count_parts(segment.text, segment.stop - segment.start):
+            left = frames
+            while left > 0:
+                first = not chunks and start is None
+                room = spec.max_frames - (0 if first else context)
+                size = min(left, room // unit * unit)
+                chunks.append((text, size))
+                left -= size
     kept = 0 if start is None else len(start)
     # per sample, what is made so far (T, D)
     features: list[np.ndarray] = [] if start is None else [start] * num_samples

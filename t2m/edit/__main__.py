@@ -205,7 +205,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     out = config.output_folder("edit-")
     # 2. the models
-    pipe = config.load_pipeline(need_length_model=False)
+    # the length model where trained: compose's counted prompts keep the time their count needs
+    try:
+        pipe = config.load_pipeline(need_length_model=True)
+    except UsageError:
+        pipe = config.load_pipeline(need_length_model=False)
     limits = config.max_timeline_lines, config.max_timeline_seconds
     frames = []
     for number, r in enumerate(requests):
