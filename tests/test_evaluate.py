@@ -410,3 +410,27 @@ def test_a_subset_is_shared_by_all_draws_of_a_replication():
     config = evaluate.EvalConfig(replications=2, max_items=64, mm_texts=4, mm_samples=10)
     result = evaluate.run_protocol(_clips(70), FakeBackend(), config)
     np.testing.assert_allclose(result.values[evaluate.REAL]["fid"], 0.0, atol=1e-6)
+
+
+def test_checkpoint_backend_settles_counts_at_given_lengths_as_sampling_does(tiny_run, monkeypatch):
+    """With the clause plan, ground-truth (given) lengths are fixed lengths: a counted clause
+    keeps the time its count needs, as t2m.sample does; drawn lengths and the paper's one-pass
+    plan never settle."""
+    backend = evaluate.CheckpointBackend.from_run_dir(tiny_run, batch_size=3)
+    seen = []
+    original = backend.pipeline.generate_features
+
+    def recording(*args, **kwargs):
+        seen.append(kwargs.get("settle"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(backend.pipeline, "generate_features", recording)
+    captions = [Caption("a person walks forward", ["a/DET", "person/NOUN", "walk/VERB"])] * 2
+    backend.generate(captions, np.array([40, 48]), seed=0)
+    assert seen == [[True, True]]
+    seen.clear()
+    backend.generate(captions, None, seed=0)
+    assert seen == [[False, False]]
+    seen.clear()
+    backend.with_plan("whole").generate(captions, np.array([40, 48]), seed=0)
+    assert seen == [False]

@@ -304,7 +304,10 @@ class CheckpointBackend:
         """Features (frames, D) of one motion per caption: the pipeline's plan
         (:meth:`~t2m.pipeline.TextToMotion.plan_prepared`: lengths drawn ``batch_size``
         captions at a time where not given, then the latent draws of each batch of
-        :func:`generation_batches`) and its models."""
+        :func:`generation_batches`) and its models. With the clause plan, a counted clause
+        given a length (the ground-truth lengths) keeps the time its count needs and stands
+        still for the rest, as ``t2m.sample`` does at a fixed length
+        (:meth:`~t2m.pipeline.TextToMotion.clause_plan`); drawn lengths never settle."""
         from t2m.pipeline import PreparedText
 
         pipeline = self.pipeline
@@ -328,6 +331,7 @@ class CheckpointBackend:
             length_batch=self.batch_size,
         )
         out: list[np.ndarray | None] = [None] * len(captions)
+        fixed = dict(zip(planned.items, planned.fixed, strict=True))
         for items, frames, noise in planned.batches():
             index = [p for p, _ in items]
             features = pipeline.generate_features(
@@ -336,6 +340,8 @@ class CheckpointBackend:
                 generator,
                 noise=noise,
                 clauses=None if self.plan != "clauses" else [parts[i] for i in index],
+                # as t2m.sample: at a given length a counted clause keeps the time it needs
+                settle=[fixed[item] for item in items] if self.plan == "clauses" else False,
             )
             for item, feats in zip(index, features, strict=True):
                 out[item] = feats
