@@ -1,0 +1,148 @@
+"""Edits follow the text (issue 32 item 2), on the tiny trained run: the text's part starts as
+the clause plan starts a clause (its own sentence state, the last kept code fed, the clocks of
+its own stretch), not from the kept start read under the new text; and where every target is
+hard-kept, the candidate is chosen by what the text makes on its own, not by the seam."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from conftest import synth_joints
+
+from t2m.edit import EditRequest, SearchSettings
+from t2m.edit import core as search
+from t2m.edit.core import Candidates, free_snippets, known_prefix_snippets
+from t2m.inference.generation import text_batch
+
+TEXT = "a person waves both hands"
+COUNTED = "a person jumps three times"  # a count: the count clock runs
+
+
+@pytest.fixture(scope="module")
+def pipe(tiny_run):
+    from t2m.pipeline import TextToMotion
+
+    return TextToMotion.from_checkpoints(tiny_run, need_length_model=False)
+
+
+@pytest.fixture(scope="module")
+def walk() -> np.ndarray:
+    return synth_joints("walk_forward", 121, np.random.default_rng(5))
+
+
+def _continue_plan(pipe, joints: np.ndarray, text: str = TEXT):
+    request = EditRequest("continue", text, joints, keep_seconds=2.0, seconds=5.0)
+    return request.plan(pipe.spec)
+
+
+def test_the_texts_part_is_the_clause_plans_continuation(pipe, walk):
+    """The search's candidate is exactly what the model makes for the text as a clause that
+    follows the kept start: GRU states from the text's sentence, the last kept code fed first,
+    time to arrival and count clock over the text's own snippets. Reading the kept start with
+    the posterior under the new text, or clocks that count the kept start as the text's
+    motion, give other codes and fail."""
+    plan = _continue_plan(pipe, walk, COUNTED)
+    unit = pipe.spec.snippet_length
+    known = known_prefix_snippets(plan, unit)
+    total = plan.num_frames // unit
+    assert known == 10 and free_snippets(plan, unit, known) == total - known
+    settings = SearchSettings(method="posterior", candidates=1)
+    (found,) = search._search(
+        pipe, [plan], plan.num_frames, known, torch.Generator().manual_seed(4), settings, 0
+    )
+    vae = pipe.vae
+    with torch.no_grad():
+        source = torch.from_numpy(plan.source_features[: known * unit]).float()[None]
+        normalised = pipe.normalizer.normalize(source)[..., : pipe.encoder_input_size]
+        known_codes = pipe.encoder(normalised)  # (1, K, C)
+        (encoded,) = [item.encoded for item in pipe.prepare([COUNTED])]
+        assert encoded.count == 3
+        words, pos, lengths = text_batch([encoded], pipe.device, pipe.dtype)
+        word_features, sentence, mask = vae.encode_text(words, pos, lengths)
+        noise = torch.randn(
+            1, total - known, vae.config.latent_size, generator=torch.Generator().manual_seed(4)
+        )
+        made = vae.generate(
+            word_features,
+            sentence,
+            mask,
+            torch.tensor([total - known]),
+            noise=noise,
+            state=vae.initial_state(sentence, known_codes[:, -1]),
+            counts=torch.tensor([encoded.count]),
+        )
+        decoded = pipe.decoder(torch.cat([known_codes, made], dim=1)).float()
+        expected = pipe.normalizer.denormalize(decoded)[0].numpy()
+    np.testing.assert_allclose(found.features[0], expected, rtol=1e-4, atol=1e-4)
+
+
+def test_only_the_last_kept_snippets_shape_what_follows(pipe, walk):
+    """Two sources that differ only in their first second give the same regenerated part past
+    the convolutions' reach: the kept start's earlier motion does not steer the text's part
+    (it did when the posterior read the whole kept start)."""
+    other = walk.copy()
+    rng = np.random.default_rng(0)
+    other[:20] += rng.normal(0.0, 0.05, size=other[:20].shape)  # the first second only
+    settings = SearchSettings(method="posterior", candidates=1)
+    parts = []
+    for joints in (walk, other):
+        plan = _continue_plan(pipe, joints)
+        known = known_prefix_snippets(plan, pipe.spec.snippet_length)
+        (found,) = search._search(
+            pipe, [plan], plan.num_frames, known, torch.Generator().manual_seed(2), settings, 0
+        )
+        parts.append(found.features[0])
+    kept = 40
+    assert not np.allclose(parts[0][:20], parts[1][:20])  # the sources do differ
+    np.testing.assert_allclose(parts[0][kept + 8 :], parts[1][kept + 8 :], atol=1e-5)
+
+
+def test_the_texts_stretch_ends_at_a_kept_end(pipe, walk):
+    unit = pipe.spec.snippet_length
+    inbetween = EditRequest(
+        "inbetween", TEXT, walk, keep_start=1.0, keep_end=1.0, seconds=5.0
+    ).plan(pipe.spec)
+    known = known_prefix_snippets(inbetween, unit)
+    assert known == 5
+    assert free_snippets(inbetween, unit, known) == 25 - 5 - 5  # up to the kept last second
+    body = EditRequest("body", TEXT, walk, part="lower").plan(pipe.spec)
+    assert free_snippets(body, unit, 0) == body.num_frames // unit
+
+
+def test_hard_kept_plans_choose_the_candidate_by_the_text(pipe, walk, monkeypatch):
+    """Where every target is hard-kept, the finished candidate whose mean code over the text's
+    stretch is nearest the text's own is kept, even when another one meets the seam better;
+    elsewhere (``reference`` None) the smallest constraint error still decides."""
+    plan = _continue_plan(pipe, walk)
+    unit = pipe.spec.snippet_length
+    known = known_prefix_snippets(plan, unit)
+    settings = SearchSettings(method="posterior", candidates=3)
+    (found,) = search._search(
+        pipe, [plan], plan.num_frames, known, torch.Generator().manual_seed(1), settings, 0
+    )
+    assert found.reference is not None and found.features.shape[0] == 3
+    finished = np.stack([search.finish_plan(f, plan, 16) for f in found.features])
+    free = free_snippets(plan, unit, known)
+    means = search._stretch_means(pipe, finished, known, free)
+    assert not np.allclose(means[0], means[2])
+    for wanted, reference in ((2, means[2]), (None, None)):
+        error = np.array([0.0, 1.0, 2.0])  # candidate 0 meets the seam best
+        rigged = Candidates(found.features, error, reference, True)
+        monkeypatch.setattr(search, "_search", lambda *args, r=rigged: [r])
+        (result,) = search.generate_plans(pipe, [plan], torch.Generator(), settings)
+        chosen = 0 if wanted is None else wanted
+        np.testing.assert_allclose(result.features, finished[chosen], atol=1e-6)
+        assert result.soft_error == pytest.approx(np.sqrt(error[chosen]))
+
+
+def test_the_stretch_mean_skips_the_settling_snippets(pipe):
+    unit = pipe.spec.snippet_length
+    frames = 30 * unit
+    features = np.zeros((1, frames, pipe.spec.feature_dim))
+    base = search._stretch_means(pipe, features, 10, 20)
+    changed = features.copy()
+    changed[:, : (10 + search.SETTLE_SNIPPETS) * unit - 8] = 5.0  # kept start and settling only
+    np.testing.assert_allclose(search._stretch_means(pipe, changed, 10, 20), base, atol=1e-5)
+    changed[:, 25 * unit :] = 5.0  # inside the stretch
+    assert not np.allclose(search._stretch_means(pipe, changed, 10, 20), base, atol=1e-3)
