@@ -29,7 +29,8 @@ Columns (per method):
   (the edits' sources; compose: its donors);
 * ``semantic``: fraction of regenerated parts whose donor label the corpus' detectors recover
   (body: the upper-body action, and the source's walk still detected; compose: the fraction
-  of segments recognised, each judged on its own 4 s);
+  of segments recognised, each judged on its own 4 s, and below the table per timeline
+  position: the first segment starts from rest, the others continue the one before);
   ``plain`` gives the same for plain generation of the same captions and lengths;
 * ``skate``: the foot-skating ratio (feet 10 and 11; a frame skates when a foot is within 5 cm of
   the floor in two consecutive frames and its speed and its 5-frame mean speed both exceed
@@ -334,14 +335,16 @@ def judge(item: Item, motion, fps: float) -> dict:
     out["skate"] = skating_ratio(motion.joints, fps)
     # semantic
     if request.mode == "compose":
-        found = []
         step = len(motion.joints) // 3
-        for index, label in enumerate(item.labels):
-            if label is not None:
-                found.append(
-                    _labels_found(motion.joints[index * step : (index + 1) * step], [label], fps)
-                )
+        segments = [
+            None
+            if label is None
+            else _labels_found(motion.joints[index * step : (index + 1) * step], [label], fps)
+            for index, label in enumerate(item.labels)
+        ]
+        found = [f for f in segments if f is not None]
         out["semantic"] = float(np.mean(found)) if found else None  # per segment, as plain
+        out["segments"] = segments
     else:
         a, b = item.part or (0, len(motion.joints))
         part = motion.joints[a:b]
@@ -410,6 +413,9 @@ def _plain_row(
         ]
     else:
         found = [_labels_found(m.joints, lab, fps) for m, lab in zip(plain_motions, plain_labels)]
+    segments = None
+    if config.edit == "compose":  # each timeline position's captions (three per item)
+        segments = [_mean_found(found[index::3]) for index in range(3)]
     found = [f for f in found if f is not None]
     plain_seams = [
         seam_statistics(m.joints, int(rng.integers(3, len(m.joints) - 4)), fps)
@@ -421,7 +427,15 @@ def _plain_row(
         "semantic": float(np.mean(found)) if found else None,
         "skate": float(np.mean([skating_ratio(m.joints, fps) for m in plain_motions])),
     }
+    if segments is not None:
+        row["semantic_segments"] = segments
     return row, plain_motions
+
+
+def _mean_found(found: list) -> float | None:
+    """The share of True among the judged (not None) entries; None where none was judged."""
+    judged = [f for f in found if f is not None]
+    return float(np.mean(judged)) if judged else None
 
 
 def run_benchmark(config: EditBenchConfig) -> dict:
@@ -581,6 +595,10 @@ def _summarise(judged: list[dict]) -> dict:
     row["seam_jerk"] = float(np.median([s[1] for s in seams])) if seams else None
     semantic = [j["semantic"] for j in judged if j["semantic"] is not None]
     row["semantic"] = float(np.mean(semantic)) if semantic else None
+    if judged and "segments" in judged[0]:  # compose: per timeline position
+        row["semantic_segments"] = [
+            _mean_found([j["segments"][index] for j in judged]) for index in range(3)
+        ]
     return row
 
 
@@ -616,6 +634,11 @@ def format_table(results: dict) -> str:
         f"| real motions | | | | | | {f(real['seam_acc'], 1)} | {f(real['seam_jerk'], 0)} | | "
         f"{f(real['skate'])} | {f(real.get('r_precision_3'))} | {f(real.get('fid'), 2)} | |"
     )
+    if "semantic_segments" in plain:
+        lines.append("")
+        for name, row in [*results["methods"].items(), ("plain generation", plain)]:
+            shares = " / ".join(f(v, 2) for v in row.get("semantic_segments", []))
+            lines.append(f"Semantic per segment (first / second / third), {name}: {shares}.")
     lines += ["", f"Peak resident memory of the process: {results['peak_rss_mb']:.0f} MB."]
     if "paper_ms_per_edit" in results:
         timed = ", ".join(f"{m} {v:.0f}" for m, v in results["paper_ms_per_edit"].items())
