@@ -25,11 +25,7 @@ frame 0's root at the origin facing +Z):
    steps) through the generator, the movement decoder and the differentiable joint recovery
    (:mod:`t2m.edit.recover`) against the squared error on the finite ``target`` entries plus
    ``noise_weight * mean(eps^2)``, which keeps the noise likely under the prior;
-4. keeps the candidate with the smallest constraint error; where every target is hard-kept (no
-   optimisation: continue, inbetween, body, compose), every candidate is finished (steps 5-6)
-   and the one whose mean movement code over the text's stretch is closest to that of fresh
-   starts of the text (:func:`_stretch_means`) is kept: the one that does most what the text
-   does on its own, not the one that best continues the kept motion;
+4. keeps the candidate with the smallest constraint error;
 5. hard-keeps (:func:`t2m.edit.keep.hard_keep`): kept features are copied, the generated side
    of every seam is offset to meet the kept side and eased back over ``blend_frames`` (positions, facing and
    velocities stay continuous), and the root's heading and floor position are bent smoothly so
@@ -67,9 +63,6 @@ logger = logging.getLogger(__name__)
 
 Method = Literal["auto", "optimize", "posterior", "best_of_n"]
 
-SETTLE_SNIPPETS = 4
-"""Snippets (0.8 s) after a kept start in which the motion turns from the kept one to the text's;
-the candidate choice by the text (:func:`_atypicality`) looks past them."""
 METHODS: tuple[str, ...] = get_args(Method)
 
 
@@ -115,18 +108,6 @@ class PlanResult:
     joints: np.ndarray
     kept: np.ndarray
     soft_error: float
-
-
-@dataclass(frozen=True)
-class Candidates:
-    """One plan's candidates from the search: features (N, T, D) before finishing, constraint
-    error (N,) (mean squared, m^2), and where the text chooses among them, ``reference`` (C,):
-    the mean code of the plan's text made on its own (:func:`_stretch_means`); else None."""
-
-    features: np.ndarray
-    error: np.ndarray
-    reference: np.ndarray | None
-    constrained: bool
 
 
 def has_soft_targets(plan: EditPlan) -> bool:
@@ -183,22 +164,10 @@ def generate_plans(
         found = _search(
             pipe, [plans[i] for i in members], frames, known, generator, settings, steps
         )
-        for index, candidates in zip(members, found):
+        for index, (features, error) in zip(members, found):
             plan = plans[index]
-            if candidates.reference is None:
-                best = int(np.argmin(candidates.error))
-                kept = finish_plan(candidates.features[best], plan, settings.blend_frames)
-            else:  # each finished, the one closest to what the text makes on its own kept
-                finished = np.stack(
-                    [finish_plan(f, plan, settings.blend_frames) for f in candidates.features]
-                )
-                means = _stretch_means(pipe, finished, known, free_snippets(plan, unit, known))
-                best = int(np.argmin(((means - candidates.reference) ** 2).sum(-1)))
-                kept = finished[best]
+            kept = finish_plan(features, plan, settings.blend_frames)
             joints = recover_from_ric(kept, pipe.spec.num_joints).astype(np.float32)
-            error = float("nan")
-            if candidates.constrained:
-                error = math.sqrt(float(candidates.error[best]))
             results[index] = PlanResult(kept, joints, plan.kept_mask(), error)
     return results  # type: ignore[return-value]
 
@@ -221,9 +190,9 @@ def _search(
     generator: torch.Generator,
     settings: SearchSettings,
     steps: int,
-) -> list[Candidates]:
-    """Steps 1-3 of the module docstring for plans of one length and known prefix: every
-    plan's :class:`Candidates`."""
+) -> list[tuple[np.ndarray, float]]:
+    """Steps 1-4 of the module docstring for plans of one length and known prefix: the chosen
+    candidate's decoded features (T, D) and its constraint error, per plan."""
     vae, device, dtype = pipe.vae, pipe.device, pipe.dtype
     unit, num_joints = pipe.spec.snippet_length, pipe.spec.num_joints
     total = frames // unit
@@ -241,8 +210,7 @@ def _search(
         context = vae.word_context(word_features, mask)
         counts = torch.tensor([e.count for e in encoded], device=device)
         known_codes = None
-        fresh = vae.initial_state(sentence, pipe.initial_code)
-        state = fresh
+        state = vae.initial_state(sentence, pipe.initial_code)
         if known:
             source = np.stack([p.source_features[: known * unit] for p in plans])  # (P, K*4, D)
             normalised = pipe.normalizer.normalize(torch.from_numpy(source).to(device))
@@ -265,13 +233,10 @@ def _search(
     target = torch.nan_to_num(target).to(device)
     count = finite.flatten(1).sum(1).clamp(min=1)
 
-    def decode(eps: torch.Tensor, made: list | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """eps (B, S', Z) -> de-normalised features (B, T, D), squared error per item (B,);
-        the codes made (B, S', C) appended to ``made`` if given."""
+    def decode(eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """eps (B, S', Z) -> de-normalised features (B, T, D), squared error per item (B,)."""
         _, outputs = vae.rollout(state, context, time_codes, eps.to(dtype))
         codes = outputs.code
-        if made is not None:
-            made.append(codes)
         if known_codes is not None:
             codes = torch.cat([known_codes, codes], dim=1)
         normalised = pipe.decoder(codes.to(pipe.decoder_dtype)).float()
@@ -286,49 +251,16 @@ def _search(
             logger.warning("int8 models cannot be optimised through: the edit keeps the best draw")
         else:
             noise = _optimise(noise, decode, steps, settings)
-    by_text = [
-        draws > 1 and not steps and settings.method != "best_of_n" and not has_soft_targets(p)
-        for p in plans
-    ]
-    references = None
     with torch.no_grad():
         features, error = decode(noise)
-        if any(by_text):  # what the text makes on its own: fresh starts, decoded as one piece
-            draw = torch.randn(noise.shape, generator=generator, device=device)
-            made = vae.rollout(fresh, context, time_codes, draw.to(dtype))[1].code
-            if known_codes is not None:
-                made = torch.cat([known_codes, made], dim=1)
-            decoded = pipe.decoder(made.to(pipe.decoder_dtype)).float()
-            fresh_features = pipe.normalizer.denormalize(decoded).cpu().numpy()
-            references = _stretch_means(pipe, fresh_features, known, free.cpu().numpy())
-            references = references.reshape(len(plans), draws, -1).mean(1)  # (P, C)
-    features = features.view(len(plans), draws, frames, -1).cpu().numpy().astype(np.float64)
+    features = features.view(len(plans), draws, frames, -1).cpu().numpy()
     error = error.view(len(plans), draws).cpu().numpy()
-    return [
-        Candidates(
-            features[row],
-            error[row],
-            references[row] if by_text[row] else None,
-            constrained[row],
-        )
-        for row in range(len(plans))
-    ]
-
-
-def _stretch_means(pipe, features: np.ndarray, known: int, free: int | np.ndarray) -> np.ndarray:
-    """(N, C) mean movement-encoder code of features (N, T, D) over the text's stretch: the
-    ``free`` (N,) snippets after the ``known`` kept ones, less the first
-    :data:`SETTLE_SNIPPETS` (the change from the kept motion) where the stretch is longer."""
-    tensor = torch.from_numpy(np.asarray(features, dtype=np.float32)).to(pipe.device)
-    normalised = pipe.normalizer.normalize(tensor)[..., : pipe.encoder_input_size]
-    with torch.no_grad():
-        codes = pipe.encoder(normalised.float()).float().cpu().numpy()  # (N, S, C)
-    free = np.broadcast_to(np.asarray(free), (len(codes),))
-    steps = np.arange(codes.shape[1])[None, :]
-    settle = np.where(free > SETTLE_SNIPPETS, SETTLE_SNIPPETS, 0)[:, None]
-    weights = ((steps >= known + settle) & (steps < known + free[:, None])).astype(np.float32)
-    weights /= np.maximum(weights.sum(1, keepdims=True), 1.0)
-    return (codes * weights[..., None]).sum(1)
+    chosen = []
+    for row in range(len(plans)):
+        best = int(np.argmin(error[row]))
+        rms = math.sqrt(float(error[row, best])) if constrained[row] else float("nan")
+        chosen.append((features[row, best].astype(np.float64), rms))
+    return chosen
 
 
 def _optimise(noise: torch.Tensor, decode, steps: int, settings: SearchSettings) -> torch.Tensor:
