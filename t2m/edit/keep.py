@@ -20,8 +20,9 @@ from t2m.edit.source import half_yaw_of
 
 SEAM_SMOOTH_SIGMA = 1.5
 """Standard deviation (frames) of the Gaussian that smooths the generated side of a seam: the
-model's output is jerkiest just after the kept start it continues from (its own change from the
-read start to new motion), about twice the jerk of real motion over the 0.5 s there."""
+model's output is jerkiest for about ten frames after the kept start it continues from (its own
+change from the read start to new motion): 1.4x the jerk of real motion over the 0.5 s around a
+``continue`` seam without it, 0.9x with it (demo model, docs/editing.md)."""
 SEAM_SMOOTH_FRAMES = 8
 """Frames over which that smoothing fades out into the free run (fully applied on the first)."""
 
