@@ -142,8 +142,11 @@ def demo() -> Config:
 DEMO_NOTES = """Small models that train all four stages on the procedural demo corpus on two CPU
 cores (make demo). The autoencoder uses smooth L1 (the original's L1 loses one-handed waves at
 this size); the generator trains whole clips over four curriculum lengths (10, 23, 36, 49
-snippets: 2 epochs each, 19 at the last, no patience) with a count clock ("claps five times"
-turns a clock five times between a 0.6 s wind-up and wind-down); the length model reads a
+snippets: 2 epochs each, 19 at the last, no patience; the last 8 at learning rates falling to a
+tenth, without which what a caption says of speed had not settled: runs read as too slow or too
+fast by the detectors, run 0.66 in one make demo; with it 0.90 and 0.93 over two generator
+seeds) with a count clock ("claps five times" turns a clock five times between a 0.6 s
+wind-up and wind-down); the length model reads a
 caption's count and whether it is a clause. Sized in optimiser steps, not passes (epoch_steps:
 one pass over the demo corpus' 3,200 training clips): autoencoder 2,000, length 1,250,
 generator 2,500, evaluator 800 on any dataset; a training split under 800 clips logs a
