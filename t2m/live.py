@@ -28,8 +28,10 @@ the world position and heading are integrated in float64 from the features' root
 Finishing (:meth:`t2m.pipeline.TextToMotion.finish`: the foot clean-up and whatever else the
 pipeline applies to a whole motion) runs per snippet on a window of the last
 :data:`FINISH_LOOKBACK_FRAMES` frames plus the snippet (only frames already made: causal), and the
-snippet's rows are kept. The chain itself continues from the raw, unfinished features, so the
-clean-up never feeds back into the model.
+snippet's rows are kept. The chain continues from each segment's result as
+:func:`t2m.edit.core.generate_plans` gives it (hard keep, seam smoothing, rigid fit and the foot
+clean-up with the kept context held: :func:`t2m.edit.keep.finish_plan`), so what the model reads
+next is a finished motion, not its raw output.
 
 Reproducible: the stream is a function of its seed and its prompts' boundary frames (and fixed
 lengths): segment n draws its length and latent noise from a generator seeded by (seed, n), and
