@@ -537,7 +537,11 @@ def test_learning_rates_fall_over_the_last_epochs_of_the_last_length(tiny_config
 def test_generator_trains_its_last_epochs_at_the_annealed_rates(
     tiny_dataset, tiny_config, tiny_run, tmp_path
 ):
-    shutil.copytree(tiny_run / "autoencoder", tmp_path / "autoencoder")
+    """The rates of the annealed epochs, logged and in the optimiser; a run stopped inside its
+    last (annealed) epoch and resumed ends with the same weights as one never stopped."""
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    for run_dir in (whole, killed):
+        shutil.copytree(tiny_run / "autoencoder", run_dir / "autoencoder")
     overrides = {
         "generator.start_snippets": "10",
         "generator.end_snippets": "10",
@@ -548,14 +552,21 @@ def test_generator_trains_its_last_epochs_at_the_annealed_rates(
         "generator.log_every": "1",
     }
     config = apply_overrides(tiny_config, overrides)
-    train_stage("generator", config, tiny_dataset, tmp_path)
+    train_stage("generator", config, tiny_dataset, whole)
     records = [
         json.loads(line)
-        for line in (tmp_path / "generator" / "metrics.jsonl").read_text().splitlines()
+        for line in (whole / "generator" / "metrics.jsonl").read_text().splitlines()
     ]
     scales = {r["epoch"]: r["lr_scale"] for r in records if r.get("split") == "train"}
     assert list(scales.values()) == pytest.approx([1.0, 0.625, 0.25])
-    groups = read_checkpoint(tmp_path / "generator" / "latest.pt")["optimizer"]["param_groups"]
-    rates = [group["lr"] for group in groups]
+    stored = read_checkpoint(whole / "generator" / "latest.pt")
+    rates = [group["lr"] for group in stored["optimizer"]["param_groups"]]
     section = config.generator
     assert rates == pytest.approx([0.25 * section.lr, 0.25 * section.decoder_lr])
+    steps = stored["progress"]["step"]
+    assert steps % 3 == 0 and steps >= 6  # three epochs of at least two steps
+    stop = apply_overrides(config, {"generator.max_steps": str(steps - 1)})
+    train_stage("generator", stop, tiny_dataset, killed)
+    train_stage("generator", config, tiny_dataset, killed, resume=True)
+    wa, wb = weights(whole / "generator" / "latest.pt"), weights(killed / "generator" / "latest.pt")
+    assert wa.keys() == wb.keys() and all(torch.equal(wa[k], wb[k]) for k in wa)
