@@ -80,8 +80,8 @@ class EditConfig(OutputOptions):
     """random seed: same seed, same bytes"""
     method: Method = "auto"
     """auto (optimize where targets cannot be kept exactly: keys; posterior elsewhere),
-    optimize (read the kept start with the posterior, optimise the noise against the
-    constraints past it: slower, the model reaches them itself), posterior (no optimisation)
+    optimize (continue from the kept start, optimise the noise against the constraints past
+    it: slower, the model reaches them itself), posterior (no optimisation)
     or best_of_n (the baseline)"""
     candidates: int = field(default=8, metadata=option(metavar="N"))
     """noise draws per result, the closest to the constraints kept"""
