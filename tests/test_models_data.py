@@ -166,7 +166,7 @@ def test_glove_text_file_of_any_dimension_and_fingerprint(tmp_path):
     bad.write_text("sos 1 2\nwalk 1 2 3\n")
     with pytest.raises(ValueError, match="expected 2"):
         load_vectorizer(str(bad))
-    with pytest.raises(ValueError, match="GloVe file"):
+    with pytest.raises(ValueError, match=r"missing\.txt: no such file; give a GloVe text file"):
         load_vectorizer(str(tmp_path / "missing.txt"))
     with pytest.raises(ValueError, match="no 'unk'"):
         WordVectors(["sos", "eos"], np.zeros((2, 3), np.float32), "x")
