@@ -189,19 +189,18 @@ def finish_features(
     clean: bool = True,
     lengths: np.ndarray | None = None,
     held: np.ndarray | None = None,
+    clean_held: np.ndarray | None = None,
 ) -> np.ndarray:
     """Raw generated features (T, D) -> features (T, D) of the finished motion, float32: the
     joints made rigid (:func:`rigid_joints` with ``lengths``, default :func:`model_bone_lengths`,
     and ``held`` (T, J) joints left where they are), then, when ``clean``, the foot-contact
-    clean-up (:func:`dataset_tools.cleanup.clean_joints`, with the features' contact channels),
-    written back by :func:`features_with_joints`. ``recover_from_ric`` of the result is the
-    finished motion's joints.
+    clean-up (:func:`dataset_tools.cleanup.clean_joints`, with the features' contact channels,
+    ``clean_held`` (T, J) joints left where the fit put them; default ``held``), written back by
+    :func:`features_with_joints`. ``recover_from_ric`` of the result is the finished motion's
+    joints.
 
-    Raises ValueError for features that are not (T >= 2, D), or ``held`` joints with ``clean``
-    (the clean-up moves feet).
+    Raises ValueError for features that are not (T >= 2, D).
     """
-    if clean and held is not None and np.any(held):
-        raise ValueError("the foot clean-up moves feet: held joints need clean=False")
     features = np.asarray(features)
     layout = FeatureLayout.for_dim(features.shape[-1])
     if features.ndim != 2 or len(features) < 2:
@@ -211,7 +210,8 @@ def finish_features(
         recover_from_ric(features.astype(np.float64), layout.num_joints), skeleton, lengths, held
     )
     if clean:
-        joints = clean_joints(joints, features[:, layout.foot_contact], skeleton)
+        clean_held = held if clean_held is None else clean_held
+        joints = clean_joints(joints, features[:, layout.foot_contact], skeleton, clean_held)
     return features_with_joints(features, joints)
 
 

@@ -137,7 +137,15 @@ def test_bad_input_is_a_clear_error(arguments, message):
         rigid.rigid_joints(*arguments)
 
 
-def test_held_joints_cannot_be_cleaned(real):
-    features = extract_features(real)
-    with pytest.raises(ValueError, match="clean=False"):
-        rigid.finish_features(features, clean=True, held=np.ones((len(features), 22), bool))
+def test_held_joints_stay_through_the_clean_up(real):
+    """finish_features with held joints and the clean-up: the held ones stay exactly where they
+    were given (the fit and the clean-up both hold them), the free feet may move."""
+    rng = np.random.default_rng(5)
+    features = extract_features(real + rng.normal(0, 0.01, real.shape))
+    joints = recover_from_ric(features.astype(np.float64), 22)
+    held = np.zeros((len(features), 22), bool)
+    held[:20] = True  # a kept start, as continue keeps it
+    finished = rigid.finish_features(features, clean=True, held=held)
+    after = recover_from_ric(finished, 22)
+    np.testing.assert_allclose(after[held], joints[held], rtol=0, atol=1e-5)  # float32 features
+    assert np.abs(after[~held] - joints[~held]).max() > 1e-3

@@ -10,10 +10,8 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter1d
 
-from dataset_tools.cleanup import clean_joints, features_with_joints
 from dataset_tools.representation import FeatureLayout, recover_from_ric
-from dataset_tools.rigid import rigid_joints
-from dataset_tools.skeleton import skeleton_for
+from dataset_tools.rigid import finish_features
 from t2m.edit.plan import EditPlan
 from t2m.edit.recover import yaw_rotate
 from t2m.edit.source import half_yaw_of
@@ -34,15 +32,9 @@ def finish_plan(
     skeleton, the joints kept from the source left where they are, then (``clean``) the
     foot-contact clean-up (:func:`dataset_tools.cleanup.clean_joints`) with every kept or
     targeted joint held: kept joints stay exactly where the rigid fit leaves them."""
-    features = hard_keep(generated, plan, blend)
-    layout = FeatureLayout.for_dim(features.shape[-1])
-    skeleton = skeleton_for(layout.num_joints)
-    joints = recover_from_ric(features.astype(np.float64), layout.num_joints)
-    joints = rigid_joints(joints, skeleton, held=plan.keep)
-    if clean:
-        contacts = features[:, layout.foot_contact]
-        joints = clean_joints(joints, contacts, skeleton, held=plan.kept_mask())
-    return features_with_joints(features, joints)
+    return finish_features(
+        hard_keep(generated, plan, blend), clean, held=plan.keep, clean_held=plan.kept_mask()
+    )
 
 
 def joint_columns(num_joints: int) -> list[np.ndarray]:
