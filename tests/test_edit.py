@@ -337,3 +337,20 @@ def test_batch_entries_are_read_by_the_request_schema(tmp_path, capsys):
     assert main(argv) == 2
     assert "drop --text" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_an_edit_optimises_after_plain_generation_on_the_same_pipeline(tiny_run):
+    """Plain generation (in inference mode) first builds the float32 rollout plan, which makes
+    the model's parameters views of its stacked weights: made there, they were inference tensors
+    and the next edit's noise optimisation failed ("Inference tensors cannot be saved for
+    backward"), as in the edit benchmark, which generates plainly first."""
+    from t2m.pipeline import TextToMotion
+
+    fresh = TextToMotion.from_checkpoints(tiny_run, need_length_model=False)
+    fresh.generate(["a person raises the left arm"], lengths=[40])
+    assert not any(p.is_inference() for p in fresh.vae.parameters())
+    keys = np.full((40, 22, 3), np.nan)
+    keys[30, 20] = [0.5, 1.5, 0.9]
+    settings = SearchSettings(method="optimize", candidates=2, steps=2)
+    motion = edit(fresh, "a person raises the left arm", "keys", keys=keys, settings=settings)[0]
+    assert np.isfinite(motion.constraint_error)

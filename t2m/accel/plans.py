@@ -299,7 +299,11 @@ class TorchPlanRollout:
             return self._plan
         if not (isinstance(vae.prior.cell, nn.GRUCell) and isinstance(vae.query, nn.Linear)):
             return None
-        self._plan = GenerationPlan(vae)
+        # Outside inference mode: a float32 plan makes the model's parameters views of its
+        # stacked weights, and made inside inference mode (a first generation) they would become
+        # inference tensors that no later autograd pass may use (an edit's noise optimisation).
+        with torch.inference_mode(False):
+            self._plan = GenerationPlan(vae)
         self._key = _plan_key(vae)  # after: a float32 plan makes the parameters its views
         return self._plan
 
