@@ -12,7 +12,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from t2m.edit.keep import SEAM_SMOOTH_FRAMES, hard_keep, joint_columns, smooth_seams
+from dataset_tools.representation import FeatureLayout
+from t2m.edit.keep import (
+    SEAM_SMOOTH_FRAMES,
+    _seam_weights,
+    hard_keep,
+    joint_columns,
+    smooth_seams,
+    trend_columns,
+)
 from t2m.edit.plan import EditPlan
 
 FRAMES, KEPT, BLEND, JOINT = 64, 8, 16, 5
@@ -47,15 +55,21 @@ def test_the_seam_offset_eases_out_with_zero_slope_at_both_ends():
 
 def test_the_free_run_meets_the_kept_frame_in_its_rate_of_change():
     columns = joint_columns(22)[JOINT]
+    trend = trend_columns(FeatureLayout(22))[columns]
+    assert trend.sum() == 9 and (~trend).sum() == 3  # position + 6-D rotation; local velocity
     source = np.zeros((FRAMES, 263))
     source[:, columns] = 0.1 * np.arange(FRAMES)[:, None]  # the kept side moves 0.1 a frame
     generated = np.zeros((FRAMES, 263))  # the generated side stands still
     out = hard_keep(generated, _plan(source), blend=BLEND)
     kept_step = source[KEPT - 1, columns] - source[KEPT - 2, columns]
     seam_step = out[KEPT, columns] - out[KEPT - 1, columns]
-    # smoothstep keeps 0.989 of offset + change: the step across the seam is 0.091 for 0.1
-    # (a linear ramp: 0.050; meeting the value alone, without the change term: -0.008)
-    assert seam_step == pytest.approx(kept_step, abs=0.015)
+    # positions and rotations: smoothstep keeps 0.989 of offset + change, the step across the
+    # seam is 0.091 for 0.1 (a linear ramp: 0.050; meeting the value alone: -0.008)
+    assert seam_step[trend] == pytest.approx(kept_step[trend], abs=0.015)
+    # velocities meet the kept value only (their rate of change is an acceleration, not carried)
+    offset = source[KEPT - 1, columns] - generated[KEPT - 1, columns]
+    weights, _ = _seam_weights(KEPT, FRAMES, FRAMES, BLEND)
+    np.testing.assert_allclose(out[KEPT:, columns][:, ~trend], weights[:, None] * offset[~trend])
     # and it returns to the generated motion once the blend is over
     assert np.all(out[KEPT - 1 + BLEND :, columns] == pytest.approx(0.0, abs=1e-12))
 
