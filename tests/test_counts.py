@@ -309,3 +309,41 @@ def test_compose_makes_a_counted_segment_as_its_count_then_standing(settling, mo
     )
     assert seen == [(COUNTED, need), (SETTLE_TEXT, longest - need), (PLAIN, 2 * unit)]
     assert len(result.features) == longest + 2 * unit
+
+
+def test_continue_makes_a_counted_text_as_its_count_then_standing(settling, monkeypatch):
+    """continue with a counted text and more time than the count needs: the kept start, the
+    count in the time it needs, then standing still (as compose from that start)."""
+    from conftest import synth_joints
+
+    import t2m.edit
+
+    pipe = settling
+    unit = pipe.spec.snippet_length
+    seen: list[tuple[str, int]] = []
+    original = t2m.edit.generate_plans
+
+    def recording(pipe, plans, generator, settings):
+        for plan in plans[:1]:
+            seen.append((plan.text, plan.num_frames - int(plan.keep.any(axis=1).sum())))
+        return original(pipe, plans, generator, settings)
+
+    monkeypatch.setattr(t2m.edit, "generate_plans", recording)
+    (counted,) = pipe.prepare([COUNTED])
+    need = _own_snippets(pipe, counted) * unit
+    source = synth_joints("walk_forward", 101, np.random.default_rng(3))
+    seconds = pipe.spec.max_frames / pipe.spec.fps
+    settings = t2m.edit.SearchSettings(candidates=1)
+    (motion,) = t2m.edit.edit(
+        pipe, COUNTED, "continue", source, keep_seconds=1.0, seconds=seconds, settings=settings
+    )
+    kept = int(round(1.0 * pipe.spec.fps))
+    rest = pipe.spec.max_frames // unit * unit - kept
+    assert seen == [(COUNTED, need), (SETTLE_TEXT, rest - need)]
+    assert motion.text == COUNTED and motion.mode == "continue"
+    assert len(motion.joints) == kept + rest and motion.kept[:kept].all()
+    assert not motion.kept[kept:].any()
+    # a text without a count continues as planned: one search over the whole rest
+    seen.clear()
+    t2m.edit.edit(pipe, PLAIN, "continue", source, keep_seconds=1.0, seconds=2.0, settings=settings)
+    assert seen == [(PLAIN, 40 - kept)]

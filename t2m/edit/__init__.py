@@ -72,7 +72,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from t2m.edit.core import EditPlan, PlanResult, SearchSettings, generate_plans
-from t2m.edit.modes import BODY_PARTS, MODES, ComposePlan
+from t2m.edit.modes import BODY_PARTS, MODES, ComposePlan, Segment
 from t2m.edit.request import EditRequest
 from t2m.edit.source import half_yaw_of, load_source, prepare_source
 from t2m.motion import GeneratedMotion
@@ -136,9 +136,11 @@ def edit_batch(
         if request.mode == "compose":
             plans.append(None)
             timelines.append(request.compose_plan(pipe.spec))
-        else:
-            plans.append(request.plan(pipe.spec))
-            timelines.append(None)
+            continue
+        plan = request.plan(pipe.spec)
+        counted = _counted_continue(pipe, plan) if request.mode == "continue" else None
+        plans.append(None if counted else plan)
+        timelines.append(counted)
     generator = torch.Generator(pipe.device).manual_seed(seed)
     flat = [(i, r) for i, plan in enumerate(plans) if plan is not None for r in range(num_samples)]
     made = generate_plans(pipe, [plans[i] for i, _ in flat], generator, settings)
@@ -148,7 +150,10 @@ def edit_batch(
     for i, timeline in enumerate(timelines):
         if timeline is None:
             continue
-        text = " / ".join(segment.text for segment in timeline.segments)
+        if requests[i].mode == "compose":
+            text = " / ".join(segment.text for segment in timeline.segments)
+        else:
+            text = requests[i].text
         composed = compose(
             pipe, timeline.segments, num_samples, generator, settings, start=timeline.start
         )
@@ -240,6 +245,22 @@ def compose(
         marked[:kept] = True
         out.append(PlanResult(whole, joints, marked, float("nan")))
     return out
+
+
+def _counted_continue(pipe, plan: EditPlan) -> ComposePlan | None:
+    """A ``continue`` whose text names a count and whose regenerated part is longer than the
+    count needs (:meth:`t2m.pipeline.TextToMotion.count_parts`) as a compose from its kept
+    start: the count in the time it needs, then standing still, so that "jumps twice" jumps
+    twice however long the rest is. None: made as planned."""
+    kept = int(np.argmin(plan.keep.all(axis=1)))  # continue keeps whole leading frames
+    parts = pipe.count_parts(plan.text, plan.num_frames - kept)
+    if len(parts) < 2:
+        return None
+    segments, at = [], kept
+    for text, frames in parts:
+        segments.append(Segment(text, at, at + frames))
+        at += frames
+    return ComposePlan(segments, plan.source_features[:kept].astype(np.float32))
 
 
 def _continuation(text: str, tail: np.ndarray, size: int, spec) -> EditPlan:
