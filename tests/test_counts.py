@@ -282,6 +282,22 @@ def test_sampling_at_given_lengths_loads_the_length_model(tiny_run, tmp_path, mo
     assert code == 0 and loads == [True]
 
 
+def _recorded_edit_searches(monkeypatch) -> list[tuple[str, int]]:
+    """(text, new frames) of the first plan of each search t2m.edit makes from here on."""
+    import t2m.edit
+
+    seen: list[tuple[str, int]] = []
+    original = t2m.edit.generate_plans
+
+    def recording(pipe, plans, generator, settings):
+        for plan in plans[:1]:  # edit_batch may search no plain plan at all
+            seen.append((plan.text, plan.num_frames - int(plan.keep.any(axis=1).sum())))
+        return original(pipe, plans, generator, settings)
+
+    monkeypatch.setattr(t2m.edit, "generate_plans", recording)
+    return seen
+
+
 def test_compose_makes_a_counted_segment_as_its_count_then_standing(settling, monkeypatch):
     """compose cuts a counted segment as count_parts does: the count in the time it needs, the
     rest standing still; a segment without a count is made whole."""
@@ -291,15 +307,7 @@ def test_compose_makes_a_counted_segment_as_its_count_then_standing(settling, mo
 
     pipe = settling
     unit = pipe.spec.snippet_length
-    seen: list[tuple[str, int]] = []
-    original = t2m.edit.generate_plans
-
-    def recording(pipe, plans, generator, settings):
-        for plan in plans[:1]:
-            seen.append((plan.text, plan.num_frames - int(plan.keep.any(axis=1).sum())))
-        return original(pipe, plans, generator, settings)
-
-    monkeypatch.setattr(t2m.edit, "generate_plans", recording)
+    seen = _recorded_edit_searches(monkeypatch)
     (counted,) = pipe.prepare([COUNTED])
     need = _own_snippets(pipe, counted) * unit
     longest = pipe.spec.max_frames // unit * unit
@@ -320,15 +328,7 @@ def test_continue_makes_a_counted_text_as_its_count_then_standing(settling, monk
 
     pipe = settling
     unit = pipe.spec.snippet_length
-    seen: list[tuple[str, int]] = []
-    original = t2m.edit.generate_plans
-
-    def recording(pipe, plans, generator, settings):
-        for plan in plans[:1]:
-            seen.append((plan.text, plan.num_frames - int(plan.keep.any(axis=1).sum())))
-        return original(pipe, plans, generator, settings)
-
-    monkeypatch.setattr(t2m.edit, "generate_plans", recording)
+    seen = _recorded_edit_searches(monkeypatch)
     (counted,) = pipe.prepare([COUNTED])
     need = _own_snippets(pipe, counted) * unit
     source = synth_joints("walk_forward", 101, np.random.default_rng(3))
