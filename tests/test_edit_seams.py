@@ -110,3 +110,22 @@ def test_the_benchmark_measures_the_half_second_around_a_seam():
     assert acc == pytest.approx(2 * 0.01 * 400) and jerk == pytest.approx(3 * 0.01 * 8000)
     assert seam_statistics(joints, 25, 20.0) == (0.0, 0.0)  # 10 frames away: outside
     assert seam_statistics(joints, 58, 20.0) == (0.0, 0.0)  # near the end: the window moves in
+
+
+def test_edit_benchmark_own_ends_keep_the_captions_own_clip(tiny_dataset, tmp_path):
+    """``--own-ends``: an inbetween item keeps the first and last second of its caption's own
+    clip (so the kept ends fit the text), judges the middle, and the option is inbetween's only."""
+    from dataset_tools import humanml3d
+    from dataset_tools.command import UsageError
+    from t2m.evaluate.edit_bench import EditBenchConfig, build_items
+
+    config = EditBenchConfig("inbetween", tiny_dataset, tmp_path, items=4, own_ends=True)
+    for item in build_items(config, 20.0):
+        clip = humanml3d.read_joints(humanml3d.joints_path(tiny_dataset, item.donors[0]))
+        frames = len(item.request.source)
+        assert item.source == item.donors[0] and frames == min(len(clip), 196) // 4 * 4
+        np.testing.assert_array_equal(item.request.source, clip[:frames])
+        assert item.part == (20, frames - 20) and item.seams == [20, frames - 20]
+        assert item.request.keep_start == item.request.keep_end == 1.0
+    with pytest.raises(UsageError, match="--own-ends is an inbetween option"):
+        EditBenchConfig("continue", tiny_dataset, tmp_path, own_ends=True)

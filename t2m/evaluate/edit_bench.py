@@ -9,7 +9,9 @@ The edits (seeded; sources are real test motions, "donor" captions come from tes
 labelled action, so the corpus' detectors can check the regenerated part):
 
 * continue: keep 2 s of a source, 4 s from a donor's caption (regenerated: frames 40..120);
-* inbetween: keep 1 s at each end of a source, 4 s from a donor's caption in the middle;
+* inbetween: keep 1 s at each end of a source, 4 s from a donor's caption in the middle (a
+  caption that moves the body contradicts an unrelated source's ends; ``--own-ends``: the
+  donor's own clip, its first and last second kept, its middle regenerated from its caption);
 * body: keep the lower body of a walking or running source, the rest from a donor's caption of
   an upper-body action (wave, raise, punch, clap);
 * path: the root path of a source (a point every second) with the source's own caption;
@@ -70,6 +72,9 @@ logger = logging.getLogger(__name__)
 UPPER_ACTIONS = ("wave", "raise", "punch", "clap")
 LOWER_ACTIONS = ("walk", "run")
 SECONDS = {"part": 4.0, "keep": 2.0, "end": 1.0, "segment": 4.0}
+MAX_SECONDS = 9.8
+"""The longest single edit (HumanML3D's 196 frames at 20 fps): an ``--own-ends`` clip longer
+than this is cut to it."""
 
 
 @dataclass
@@ -106,12 +111,18 @@ class EditBenchConfig:
     """cpu, cuda or auto"""
     precision: Literal["fp32", "bf16", "int8"] = "fp32"
     """inference precision"""
+    own_ends: bool = False
+    """inbetween only: keep the ends of the caption's own clip (its first and last second, the
+    result as long as the clip), so that the kept ends fit the text, instead of an unrelated
+    source's"""
 
     def __post_init__(self) -> None:
         if self.items < 1 or self.candidates < 1 or self.steps < 0 or self.latency_edits < 0:
             raise UsageError(
                 "--items and --candidates must be >= 1, --steps and --latency-edits >= 0"
             )
+        if self.own_ends and self.edit != "inbetween":
+            raise UsageError("--own-ends is an inbetween option (--edit inbetween)")
         for method in self.methods:
             if method not in METHODS:
                 raise UsageError(f"unknown method {method!r}; use {', '.join(METHODS)}")
@@ -182,6 +193,10 @@ class _Clips:
             if not source or len(self.load(clip[0])) >= self.shortest:
                 return clip
 
+    def at_least(self, pool: list, frames: int) -> list:
+        """The clips of ``pool`` at least ``frames`` long."""
+        return [clip for clip in pool if len(self.load(clip[0])) >= frames]
+
     def caption(self, clip: tuple) -> humanml3d.Caption:
         return clip[2][int(self.rng.integers(len(clip[2])))]
 
@@ -206,6 +221,25 @@ def _kept_ends_item(mode: str, clips: _Clips, fps: float) -> Item:
         judged, seams = (end, end + part), [end, end + part]
     request = EditRequest(mode, text.text, clips.load(source[0]), **timing)
     return Item(request, judged, donor[1] or [], [text], [donor[0]], source[0], seams)
+
+
+def _own_ends_item(mode: str, clips: _Clips, fps: float) -> Item:
+    """inbetween with the ends of the caption's own clip: its first and last second kept, its
+    middle regenerated from its caption (the clip at least four times the kept end long), so
+    that the kept ends fit what the caption does."""
+    end = int(SECONDS["end"] * fps)
+    pool = clips.at_least(clips.single, 4 * end)
+    if not pool:
+        raise UsageError(f"--own-ends: no test clip of one action lasts {4 * end / fps:g} s")
+    donor = clips.pick(pool)
+    joints = clips.load(donor[0])
+    text = clips.caption(donor)
+    unit = 4  # the result is whole snippets of the model's 4 frames, as plan_inbetween makes it
+    frames = min(len(joints), int(MAX_SECONDS * fps)) // unit * unit
+    timing = dict(keep_start=SECONDS["end"], keep_end=SECONDS["end"], seconds=frames / fps)
+    request = EditRequest(mode, text.text, joints[:frames], **timing)
+    judged, seams = (end, frames - end), [end, frames - end]
+    return Item(request, judged, donor[1] or [], [text], [donor[0]], donor[0], seams)
 
 
 def _body_item(mode: str, clips: _Clips, fps: float) -> Item:
@@ -266,6 +300,8 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
     """Seeded edits of ``config.edit`` from the test split (see the module docstring)."""
     clips = _Clips(config.dataset, config.seed, fps)
     make = _ITEM_MAKERS.get(config.edit, _compose_item)
+    if config.own_ends:
+        make = _own_ends_item
     return [make(config.edit, clips, fps) for _ in range(config.items)]
 
 
