@@ -362,6 +362,7 @@ def sample_to_folder(
     clean: bool = True,
     plan: str = "clauses",
     smpl: bool = False,
+    settle: bool = True,
 ) -> Path:
     """Generate motions for ``prompts`` with a :class:`t2m.pipeline.TextToMotion` and write every
     file of the output contract into ``out``; returns ``out``. Nothing is left in ``out`` on error.
@@ -380,6 +381,7 @@ def sample_to_folder(
             progress=True,
             clean=clean,
             plan=plan,
+            settle=settle,
         ),
         pipe.spec,
         out,

@@ -59,6 +59,10 @@ class GenerationRequest:
     plan: Literal["clauses", "whole"] = "clauses"
     """clauses: a prompt of several clauses ("jumps twice, then waves") is generated clause by
     clause, each with its share of the length; whole: the whole prompt in one pass (the paper)"""
+    settle: bool = True
+    """at a length you fix, a clause that names a count ("jumps twice") gets the time its count
+    needs and stands still for the rest (--no-settle: the count is spread over the whole length,
+    and the model repeats the action at its own pace)"""
 
     def __post_init__(self) -> None:
         if isinstance(self.prompts, str):  # a file name, as for every other file field
@@ -106,4 +110,5 @@ class GenerationRequest:
             "batch_size": self.batch_size,
             "clean": self.clean,
             "plan": self.plan,
+            "settle": self.settle,
         }

@@ -95,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
             "batch_size": config.batch_size,
             "clean": config.clean,
             "plan": config.plan,
+            "settle": config.settle,
         },
     )
     logger.info("wrote %s", out)

@@ -282,6 +282,31 @@ def test_sampling_at_given_lengths_loads_the_length_model(tiny_run, tmp_path, mo
     assert code == 0 and loads == [True]
 
 
+def test_sample_no_settle_reaches_generate(tiny_run, tmp_path, monkeypatch):
+    """t2m.sample settles by default; --no-settle asks generate for the count spread over the
+    whole length, and the run's info records which."""
+    import json
+
+    from t2m.pipeline import TextToMotion
+    from t2m.sample import main
+
+    asked = []
+    original = TextToMotion.generate
+
+    def recording(self, *args, **kwargs):
+        asked.append(kwargs.get("settle"))
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(TextToMotion, "generate", recording)
+    for flags, expected in (([], True), (["--no-settle"], False)):
+        out = tmp_path / f"out{len(asked)}"
+        argv = ["--text", COUNTED, "--checkpoints", str(tiny_run), "--out", str(out)]
+        assert main([*argv, "--render", "none", "--length", "120", *flags]) == 0
+        assert asked[-1] is expected
+        info = json.loads((out / "results.json").read_text())
+        assert json.dumps(info).count('"settle": ' + json.dumps(expected)) == 1
+
+
 def _recorded_edit_searches(monkeypatch) -> list[tuple[str, int]]:
     """(text, new frames) of the first plan of each search t2m.edit makes from here on."""
     import t2m.edit

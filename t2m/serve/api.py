@@ -29,7 +29,7 @@ WEB_FIELDS = ("prompts", "seconds", "num_samples", "seed")
 """The fields of :class:`GenerationRequest` a generate request takes, as JSON ``prompts`` (a
 list of lines ``text`` or ``text#FRAMES``, or one text of them), ``seconds``, ``samples`` and
 ``seed``; the others (one literal ``--text``, ``--length`` in frames, ``--batch-size``,
-``--clean``, ``--plan``) are the command line's."""
+``--clean``, ``--plan``, ``--no-settle``) are the command line's."""
 RUN_FIELDS = ("precision",)
 """The field of :class:`OutputOptions` a generate or edit request takes: the precision it runs
 at (the command line loads its models at one)."""
