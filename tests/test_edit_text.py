@@ -19,13 +19,6 @@ COUNTED = "a person jumps three times"  # a count: the count clock runs
 
 
 @pytest.fixture(scope="module")
-def pipe(tiny_run):
-    from t2m.pipeline import TextToMotion
-
-    return TextToMotion.from_checkpoints(tiny_run, need_length_model=False)
-
-
-@pytest.fixture(scope="module")
 def walk() -> np.ndarray:
     return synth_joints("walk_forward", 121, np.random.default_rng(5))
 
