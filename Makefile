@@ -52,7 +52,7 @@ STAMP := $(VENV_DIR)/.installed
 py = $(call quote,$(VENV_DIR)/bin/python)
 
 .PHONY: install test lint dataset contact-sheet train-ae train-len train-t2m train-eval train \
-	sample eval demo bench serve mocap-check
+	sample eval demo bench serve mocap-check mocap-bench
 
 install: $(STAMP)
 
@@ -123,6 +123,9 @@ demo: install
 
 mocap-check: install
 	$(py) -m t2m.evaluate.mocap $(args)
+
+mocap-bench: install
+	$(py) -m t2m.evaluate.mocap_bench $(args)
 
 bench: install
 	$(py) -m t2m.bench $(args)
