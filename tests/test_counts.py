@@ -481,3 +481,21 @@ def test_edit_modes_make_a_counted_text_as_its_count_then_standing(settling, mon
     seen.clear()
     t2m.edit.edit(pipe, PLAIN, mode, settings=settings, **options)
     assert seen and set(seen) == {total - known}
+
+
+@pytest.mark.parametrize("mode", ["inbetween", "body"])
+def test_counts_benchmark_edit_modes(settling, mode):
+    """The counts benchmark's edit rows: inbetween makes the length between a kept second at
+    each end, body a result of the length itself; one row per action, count and length."""
+    from t2m.benchmarks.counts import measure
+
+    pipe, unit = settling, settling.spec.snippet_length
+    rows = measure(pipe, ["jump", "clap"], [2], (1.0, 1.5), 1, 0, True, mode)
+    assert [(r["action"], r["length"]) for r in rows] == [
+        ("jump", 1.0), ("clap", 1.0), ("jump", 1.5), ("clap", 1.5)
+    ]  # fmt: skip
+    for row in rows:
+        frames = pipe._clamp(round(row["expected_frames"] * row["length"] / unit) * unit)
+        longest = pipe.spec.max_frames // unit * unit
+        whole = min(frames + 2 * pipe.spec.fps, longest) if mode == "inbetween" else frames
+        assert row["frames"] == [whole] and 0.0 <= row["right"] <= 1.0
