@@ -391,13 +391,18 @@ class StyleClassifier:
 # ----------------------------------------------------------------------------- scoring
 
 
+SCORES_VERSION = 2
+"""What :class:`BenchScorer` returns, numbered: an evaluation made with other scores is redone."""
+
+
 class BenchScorer:
     """A protocol scorer (:class:`t2m.evaluate.protocol.Scorer`): per motion, whether the
     content checks recognise its clip's content and whether the classifier names its style.
 
     Keys: ``all`` (content accuracy, tabled as the protocol's semantic accuracy),
     ``action_<content>``, ``style`` and ``style_<style>``, ``style_in_<content>`` and
-    ``content_in_<style>`` (the accuracies within one content or style)."""
+    ``content_in_<style>`` (the accuracies within one content or style), ``speed_<content>``
+    and ``speed_<style>`` (mean horizontal root speed, m/s: the walking-in-place symptom)."""
 
     def __init__(self, labels: dict[str, Capture], classifier: StyleClassifier, fps: float):
         self.labels, self.classifier, self.fps = labels, classifier, fps
@@ -409,11 +414,12 @@ class BenchScorer:
         if not known:
             return {}
         styles = self.classifier.predict(np.stack([pooled_features(m) for _, m in known]))
-        content_ok, style_ok = [], []
+        content_ok, style_ok, speeds = [], [], []
         for (capture, motion), style in zip(known, styles, strict=True):
             facts = mocap_facts(recover_from_ric(motion, 22), self.fps)
             content_ok.append(bool(CONTENT_CHECKS[CONTENT_LABELS[capture.content]](facts)))
             style_ok.append(style == capture.style)
+            speeds.append(facts["path_speed_mps"])
         scores = {"all": float(np.mean(content_ok)), "style": float(np.mean(style_ok))}
         groups: dict[str, list[int]] = {}
         for k, (capture, _) in enumerate(known):
@@ -423,6 +429,7 @@ class BenchScorer:
             kind, label = group.split(":")
             content = float(np.mean([content_ok[k] for k in members]))
             style = float(np.mean([style_ok[k] for k in members]))
+            scores[f"speed_{label}"] = float(np.mean([speeds[k] for k in members]))
             if kind == "content":
                 scores[f"action_{label}"] = content
                 scores[f"style_in_{label}"] = style
@@ -636,7 +643,12 @@ def _fingerprint(config: MocapBenchConfig, classifier_info: dict) -> dict:
     for name in ("autoencoder", "length", "generator", "evaluator"):
         path = find_stage(name).folder(config.checkpoints) / FINISHED
         stamps[name] = path.read_text(encoding="utf-8") if path.is_file() else None
-    return {"settings": config.eval_settings(), "stages": stamps, "classifier": classifier_info}
+    return {
+        "settings": config.eval_settings(),
+        "stages": stamps,
+        "classifier": classifier_info,
+        "scores": SCORES_VERSION,
+    }
 
 
 def run_bench(config: MocapBenchConfig) -> dict:
@@ -741,8 +753,8 @@ def _row_summary(values: dict) -> dict:
     """A protocol row's means and intervals under the benchmark's names: the scorer's keys
     (``semantic_accuracy*``) as ``content_accuracy``, ``content_accuracy_<content>``,
     ``content_accuracy_in_<style>``, ``style_accuracy``, ``style_accuracy_<style>`` and
-    ``style_accuracy_in_<content>``; the physical figures left out (they are in the
-    protocol's results)."""
+    ``style_accuracy_in_<content>``, ``speed_mps_<content or style>``; the physical figures
+    left out (they are in the protocol's results)."""
     row = {}
     for key, entry in values.items():
         if key.startswith("physical_"):
@@ -758,6 +770,8 @@ def _row_summary(values: dict) -> dict:
                 name = "content_accuracy_in_" + rest.removeprefix("content_in_")
             elif rest == "style" or rest.startswith("style_"):
                 name = "style_accuracy" + rest.removeprefix("style")
+            elif rest.startswith("speed_"):
+                name = "speed_mps_" + rest.removeprefix("speed_")
         row[name] = {"mean": entry["mean"], "interval": entry["interval"]}
     return row
 
@@ -821,36 +835,41 @@ def format_results(results: dict) -> str:
         "Per content and per style, real test motions against generated ones (ground-truth "
         "lengths; sampled lengths in the last columns):",
         "",
-        "| | content acc. real | generated | style acc. real | generated | content acc. "
-        "sampled length | style acc. sampled length |",
-        "|---|---|---|---|---|---|---|",
+        "| | content acc. real | generated | style acc. real | generated | speed real, m/s | "
+        "generated | content acc. sampled length | style acc. sampled length |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    for content in results["contents"]:
-        keys = (f"content_accuracy_{content}", f"style_accuracy_in_{content}")
-        lines.append(
-            f"| {content} | {_cell(real.get(keys[0]), 2)} | {_cell(generated.get(keys[0]), 2)} | "
-            f"{_cell(real.get(keys[1]), 2)} | {_cell(generated.get(keys[1]), 2)} | "
-            f"{_cell(sampled.get(keys[0]), 2)} | {_cell(sampled.get(keys[1]), 2)} |"
+    labelled = [
+        (content, content, f"_{content}", f"_in_{content}") for content in results["contents"]
+    ]
+    labelled += [(f"*{style}*", style, f"_in_{style}", f"_{style}") for style in results["styles"]]
+    labelled.append(("**all**", None, "", ""))
+    for title, label, content_key, style_key in labelled:
+        keys = (
+            f"content_accuracy{content_key}",
+            f"style_accuracy{style_key}",
+            f"speed_mps_{label}",
         )
-    for style in results["styles"]:
-        keys = (f"content_accuracy_in_{style}", f"style_accuracy_{style}")
-        lines.append(
-            f"| *{style}* | {_cell(real.get(keys[0]), 2)} | {_cell(generated.get(keys[0]), 2)} | "
-            f"{_cell(real.get(keys[1]), 2)} | {_cell(generated.get(keys[1]), 2)} | "
-            f"{_cell(sampled.get(keys[0]), 2)} | {_cell(sampled.get(keys[1]), 2)} |"
-        )
-    for key, title in (("content_accuracy", "**all**"),):
-        lines.append(
-            f"| {title} | {_cell(real.get(key), 2)} | {_cell(generated.get(key), 2)} | "
-            f"{_cell(real.get('style_accuracy'), 2)} | "
-            f"{_cell(generated.get('style_accuracy'), 2)} | {_cell(sampled.get(key), 2)} | "
-            f"{_cell(sampled.get('style_accuracy'), 2)} |"
-        )
+        cells = [
+            _cell(row.get(key), 2)
+            for key, row in (
+                (keys[0], real),
+                (keys[0], generated),
+                (keys[1], real),
+                (keys[1], generated),
+                (keys[2], real),
+                (keys[2], generated),
+                (keys[0], sampled),
+                (keys[1], sampled),
+            )
+        ]
+        lines.append(f"| {title} | " + " | ".join(cells) + " |")
     timings = results["timings"]
     lines += [
         "",
         "Content accuracy: the real-mocap check's detectors (t2m.evaluate.mocap.CONTENT_CHECKS) "
-        "recognise the clip's content. Style accuracy: the classifier names the clip's style.",
+        "recognise the clip's content. Style accuracy: the classifier names the clip's style. "
+        "Speed: mean horizontal root speed.",
         "",
         "Times: " + _times_line(timings) + f"; load average at start {_load(results, 'start')}, "
         f"at end {_load(results, 'end')}, {results['cpu_count']} CPUs.",
