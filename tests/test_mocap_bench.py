@@ -165,6 +165,7 @@ def test_tiny_bench_end_to_end(tmp_path):
     for content in contents:
         assert f"content_accuracy_{content}" in real and f"style_accuracy_in_{content}" in real
     assert {"style_accuracy_elderly", "content_accuracy_in_normal"} <= set(real)
+    assert real["speed_mps_walk"]["mean"] > 0.7 > real["speed_mps_wave-left-hand"]["mean"]
     assert results["style_classifier"]["test_accuracy"] >= 0.8
     written = json.loads((tmp_path / "out" / "results.json").read_text())
     assert written["protocol"] == json.loads(json.dumps(results["protocol"]))
