@@ -469,12 +469,18 @@ class MocapBenchConfig:
     """R-precision pool size (standard: 32)"""
     parallel: bool = True
     """train the length model and the evaluator in a second process meanwhile"""
+    threads: int = field(default=0, metadata=option(metavar="N"))
+    """torch CPU threads of every stage and of the evaluation (0: as make demo: the preset's one
+    thread, two for the generator once the second process is done; torch's choice in the
+    evaluation); on a CPU busy with other work, 1 avoids oversubscribing it"""
     seed: int = 0
     """seed of the captions, the split and the evaluation"""
     workers: int = 2
     """processes for the dataset build"""
 
     def __post_init__(self) -> None:
+        if self.threads < 0:
+            raise UsageError("--threads must be 0 (the default choice) or more")
         if min(self.replications, self.mm_texts, self.workers) < 1:
             raise UsageError("--replications, --mm-texts and --workers must be at least 1")
         if self.mm_samples < 2 or self.pool_size < 3:
@@ -492,9 +498,12 @@ def _stage_done(run_dir: Path, name: str) -> bool:
     return (find_stage(name).folder(run_dir) / FINISHED).is_file()
 
 
-def train_one(name: str, preset_name: str, dataset: Path, run_dir: Path, side_busy=None) -> dict:
-    """Train (or resume) one stage; the generator takes two threads once ``side_busy()`` is
-    false. Returns its wall and CPU seconds."""
+def train_one(
+    name: str, preset_name: str, dataset: Path, run_dir: Path, threads: int = 0, side_busy=None
+) -> dict:
+    """Train (or resume) one stage on ``threads`` torch threads (0: the preset's; the generator
+    takes two once ``side_busy()`` is false). Returns its wall and CPU seconds."""
+    from t2m.config import apply_overrides
     from t2m.demo import Stopwatch
     from t2m.presets import preset
     from t2m.train import runtime as runtime_module
@@ -503,9 +512,11 @@ def train_one(name: str, preset_name: str, dataset: Path, run_dir: Path, side_bu
     resume = (find_stage(name).folder(run_dir) / "latest.pt").is_file()
     logger.info("training %s (%s) ...", name, "resuming" if resume else "from scratch")
     config = preset(preset_name)
+    if threads:
+        config = apply_overrides(config, {"num_threads": str(threads)})
     runtime = None
     cores = min(2, len(os.sched_getaffinity(0)))
-    if name == "generator" and cores > 1:
+    if name == "generator" and cores > 1 and not threads:
         runtime = runtime_module.start(config.device, config.bf16, config.num_threads)
         busy = side_busy or (lambda: False)
         runtime.epoch_threads = lambda: 1 if busy() else cores
@@ -517,7 +528,9 @@ def train_one(name: str, preset_name: str, dataset: Path, run_dir: Path, side_bu
     return seconds
 
 
-def _train_side(names: list[str], preset_name: str, dataset: Path, run_dir: Path) -> dict:
+def _train_side(
+    names: list[str], preset_name: str, dataset: Path, run_dir: Path, threads: int
+) -> dict:
     """The second process: ``names`` in order, each once the stages it needs are finished."""
     import multiprocessing
 
@@ -530,7 +543,8 @@ def _train_side(names: list[str], preset_name: str, dataset: Path, run_dir: Path
             if parent is not None and not parent.is_alive():
                 raise RuntimeError("the benchmark's main process ended")
             time.sleep(1.0)
-        timings[name] = {**train_one(name, preset_name, dataset, run_dir), "second_process": True}
+        seconds = train_one(name, preset_name, dataset, run_dir, threads)
+        timings[name] = {**seconds, "second_process": True}
     return timings
 
 
@@ -544,7 +558,7 @@ def train_stages(config: MocapBenchConfig) -> dict:
     todo = [name for name in names if name not in timings]
     side = [n for n in todo if n in ("length", "evaluator")] if config.parallel else []
     main = [name for name in todo if name not in side]
-    args = (config.preset, config.dataset, config.checkpoints)
+    args = (config.preset, config.dataset, config.checkpoints, config.threads)
     if not side:
         for name in main:
             timings[name] = train_one(name, *args)
@@ -605,7 +619,12 @@ def run_evaluation(config: MocapBenchConfig, scorer: BenchScorer) -> dict:
         mm_samples=config.mm_samples,
         pool_size=config.pool_size,
         seed=config.seed,
+        num_threads=config.threads,
     )
+    if config.threads:
+        import torch
+
+        torch.set_num_threads(config.threads)
     backend = CheckpointBackend.from_run_dir(
         config.checkpoints, inference_device("auto", "fp32"), "best", eval_config.batch_size
     )
