@@ -483,10 +483,11 @@ def test_edit_modes_make_a_counted_text_as_its_count_then_standing(settling, mon
     assert seen and set(seen) == {total - known}
 
 
-@pytest.mark.parametrize("mode", ["inbetween", "body"])
+@pytest.mark.parametrize("mode", ["inbetween", "body", "path"])
 def test_counts_benchmark_edit_modes(settling, mode):
     """The counts benchmark's edit rows: inbetween makes the length between a kept second at
-    each end, body a result of the length itself; one row per action, count and length."""
+    each end, body and path a result of the length itself; one row per action, count and
+    length."""
     from t2m.benchmarks.counts import measure
 
     pipe, unit = settling, settling.spec.snippet_length

@@ -1,7 +1,7 @@
 """Counts at any length: does "jumps twice" make two jumps at whatever length the user fixes?
 
 ``python -m t2m.benchmarks.counts --checkpoints RUN --dataset DATA [--samples 4] [--settle both]
-[--mode generate|live|compose]``
+[--mode generate|live|compose|inbetween|body|path]``
 
 For each counted action of the demo corpus (those its detectors count: jump, hop, punch, squat,
 clap), each count 1-4 written as people write it ("a person jumps in place twice.", "a person
@@ -24,7 +24,8 @@ gives the share right per action and length; the JSON lines also the counts the 
 ``--mode inbetween`` makes the prompt between the kept first and last second of the model's
 "a person stands still" (the length given is the middle's; the result at most 9.8 s),
 ``--mode body`` keeps the arms (jump, hop, squat) or the root path and legs (punch, clap) of it
-on every frame: in both the prompt spans a stretch between constraints, and "settle" lets the
+on every frame, ``--mode path`` asks the root back at the origin on the last frame (the actions
+are done in place): in each the prompt spans a stretch between constraints, and "settle" lets the
 search run the count in the time it needs, then standing still, along one rollout
 (:func:`t2m.edit.core.text_parts`); the default search (8 candidates).
 ``--two-clauses`` adds prompts of two clauses, one of them counted (:data:`TWO_CLAUSES`), at 1-3
@@ -200,10 +201,11 @@ def _edit_part(text: str) -> str:
 
 
 def _edited(mode: str):
-    """Motions of an edit (``inbetween`` or ``body``, the default search) of a standing source:
-    ``inbetween`` keeps its first and last :data:`EDIT_KEEP_SECONDS` and makes the prompt over
-    the length between them (the whole result clamped to 9.8 s); ``body`` keeps
-    :data:`BODY_PART_KEPT` on every frame of a source as long as the length."""
+    """Motions of an edit (the default search): ``inbetween`` keeps the first and last
+    :data:`EDIT_KEEP_SECONDS` of a standing source and makes the prompt over the length between
+    them (the whole result clamped to 9.8 s); ``body`` keeps :data:`BODY_PART_KEPT` on every
+    frame of a standing source as long as the length; ``path`` asks the root to be back at
+    the origin on the last frame."""
 
     def made(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]:
         fps, unit, out, cache = pipe.spec.fps, pipe.spec.snippet_length, [], {}
@@ -216,9 +218,11 @@ def _edited(mode: str):
                     source = _standing(pipe, 4 * keep, seed, cache)
                     options = {"keep_start": EDIT_KEEP_SECONDS, "keep_end": EDIT_KEEP_SECONDS}
                     options["seconds"] = whole / fps
-                else:
+                elif mode == "body":
                     source = _standing(pipe, frames, seed, cache)
                     options = {"part": _edit_part(text)}
+                else:  # back where it started at the end: the actions are done in place
+                    source, options = None, {"path": [[(frames - 1) / fps, 0.0, 0.0]]}
                 motions = pipe.edit(text, mode, source, num_samples=samples, seed=seed, **options)
                 out.append([m.joints for m in motions])
         return out
@@ -232,6 +236,7 @@ MODES = {
     "compose": _composed,
     "inbetween": _edited("inbetween"),
     "body": _edited("body"),
+    "path": _edited("path"),
 }
 """What makes the motions: plain generation, a live stream, a compose timeline, an edit."""
 
