@@ -847,48 +847,51 @@ def format_results(results: dict) -> str:
     ]
     if results["deviations"]:
         lines += ["", "Deviations from the standard protocol: " + "; ".join(results["deviations"])]
-    real, generated = rows.get(REAL, {}), rows.get(GT_LENGTH, {})
-    sampled = rows.get(SAMPLED_LENGTH, {})
-    lines += [
-        "",
-        "Per content and per style, real test motions against generated ones (ground-truth "
-        "lengths; sampled lengths in the last columns):",
-        "",
-        "| | content acc. real | generated | style acc. real | generated | speed real, m/s | "
-        "generated | content acc. sampled length | style acc. sampled length |",
-        "|---|---|---|---|---|---|---|---|---|",
+    # the generated rows: ground-truth lengths, the other plan's at ground-truth lengths where
+    # tabled, sampled lengths
+    columns = [(REAL, "real"), (GT_LENGTH, "ground-truth length")]
+    columns += [
+        (row, row.removeprefix("Ours (").removesuffix(")"))
+        for row in rows
+        if row.startswith(GT_LENGTH[:-1] + ", ")
     ]
+    columns.append((SAMPLED_LENGTH, "sampled length"))
+    columns = [(row, title) for row, title in columns if row in rows]
     labelled = [
         (content, content, f"_{content}", f"_in_{content}") for content in results["contents"]
     ]
     labelled += [(f"*{style}*", style, f"_in_{style}", f"_{style}") for style in results["styles"]]
     labelled.append(("**all**", None, "", ""))
-    for title, label, content_key, style_key in labelled:
-        keys = (
-            f"content_accuracy{content_key}",
-            f"style_accuracy{style_key}",
-            f"speed_mps_{label}",
-        )
-        cells = [
-            _cell(row.get(key), 2)
-            for key, row in (
-                (keys[0], real),
-                (keys[0], generated),
-                (keys[1], real),
-                (keys[1], generated),
-                (keys[2], real),
-                (keys[2], generated),
-                (keys[0], sampled),
-                (keys[1], sampled),
-            )
-        ]
+    speed_columns = columns[:2]
+    lines += [
+        "",
+        "Content accuracy (the real-mocap check's detectors, t2m.evaluate.mocap.CONTENT_CHECKS, "
+        "recognise the clip's content) and mean horizontal speed, per content and per style, "
+        "real test motions against generated ones:",
+        "",
+        "| | "
+        + " | ".join(title for _, title in columns)
+        + " | "
+        + " | ".join(f"speed {title}, m/s" for _, title in speed_columns)
+        + " |",
+        "|---|" + "---|" * (len(columns) + len(speed_columns)),
+    ]
+    for title, label, content_key, _ in labelled:
+        cells = [_cell(rows[row].get(f"content_accuracy{content_key}"), 2) for row, _ in columns]
+        cells += [_cell(rows[row].get(f"speed_mps_{label}"), 2) for row, _ in speed_columns]
+        lines.append(f"| {title} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Style accuracy (the classifier names the clip's style), per content and per style:",
+        "",
+        "| | " + " | ".join(title for _, title in columns) + " |",
+        "|---|" + "---|" * len(columns),
+    ]
+    for title, _, _, style_key in labelled:
+        cells = [_cell(rows[row].get(f"style_accuracy{style_key}"), 2) for row, _ in columns]
         lines.append(f"| {title} | " + " | ".join(cells) + " |")
     timings = results["timings"]
     lines += [
-        "",
-        "Content accuracy: the real-mocap check's detectors (t2m.evaluate.mocap.CONTENT_CHECKS) "
-        "recognise the clip's content. Style accuracy: the classifier names the clip's style. "
-        "Speed: mean horizontal root speed.",
         "",
         "Times: " + _times_line(timings) + f"; load average at start {_load(results, 'start')}, "
         f"at end {_load(results, 'end')}, {results['cpu_count']} CPUs.",
