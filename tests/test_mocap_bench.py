@@ -119,6 +119,16 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     (tmp_path / "data" / "a_001.json").write_text('{"content": 3, "style": 0}')
     with pytest.raises(UsageError, match="a_001.json does not name"):
         mocap_bench.read_captures(tmp_path)
+    (tmp_path / "data" / "a_001.json").write_text('{"content": 0, "style": 0}')
+    assert [c.content for c in mocap_bench.read_captures(tmp_path)] == ["walk"]
+    other = tmp_path / "other_dataset"  # built otherwise (no benchmark inputs beside it)
+    other.mkdir()
+    np.save(other / "Mean.npy", np.zeros(263, dtype=np.float32))
+    config = mocap_bench.MocapBenchConfig(
+        mocap=tmp_path, dataset=other, checkpoints=tmp_path / "run", out=tmp_path / "out"
+    )
+    with pytest.raises(UsageError, match="did not build"):
+        mocap_bench.run_bench(config)
     status = mocap_bench.main(["--mocap", str(tmp_path / "absent"), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1 and "no such folder" in err

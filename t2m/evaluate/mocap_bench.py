@@ -694,11 +694,16 @@ def run_bench(config: MocapBenchConfig) -> dict:
         len({c.content for c in captures}),
         len({c.style for c in captures}),
     )
+    inputs = Path(f"{config.dataset}_inputs")
     if (config.dataset / "Mean.npy").is_file():
+        if not (inputs / "splits" / "test.txt").is_file():
+            raise UsageError(
+                f"--dataset {config.dataset} holds a dataset that this benchmark did not build "
+                f"(no {inputs}/splits beside it); choose another --dataset"
+            )
         timings["build"] = "reused"
     else:
         clock = time.perf_counter()
-        inputs = Path(f"{config.dataset}_inputs")
         texts, splits = write_build_inputs(captures, inputs, config.seed)
         build_dataset(
             BuildConfig(
