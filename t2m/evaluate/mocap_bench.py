@@ -739,6 +739,7 @@ def run_bench(config: MocapBenchConfig) -> dict:
         timings["evaluation"] = {"wall_s": time.perf_counter() - clock}
     timings["total_wall_s"] = time.perf_counter() - start
     load["end"] = os.getloadavg()
+    _keep_earlier_times(timings, _read_json(config.out / "results.json"))
     # 5. results
     results = {
         "mocap": str(config.mocap),
@@ -763,6 +764,21 @@ def run_bench(config: MocapBenchConfig) -> dict:
     write_json_atomic(config.out / "results.json", results)
     write_text_atomic(config.out / "results.md", format_results(results))
     return results
+
+
+def _keep_earlier_times(timings: dict, earlier: dict | None) -> None:
+    """Steps reused from an earlier run keep the seconds that run measured (marked
+    ``earlier_run``), so that a rerun's results still say what each step took."""
+    before = (earlier or {}).get("timings")
+    if not isinstance(before, dict):
+        return
+    for key in ("build", "evaluation"):
+        if timings.get(key) == "reused" and isinstance(before.get(key), dict):
+            timings[key] = {**before[key], "earlier_run": True}
+    stages = before.get("stages") if isinstance(before.get("stages"), dict) else {}
+    for name, entry in timings.get("stages", {}).items():
+        if entry == "reused" and isinstance(stages.get(name), dict):
+            timings["stages"][name] = {**stages[name], "earlier_run": True}
 
 
 def _read_json(path: Path) -> dict | None:
@@ -912,7 +928,12 @@ def _load(results: dict, when: str) -> str:
 def _seconds(entry) -> str:
     if entry == "reused" or not isinstance(entry, dict):
         return str(entry)
-    return f"{entry['wall_s']:.0f} s" + (" (2nd process)" if entry.get("second_process") else "")
+    notes = [
+        note
+        for key, note in (("second_process", "2nd process"), ("earlier_run", "an earlier run"))
+        if entry.get(key)
+    ]
+    return f"{entry['wall_s']:.0f} s" + (f" ({', '.join(notes)})" if notes else "")
 
 
 def _times_line(timings: dict) -> str:
