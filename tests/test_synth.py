@@ -165,7 +165,7 @@ def _captions(pool: str, clips: int = 60) -> list[str]:
 
 # Phrasings of the held-out families (:mod:`dataset_tools.synth.captions`) no training caption
 # may contain; each occurs in the held-out captions of 60 clips.
-HELD_OUT_MARKERS = [" two times", " 2 times", " 2x", "couple of times", "stroll", "pace forward",
+HELD_OUT_MARKERS = [" two times", " 2 times", " 2x", "couple of times", "stroll", "paces forward",
                     "dash", "bounc", "duck", "applaud", "subsequently", "an individual",
                     "the subject", "followed by", "tward"]  # fmt: skip
 

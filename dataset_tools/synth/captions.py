@@ -14,7 +14,7 @@ sides ("leftward"), counts ("two times", "2 times", "2x", "a couple of times", "
 (", and afterwards", ", subsequently", " prior to", " followed by") and the imperative shape
 ("walk forward, then wave"). A ``pool`` picks the wording of a caption: ``"train"`` only the
 training families, ``"heldout"`` only the held-out ones, ``"paraphrase"`` each dimension from
-either at random with at least one held out (the paraphrase test split: wording a user might
+either at random with at least one of the subject, verb and shape held out (the paraphrase test split: wording a user might
 type that no stage trained on).
 
 Every template exists in two forms, third-person present ("walks forward") and gerund ("walking
@@ -27,6 +27,8 @@ Side and turning words are "left"/"right" (alone or as "leftward") and "clockwis
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 Pool = dict[str, list[tuple[str, str]]]
@@ -34,6 +36,8 @@ Pool = dict[str, list[tuple[str, str]]]
 POOLS = ("train", "heldout", "paraphrase")
 DIMENSIONS = ("subject", "verb", "speed", "count", "joiner", "shape")
 """What a caption's wording is drawn from, each dimension from the training or held-out pool."""
+ALWAYS_SHOWN = ("subject", "verb", "shape")
+"""The dimensions every caption shows (the others may be absent: no speed, a single action)."""
 
 SUBJECTS = {
     "train": ["a person", "someone", "a man", "a woman", "the person", "a figure", "the figure",
@@ -99,7 +103,7 @@ _TEMPLATES: dict[str, dict[str, list[tuple[str, str]]]] = {
                   ("sidesteps to the {side}{speed}", "sidestepping to the {side}{speed}"),
                   ("steps sideways to their {side}{speed}", "stepping sideways to their {side}{speed}"),
                   ("walks to the {side} side{speed}", "walking to the {side} side{speed}")],
-        "heldout": [("shuffles toward the {side}{speed}", "shuffling toward the {side}{speed}"),
+        "heldout": [("takes side steps toward the {side}{speed}", "taking side steps toward the {side}{speed}"),
                     ("moves {side}ward{speed}", "moving {side}ward{speed}"),
                     ("moves laterally toward the {side}{speed}", "moving laterally toward the {side}{speed}")],
     },
@@ -216,7 +220,7 @@ _TEMPLATES: dict[str, dict[str, list[tuple[str, str]]]] = {
 }  # fmt: skip
 _ANGLES = {
     "train": {90: ["90 degrees", "ninety degrees"], 180: ["180 degrees", "around"]},
-    "heldout": {90: ["by a right angle"], 180: ["by half a circle"]},
+    "heldout": {90: ["by a quarter circle"], 180: ["by half a circle"]},
 }
 _TURN_NOUNS = {
     90: ["a quarter turn", "a 90 degree turn"],
@@ -237,6 +241,21 @@ _JOINERS = {
 # imperative so that its held-out subjects appear.
 _SHAPES = {"train": ["present", "present", "progressive"], "heldout": ["imperative"],
            "base": ["present"]}  # fmt: skip
+
+# Possessives: "their {side} leg" and, now and then, "the {side} hand" say the subject's own
+# ("his left hand", "her right arm"), as annotators write them; an imperative says "your".
+_POSSESSIVE = {"he": "his", "a man": "his", "the man": "his", "she": "her", "a woman": "her"}
+_NEUTRAL_POSSESSIVES = ["their", "his", "her"]
+OWN_SIDE_RATE = 0.3
+
+
+def _possessive(text: str, owner: str, rng: np.random.Generator) -> str:
+    """``text`` with "their" as ``owner`` and, at :data:`OWN_SIDE_RATE`, "the left|right" as
+    ``owner`` left|right."""
+    if rng.uniform() < OWN_SIDE_RATE:
+        text = re.sub(r"\bthe (left|right)\b", rf"{owner} \1", text)
+    return re.sub(r"\btheir\b", owner, text)
+
 
 # Misspellings found in HumanML3D's texts; a few training captions carry one.
 _TYPOS = {"forward": "foward", "person": "persn", "slowly": "slowy", "backward": "backwords",
@@ -345,8 +364,10 @@ def _dimension_pools(pool: str | dict[str, str], rng: np.random.Generator | None
     if rng is None:
         raise ValueError("the paraphrase pool draws its dimensions: give rng")
     drawn = {d: "heldout" if rng.uniform() < 0.5 else "train" for d in DIMENSIONS}
-    if "heldout" not in drawn.values():
-        drawn[_pick(rng, ["verb", "count", "shape"])] = "heldout"
+    # Speed, count and joiner are absent from some captions (no speed, a single action): one of
+    # the dimensions every caption shows is held out, so no paraphrase is a training caption.
+    if all(drawn[d] == "train" for d in ALWAYS_SHOWN):
+        drawn[_pick(rng, list(ALWAYS_SHOWN))] = "heldout"
     return drawn
 
 
@@ -356,6 +377,9 @@ def caption(segments: list[tuple[str, dict]], rng: np.random.Generator, pool: st
     shape = _pick(rng, _SHAPES[pools["shape"]])
     subject = _pick(rng, SUBJECTS[pools["subject"]])
     phrases = [phrase(a, p, rng, pools) for a, p in segments]
+    owner = "your" if shape == "imperative" else _POSSESSIVE.get(subject)
+    owner = owner or _pick(rng, _NEUTRAL_POSSESSIVES)
+    phrases = [(_possessive(p, owner, rng), _possessive(g, owner, rng)) for p, g in phrases]
     if shape == "imperative":
         phrases = [(base_form(present), gerund) for present, gerund in phrases]
         subject = ""
