@@ -160,6 +160,7 @@ CONTEXT_SYNONYMS: dict[str, dict[str, str]] = {
         "foot".split(),
         "walk",
     ),
+    "bend": {"knee": "squat", "knees": "squat", "leg": "squat", "legs": "squat"},
     "high": {"speed": "fast", "pace": "fast"},
     "low": {"speed": "slow", "pace": "slow"},
 }
@@ -168,7 +169,9 @@ words): "strikes forward using the left foot" is a kick, "strikes with the right
 "bounces on one foot" a hop, "bounces up and down" a jump (:data:`SYNONYMS` then); "moves
 forward" or "leftward" walks, "moves the left arm" does not; "at high speed" fast. A word named
 here reads as the first of its context words found, unless a body part it does not name comes
-in the window ("moves the left arm"); else through the other tables."""
+in the window ("moves the left arm"); else through the other tables. A trained word named here
+("bend") is read so only when the word that decides was not trained on: "bends the knees" squats
+where the model knows "bend" only from "bends forward at the waist" (a bow) and not "knee"."""
 
 CONTEXT_WINDOW = 6
 
@@ -207,9 +210,17 @@ DIRECTIONS: dict[str, tuple[str, ...]] = {
     "rearwards": ("backward", "backwards"),
     "toward": ("to",),
     "towards": ("to",),
+    "skyward": ("up",),
+    "skywards": ("up",),
+    "upward": ("up",),
+    "upwards": ("up",),
+    "downward": ("down",),
+    "downwards": ("down",),
+    "an": ("a",),
 }
 """Direction words (adverbs, prepositions) and their trained equivalents, by this table only
-(any part of speech: "toward" is a preposition)."""
+(any part of speech: "toward" is a preposition); also the article "an", whose noun a reading may
+change ("an individual" -> "a person")."""
 
 PEOPLE = frozenset(
     "individual character subject guy lady girl boy kid child adult dancer actor performer "
@@ -285,12 +296,16 @@ def _compound(word: str, trained: Collection[str]) -> str | None:
 
 
 def table_reading(
-    word: str, pos: str, following: Sequence[str], trained: Collection[str]
+    word: str,
+    pos: str,
+    following: Sequence[str],
+    trained: Collection[str],
+    context_only: bool = False,
 ) -> tuple[str, str] | None:
     """An untrained word's reading by the tables, and which table gave it: :data:`DIRECTIONS`
     (any part of speech), then for content words (:data:`TABLE_POS`) the context table
     (``following``: the words after it), :data:`SYNONYMS`, :data:`MANNER`, :data:`PEOPLE`,
-    compounds; None when none does."""
+    compounds (``context_only``: the context table alone); None when none does."""
     found = _first_trained(DIRECTIONS.get(word, ()), trained)
     if found:
         return found, "a direction word"
@@ -301,7 +316,10 @@ def table_reading(
     if not any(w in MOTION_WORDS["BODY_PART"] and w not in context for w in window):
         for after in window:
             if context.get(after) in trained:
-                return context[after], f"the {after!r} after it"
+                said = "the untrained" if context_only else "the"
+                return context[after], f"{said} {after!r} after it"
+    if context_only:
+        return None
     found = _first_trained(SYNONYMS.get(word, ()), trained)
     if found:
         return found, "a motion synonym"
@@ -339,6 +357,12 @@ def read_untrained(
     words = [word.lower() for word, _ in pairs]
     out, named = [], set()
     for i, ((word, pos), lower) in enumerate(zip(pairs, words, strict=True)):
+        if lower in trained and lower in CONTEXT_SYNONYMS and pos in TABLE_POS:
+            untrained = [w if w not in trained else "" for w in words[i + 1 :]]
+            found = table_reading(lower, pos, untrained, trained, context_only=True)
+            if found and found[0] != lower:
+                out.append(_named_reading(text, lower, pos, found, readings, named))
+                continue
         if lower in trained or (pos not in TABLE_POS and lower not in DIRECTIONS):
             out.append((word, pos))
             continue
@@ -356,15 +380,28 @@ def read_untrained(
         if reading is None:
             out.append((word, pos))
             continue
-        if readings is not None:
-            readings.setdefault(lower, reading)
-        elif (lower, reading) not in named:
-            named.add((lower, reading))
-            logger.warning(
-                "prompt %r: %r was not trained on; read as %r (%s)", text, lower, reading, why
-            )
-        out.append((reading, pos))
+        out.append(_named_reading(text, lower, pos, (reading, why), readings, named))
     return out
+
+
+def _named_reading(
+    text: str,
+    word: str,
+    pos: str,
+    found: tuple[str, str],
+    readings: dict[str, str] | None,
+    named: set[tuple[str, str]],
+) -> tuple[str, str]:
+    """The (reading, POS) pair of ``word``, collected in ``readings`` or else named in a warning
+    (once per prompt)."""
+    reading, why = found
+    if readings is not None:
+        readings.setdefault(word, reading)
+    elif (word, reading) not in named:
+        named.add((word, reading))
+        untrained = "" if why.startswith("the untrained") else "was not trained on; "
+        logger.warning("prompt %r: %r %sread as %r (%s)", text, word, untrained, reading, why)
+    return reading, pos
 
 
 def read_untrained_tokens(

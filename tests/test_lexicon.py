@@ -125,21 +125,23 @@ def test_tokens_are_read_as_pairs_are():
         ("walk rapidly", "walk quickly"),
         ("walk unhurriedly", "walk slowly"),
         ("walk at a leisurely speed", "walk at a slow pace"),
-        ("walk at an ordinary speed", "walk at an normal pace"),
+        ("walk at an ordinary speed", "walk at a normal pace"),
         ("stay motionless", "stand still"),
         # a word for the one who moves; a capitalised first verb a tagger called a proper noun
-        ("an individual applaud", "an person clap"),
+        ("an individual applaud", "a person clap"),
         ("Jab use your left arm", "punch use your left arm"),
         # compounds: a side word opens it, or two trained words make it
         ("greet with a lefthanded wave", "wave with a left wave"),
         ("move rightward", "walk right"),
         ("move laterally toward the left", "walk sideways to the left"),
+        ("reach skyward with both arm", "raise up with both arm"),
+        ("an individual walk", "a person walk"),
         ("sideshuffle to the left", "shuffle to the left"),
     ],
 )
 def test_tables_read_untrained_words_in_context(words, read):
     trained = set(
-        "a the an at with use on one up and down to walk run jump hop kick punch clap wave "
+        "a the at with use on one up and down to walk run jump hop kick punch clap wave raise both "
         "stand still left right foot fist arm forward person pace fast slow slowly quickly "
         "normal shuffle side sideways".split()
     )
@@ -221,3 +223,16 @@ def test_a_usual_count_keeps_its_tags():
 
     pairs = [("once", "SCONJ"), ("do", "VERB"), ("jump", "VERB")]  # "once done jumping, ..."
     assert read_counts(pairs, COUNTING) == pairs
+
+
+def test_a_trained_word_is_read_in_context_only_when_the_deciding_word_is_untrained(caplog):
+    trained = {"a", "person", "bend", "forward", "squat", "the", "leg"}
+    pairs = [("bend", "VERB"), ("the", "DET"), ("knee", "NOUN")]
+    with caplog.at_level(logging.WARNING, logger="t2m.lexicon"):
+        read = read_untrained("bends the knees", pairs, trained)
+    assert [w for w, _ in read] == ["squat", "the", "knee"]
+    assert "'bend' read as 'squat' (the untrained 'knee' after it)" in caplog.text
+    # "leg" was trained on: the model reads "bend the leg" itself
+    pairs = [("bend", "VERB"), ("the", "DET"), ("leg", "NOUN")]
+    assert read_untrained("", pairs, trained) == pairs
+    assert read_untrained("", [("bend", "VERB"), ("forward", "ADV")], trained)[0][0] == "bend"
