@@ -493,6 +493,42 @@ def read_counts(
     return out
 
 
+TURN_FRACTIONS = ("quarter", "half")
+"""Fraction words before "circle" that make it an amount of turning ("pivots by a quarter
+circle", "rotates by half a circle"): read as "turn", as in the trained "a quarter turn"."""
+
+JOIN_POS = frozenset({"NOUN", "VERB", "ADJ", "ADV", "PROPN"})
+
+
+def read_phrases(
+    pairs: Sequence[tuple[str, str]], trained: Collection[str]
+) -> list[tuple[str, str]]:
+    """(word, POS) pairs with two phrases in the trained words: two content words (:data:`JOIN_POS`)
+    that make a trained word when written together ("side steps" -> "sidestep", "counter
+    clockwise" -> "counterclockwise"), and "circle" after a fraction (:data:`TURN_FRACTIONS`) as
+    "turn"."""
+    out: list[tuple[str, str]] = []
+    i = 0
+    while i < len(pairs):
+        word, pos = pairs[i]
+        lower = word.lower()
+        if i + 1 < len(pairs):
+            after, after_pos = pairs[i + 1]
+            joined = lower + after.lower()
+            if pos in JOIN_POS and after_pos in JOIN_POS and joined in trained:
+                out.append((joined, after_pos))
+                i += 2
+                continue
+        before = [w.lower() for w, _ in out[-2:]]
+        fraction = (bool(before) and before[-1] in TURN_FRACTIONS) or before == ["half", "a"]
+        if lower == "circle" and fraction and "turn" in trained:
+            out.append(("turn", pos))
+        else:
+            out.append((word, pos))
+        i += 1
+    return out
+
+
 POSSESSIVES = {"your": ("their", "his", "her"), "yours": ("their", "his", "her")}
 """Possessives of the one addressed (an imperative's "raise your left hand") read as the third
 person's, the first one trained."""
@@ -532,10 +568,11 @@ def read_prompt(
     readings: dict[str, str] | None = None,
 ) -> list[tuple[str, str]]:
     """A tagged prompt read in the words and shape the model was trained on: its untrained
-    words as trained ones (:func:`read_untrained`), its counts in their usual wording
-    (:func:`read_counts`), an imperative in the third person (:func:`read_imperative`)."""
+    words as trained ones (:func:`read_untrained`), two-word phrases (:func:`read_phrases`), its
+    counts in their usual wording (:func:`read_counts`), an imperative in the third person
+    (:func:`read_imperative`)."""
     read = read_untrained(text, pairs, trained, vocabulary, common, readings)
-    return read_imperative(read_counts(read, trained), trained)
+    return read_imperative(read_counts(read_phrases(read, trained), trained), trained)
 
 
 def read_prompt_tokens(

@@ -236,3 +236,19 @@ def test_a_trained_word_is_read_in_context_only_when_the_deciding_word_is_untrai
     pairs = [("bend", "VERB"), ("the", "DET"), ("leg", "NOUN")]
     assert read_untrained("", pairs, trained) == pairs
     assert read_untrained("", [("bend", "VERB"), ("forward", "ADV")], trained)[0][0] == "bend"
+
+
+def test_two_word_phrases_are_read_as_trained_words():
+    from t2m.lexicon import read_phrases
+
+    trained = {"sidestep", "turn", "quarter", "half", "a", "circle", "walk", "in", "to"}
+    read = read_phrases([("take", "VERB"), ("side", "NOUN"), ("step", "NOUN")], trained)
+    assert read == [("take", "VERB"), ("sidestep", "NOUN")]
+    for said in ("by a quarter circle", "by half a circle"):
+        pairs = [(w, "NOUN") for w in said.split()]
+        assert [w for w, _ in read_phrases(pairs, trained)][-1] == "turn"
+    # a circle walked stays one; function words are never joined ("a round" is no "around")
+    pairs = [("walk", "VERB"), ("in", "ADP"), ("a", "DET"), ("circle", "NOUN")]
+    assert read_phrases(pairs, trained) == pairs
+    pairs = [("a", "DET"), ("round", "ADJ")]
+    assert read_phrases(pairs, trained | {"around"}) == pairs
