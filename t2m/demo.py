@@ -307,16 +307,21 @@ PARAPHRASE_SPLIT = "test_paraphrase"
 (:data:`dataset_tools.synth.corpus.PARAPHRASE_SPLIT`), evaluated beside the test split."""
 
 
-def paraphrase_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict | None:
-    """Step 4 again on the paraphrase split (into ``out``), when the dataset has one; None
-    otherwise."""
+def paraphrase_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict | str | None:
+    """Step 4 again on the paraphrase split (into ``out``), when the dataset has one: its
+    summary, or why it could not be evaluated (a split of a small corpus holds fewer items than
+    one R-precision pool); None without such a split."""
     split_file = dataset / f"{PARAPHRASE_SPLIT}.txt"
     if not split_file.is_file() or not split_file.read_text(encoding="utf-8").strip():
         return None
-    return quick_evaluation(dataset, run_dir, out, PARAPHRASE_SPLIT)
+    try:
+        return quick_evaluation(dataset, run_dir, out, PARAPHRASE_SPLIT)
+    except UsageError as error:
+        logger.warning("the %s split is not evaluated: %s", PARAPHRASE_SPLIT, error)
+        return str(error)
 
 
-def _evaluations(dataset: Path, run_dir: Path, eval_dir: Path) -> tuple[dict, dict | None]:
+def _evaluations(dataset: Path, run_dir: Path, eval_dir: Path) -> tuple[dict, dict | str | None]:
     """The quick evaluation of the test split, then of the paraphrase split."""
     summary = quick_evaluation(dataset, run_dir, eval_dir)
     paraphrase_dir = eval_dir.parent / f"{eval_dir.name}_paraphrase"
@@ -421,7 +426,9 @@ def run_demo(config: DemoConfig) -> str:
         "headline     " + "\n".join(headline(summary)),
         f"  {OMITTED_SPREAD}",
     ]
-    if paraphrase is not None:
+    if isinstance(paraphrase, str):
+        lines += ["", f"paraphrases  the {PARAPHRASE_SPLIT} split is not evaluated: {paraphrase}"]
+    elif paraphrase is not None:
         lines += [
             "",
             f"paraphrases  the {PARAPHRASE_SPLIT} split: captions in wording no stage trained "

@@ -280,8 +280,8 @@ class CheckpointBackend:
                 )
             )
             for word, reading in found.items():
-                if word not in self.readings:
-                    logger.info("captions' untrained word %r read as %r", word, reading)
+                if self.readings.get(word) != reading:
+                    logger.info("captions' word %r read as %r, as in a prompt", word, reading)
                 self.readings[word] = reading
         return self._encoded[key]
 
