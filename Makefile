@@ -52,7 +52,7 @@ STAMP := $(VENV_DIR)/.installed
 py = $(call quote,$(VENV_DIR)/bin/python)
 
 .PHONY: install test lint dataset contact-sheet train-ae train-len train-t2m train-eval train \
-	sample eval demo bench serve mocap-check
+	sample eval demo bench serve mocap-check mocap-bench
 
 install: $(STAMP)
 
@@ -74,9 +74,14 @@ NUMERICS_TESTS := tests/test_onednn.py tests/test_fast_recurrence.py tests/test_
 	tests/test_onnx_backend.py tests/test_int8_saturation.py tests/test_precision_choice.py \
 	tests/test_rollouts.py
 
+# The suite runs on TEST_WORKERS processes (pytest-xdist), whole test files to a worker so that
+# each module's fixtures are built once; each worker keeps torch to one thread (two workers of two
+# threads each oversubscribe two cores, and spinning OpenMP threads then slow everything).
+TEST_WORKERS ?= 2
+
 test: install
 	@$(py) -c 'from t2m.hardware import cpu_description; print("cpu:", cpu_description())'
-	$(py) -m pytest -q tests
+	OMP_NUM_THREADS=1 $(py) -m pytest -q -n $(call arg,TEST_WORKERS) --dist loadfile tests
 	ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 $(py) -m pytest -q -p no:cacheprovider $(NUMERICS_TESTS)
 
 lint: install
@@ -123,6 +128,9 @@ demo: install
 
 mocap-check: install
 	$(py) -m t2m.evaluate.mocap $(args)
+
+mocap-bench: install
+	$(py) -m t2m.evaluate.mocap_bench $(args)
 
 bench: install
 	$(py) -m t2m.bench $(args)

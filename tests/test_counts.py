@@ -372,3 +372,131 @@ def test_continue_makes_a_counted_text_as_its_count_then_standing(settling, monk
     seen.clear()
     t2m.edit.edit(pipe, PLAIN, "continue", source, keep_seconds=1.0, seconds=2.0, settings=settings)
     assert seen == [(PLAIN, 40 - kept)]
+
+
+def _recorded_rollouts(pipe, monkeypatch) -> list[int]:
+    """The snippets of every rollout the temporal VAE runs from here on, in order."""
+    seen: list[int] = []
+    original = pipe.vae.rollout
+
+    def recording(state, context, time_codes, noise, *args, **kwargs):
+        seen.append(time_codes.shape[1])
+        return original(state, context, time_codes, noise, *args, **kwargs)
+
+    monkeypatch.setattr(pipe.vae, "rollout", recording)
+    return seen
+
+
+def test_inbetween_runs_the_count_then_standing_along_one_rollout(settling):
+    """Between kept ends, a counted text given more time than its count needs is the clause
+    plan's counted clause followed by standing still, along one rollout: the text's sentence
+    state fed the last kept code, its clocks over the time it needs, then the settling
+    caption's sentence state fed the text's last code, its clocks over the rest of the
+    stretch (up to the kept end), and on to the result's end."""
+    from conftest import synth_joints
+
+    from t2m.edit import EditRequest, SearchSettings
+    from t2m.edit import core as search
+    from t2m.inference.generation import text_batch
+
+    pipe, vae = settling, settling.vae
+    unit, total = pipe.spec.snippet_length, pipe.spec.max_frames // pipe.spec.snippet_length
+    source = synth_joints("walk_forward", total * unit, np.random.default_rng(7))
+    seconds = total * unit / pipe.spec.fps
+    request = EditRequest(
+        "inbetween", COUNTED, source, keep_start=1.0, keep_end=1.0, seconds=seconds
+    )
+    plan = request.plan(pipe.spec)
+    known = search.known_prefix_snippets(plan, unit)
+    free = search.free_snippets(plan, unit, known)
+    (counted,) = pipe.prepare([COUNTED])
+    need = _own_snippets(pipe, counted)
+    assert free - need >= MIN_SETTLE_SNIPPETS  # the stretch has time to spare
+    parts = search.text_parts(pipe, plan, counted, known, unit)
+    assert [(p.snippets, p.clock, p.encoded.count) for p in parts] == [
+        (need, need, 2),
+        (total - known - need, free - need, 0),
+    ]
+    settings = SearchSettings(method="posterior", candidates=1)
+    (found,) = search._search(
+        pipe, [plan], [parts], plan.num_frames, known, torch.Generator().manual_seed(4), settings, 0
+    )
+    (settle,) = pipe.prepare([SETTLE_TEXT])
+    with torch.no_grad():
+        kept = torch.from_numpy(plan.source_features[: known * unit]).float()[None]
+        normalised = pipe.normalizer.normalize(kept)[..., : pipe.encoder_input_size]
+        codes = [pipe.encoder(normalised)]  # (1, K, C)
+        noise = torch.randn(
+            1, total - known, vae.config.latent_size, generator=torch.Generator().manual_seed(4)
+        )
+        at = 0
+        for encoded, steps, clock in ((counted.encoded, need, need), (settle.encoded, None, None)):
+            steps = steps or total - known - need
+            clock = clock or free - need
+            words, pos, lengths = text_batch([encoded], pipe.device, pipe.dtype)
+            word_features, sentence, mask = vae.encode_text(words, pos, lengths)
+            state = vae.initial_state(sentence, codes[-1][:, -1])
+            times = vae.time_codes(
+                torch.tensor([clock]), steps, torch.tensor([clock]), torch.tensor([encoded.count])
+            )
+            _, out = vae.rollout(
+                state, vae.word_context(word_features, mask), times, noise[:, at : at + steps]
+            )
+            codes.append(out.code)
+            at += steps
+        decoded = pipe.decoder(torch.cat(codes, dim=1)).float()
+        expected = pipe.normalizer.denormalize(decoded)[0].numpy()
+    np.testing.assert_allclose(found[0], expected, rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("mode", ["inbetween", "body", "path", "keys"])
+def test_edit_modes_make_a_counted_text_as_its_count_then_standing(settling, monkeypatch, mode):
+    """Every edit mode whose text spans a stretch between constraints (kept ends, a kept body
+    part, a path, keys) runs a counted text for the time its count needs, then standing still,
+    in its search's rollouts; a text without a count runs as one caption."""
+    from conftest import synth_joints
+
+    import t2m.edit
+
+    pipe = settling
+    unit, total = pipe.spec.snippet_length, pipe.spec.max_frames // pipe.spec.snippet_length
+    seconds = total * unit / pipe.spec.fps
+    source = synth_joints("walk_forward", total * unit + 1, np.random.default_rng(7))
+    (counted,) = pipe.prepare([COUNTED])
+    need = _own_snippets(pipe, counted)
+    options = {
+        "inbetween": {"source": source, "keep_start": 1.0, "keep_end": 1.0, "seconds": seconds},
+        "body": {"source": source, "part": "lower"},
+        "path": {"path": [[seconds / 2, 0.0, 1.0], [seconds - 1, 0.5, 2.0]], "seconds": seconds},
+        "keys": {
+            "keys": np.where(np.arange(len(source))[:, None, None] == 30, source, np.nan)[:-1]
+        },
+    }[mode]
+    known = 5 if mode == "inbetween" else 0  # the kept first second
+    settings = t2m.edit.SearchSettings(candidates=2, steps=2)  # keys optimise through both
+    seen = _recorded_rollouts(pipe, monkeypatch)
+    (motion,) = t2m.edit.edit(pipe, COUNTED, mode, settings=settings, **options)
+    assert len(motion.joints) == total * unit
+    assert seen and seen == [need, total - known - need] * (len(seen) // 2)
+    seen.clear()
+    t2m.edit.edit(pipe, PLAIN, mode, settings=settings, **options)
+    assert seen and set(seen) == {total - known}
+
+
+@pytest.mark.parametrize("mode", ["inbetween", "body", "path"])
+def test_counts_benchmark_edit_modes(settling, mode):
+    """The counts benchmark's edit rows: inbetween makes the length between a kept second at
+    each end, body and path a result of the length itself; one row per action, count and
+    length."""
+    from t2m.benchmarks.counts import measure
+
+    pipe, unit = settling, settling.spec.snippet_length
+    rows = measure(pipe, ["jump", "clap"], [2], (1.0, 1.5), 1, 0, True, mode)
+    assert [(r["action"], r["length"]) for r in rows] == [
+        ("jump", 1.0), ("clap", 1.0), ("jump", 1.5), ("clap", 1.5)
+    ]  # fmt: skip
+    for row in rows:
+        frames = pipe._clamp(round(row["expected_frames"] * row["length"] / unit) * unit)
+        longest = pipe.spec.max_frames // unit * unit
+        whole = min(frames + 2 * pipe.spec.fps, longest) if mode == "inbetween" else frames
+        assert row["frames"] == [whole] and 0.0 <= row["right"] <= 1.0

@@ -1,7 +1,8 @@
 """The hard keep's seams (:func:`t2m.edit.keep.hard_keep`): a free run meets the kept frame in
 value and in per-frame change, and the offset that makes it meet is eased out with zero slope at
 both ends (smoothstep), not cut off or ramped linearly; the generated side's jitter next to a
-seam is smoothed first (:func:`t2m.edit.keep.smooth_seams`).
+seam is smoothed first (:func:`t2m.edit.keep.smooth_seams`); where compose joins two generated
+windows both sides are smoothed (:func:`t2m.edit.keep.smooth_join`).
 
 Synthetic features on a non-root joint (the root's heading and path bending are not involved):
 the kept frames 0-7 of joint 5, the free run 8-63, ``blend`` 16 frames.
@@ -14,10 +15,12 @@ import pytest
 
 from dataset_tools.representation import FeatureLayout
 from t2m.edit.keep import (
+    JOIN_REACH_SECONDS,
     SEAM_SMOOTH_FRAMES,
     _seam_weights,
     hard_keep,
     joint_columns,
+    smooth_join,
     smooth_seams,
     trend_columns,
 )
@@ -99,6 +102,59 @@ def test_the_generated_side_of_a_seam_is_smoothed():
     smoothed = smooth_seams(generated, keep)
     np.testing.assert_array_equal(smoothed[:, foot[-1]], generated[:, foot[-1]])
     assert np.abs(smoothed[KEPT, foot[:-1]] - generated[KEPT, foot[:-1]]).min() > 0.3
+
+
+def test_a_join_of_two_generated_stretches_is_smoothed_on_both_sides():
+    """smooth_join: the jitter within the seam's half second is damped on both sides (a light
+    Gaussian: sigma 0.6 frames), fades back to the features after it, and never touches a kept
+    source's frames or the foot contacts."""
+    fps, join, fixed = 20.0, 32, 8
+    reach = int(round(JOIN_REACH_SECONDS * fps))
+    features = np.zeros((FRAMES, 263))
+    features[:] = 0.01 * (-1.0) ** np.arange(FRAMES)[:, None]  # +-1 cm a frame everywhere
+    out = smooth_join(features, join, fps, fixed)
+    jerk = np.abs(np.diff(out[:, 70], 3))  # a ric column; jerk[t]: frames t..t+3
+    raw = np.abs(np.diff(features[:, 70], 3)).max()  # 0.08
+    # within the judged half second: under half the jitter's jerk on either side
+    assert jerk[join - reach : join + reach - 3].max() < 0.5 * raw
+    assert (
+        jerk[join - reach : join].max() < 0.5 * raw
+        and jerk[join : join + reach - 3].max() < 0.5 * raw
+    )
+    far = reach + SEAM_SMOOTH_FRAMES + 1
+    np.testing.assert_array_equal(out[join + far :], features[join + far :])
+    np.testing.assert_array_equal(out[: join - far], features[: join - far])
+    contacts = FeatureLayout(22).foot_contact
+    np.testing.assert_array_equal(out[:, contacts], features[:, contacts])
+    # a kept source's frames stay as they are, even within reach
+    near = smooth_join(features, fixed + 2, fps, fixed)
+    np.testing.assert_array_equal(near[:fixed], features[:fixed])
+    assert not np.allclose(near[fixed : fixed + 4], features[fixed : fixed + 4])
+
+
+def test_compose_smooths_every_window_join(pipe, monkeypatch):
+    """compose smooths each join of its windows (segments' and a long segment's windows) on
+    both sides, once, on what was made so far."""
+    import torch
+
+    import t2m.edit
+    from t2m.edit import SearchSettings
+    from t2m.edit.modes import Segment
+
+    seen = []
+    original = t2m.edit.smooth_join
+
+    def recording(features, join, fps, fixed=0, **options):
+        seen.append((len(features), join, fixed))
+        return original(features, join, fps, fixed, **options)
+
+    monkeypatch.setattr(t2m.edit, "smooth_join", recording)
+    timeline = [Segment("a person walks forward", 0, 60), Segment("a person jumps", 60, 300)]
+    settings = SearchSettings(candidates=1)
+    (result,) = t2m.edit.compose(pipe, timeline, 1, torch.Generator().manual_seed(0), settings)
+    # windows: 60 from rest, then 156 (7.8 s after 2 s of context), then the remaining 84
+    assert seen == [(216, 60, 0), (300, 216, 0)]
+    assert len(result.features) == 300
 
 
 def test_the_benchmark_measures_the_half_second_around_a_seam():

@@ -1,7 +1,7 @@
 """Counts at any length: does "jumps twice" make two jumps at whatever length the user fixes?
 
 ``python -m t2m.benchmarks.counts --checkpoints RUN --dataset DATA [--samples 4] [--settle both]
-[--mode generate|live|compose]``
+[--mode generate|live|compose|inbetween|body|path]``
 
 For each counted action of the demo corpus (those its detectors count: jump, hop, punch, squat,
 clap), each count 1-4 written as people write it ("a person jumps in place twice.", "a person
@@ -21,6 +21,13 @@ both at the fixed lengths only, and there "no settle" keeps the prompt whole whe
 :meth:`~t2m.pipeline.TextToMotion.count_parts` would split it, while "settle" lets them split
 it (compose and the live stream ask count_parts for every line and prompt). The table
 gives the share right per action and length; the JSON lines also the counts the detectors found.
+``--mode inbetween`` makes the prompt between the kept first and last second of the model's
+"a person stands still" (the length given is the middle's; the result at most 9.8 s),
+``--mode body`` keeps the arms (jump, hop, squat) or the root path and legs (punch, clap) of it
+on every frame, ``--mode path`` asks the root back at the origin on the last frame (the actions
+are done in place): in each the prompt spans a stretch between constraints, and "settle" lets the
+search run the count in the time it needs, then standing still, along one rollout
+(:func:`t2m.edit.core.text_parts`); the default search (8 candidates).
 ``--two-clauses`` adds prompts of two clauses, one of them counted (:data:`TWO_CLAUSES`), at 1-3
 times their expected length, scored as the evaluation scores them. ``--dataset`` is the demo corpus the model trained on: its ``labels.json``
 gives the counts each action was trained with (marked in the table).
@@ -171,8 +178,67 @@ def _composed(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarr
     return out
 
 
-MODES = {"generate": _generated, "live": _live, "compose": _composed}
-"""What makes the motions: plain generation, a live stream, a compose timeline."""
+EDIT_KEEP_SECONDS = 1.0
+"""``--mode inbetween``: the kept start and end, each (a standing source's)."""
+BODY_PART_KEPT = {"jump": "arms", "hop": "arms", "squat": "arms", "punch": "lower", "clap": "lower"}
+"""``--mode body``: the part kept from a standing source, the one the action does not need."""
+
+
+def _standing(pipe, frames: int, seed: int, cache: dict) -> np.ndarray:
+    """World joints (frames + 1, J, 3) of the model's "a person stands still" (the source an
+    edit keeps parts of; the last frame held once more, as a source loses a frame to the
+    features' velocities)."""
+    from t2m.clauses import SETTLE_TEXT
+
+    if frames not in cache:
+        ((motion,),) = pipe.generate(SETTLE_TEXT, lengths=frames, seed=seed, settle=False)
+        cache[frames] = np.concatenate([motion.joints, motion.joints[-1:]])
+    return cache[frames]
+
+
+def _edit_part(text: str) -> str:
+    return next(part for action, part in BODY_PART_KEPT.items() if action in text)
+
+
+def _edited(mode: str):
+    """Motions of an edit (the default search): ``inbetween`` keeps the first and last
+    :data:`EDIT_KEEP_SECONDS` of a standing source and makes the prompt over the length between
+    them (the whole result clamped to 9.8 s); ``body`` keeps :data:`BODY_PART_KEPT` on every
+    frame of a standing source as long as the length; ``path`` asks the root to be back at
+    the origin on the last frame."""
+
+    def made(pipe, texts, lengths, samples, seed, settle) -> list[list[np.ndarray]]:
+        fps, unit, out, cache = pipe.spec.fps, pipe.spec.snippet_length, [], {}
+        keep = int(round(EDIT_KEEP_SECONDS * fps))
+        longest = pipe.spec.max_frames // unit * unit
+        with _unsplit(pipe, settle):
+            for text, frames in zip(texts, lengths, strict=True):
+                if mode == "inbetween":
+                    whole = min(frames + 2 * keep, longest)
+                    source = _standing(pipe, 4 * keep, seed, cache)
+                    options = {"keep_start": EDIT_KEEP_SECONDS, "keep_end": EDIT_KEEP_SECONDS}
+                    options["seconds"] = whole / fps
+                elif mode == "body":
+                    source = _standing(pipe, frames, seed, cache)
+                    options = {"part": _edit_part(text)}
+                else:  # back where it started at the end: the actions are done in place
+                    source, options = None, {"path": [[(frames - 1) / fps, 0.0, 0.0]]}
+                motions = pipe.edit(text, mode, source, num_samples=samples, seed=seed, **options)
+                out.append([m.joints for m in motions])
+        return out
+
+    return made
+
+
+MODES = {
+    "generate": _generated,
+    "live": _live,
+    "compose": _composed,
+    "inbetween": _edited("inbetween"),
+    "body": _edited("body"),
+    "path": _edited("path"),
+}
+"""What makes the motions: plain generation, a live stream, a compose timeline, an edit."""
 
 
 def measure(
@@ -335,7 +401,7 @@ def main(argv: list[str] | None = None) -> None:
         "--mode",
         choices=tuple(MODES),
         default="generate",
-        help="what makes the motions: plain generation, a live stream, a compose timeline",
+        help="what makes the motions: plain generation, a live stream, a compose timeline, an edit",
     )
     parser.add_argument(
         "--two-clauses",

@@ -72,6 +72,7 @@ import torch
 from dataset_tools.command import UsageError
 from dataset_tools.representation import recover_from_ric
 from t2m.edit.core import EditPlan, PlanResult, SearchSettings, generate_plans
+from t2m.edit.keep import smooth_join
 from t2m.edit.modes import BODY_PARTS, MODES, ComposePlan, Segment
 from t2m.edit.request import EditRequest
 from t2m.edit.source import half_yaw_of, load_source, prepare_source
@@ -185,7 +186,9 @@ def compose(
 ) -> list[PlanResult]:
     """Chain the timeline's segments into one motion per sample: windows of at most the
     model's longest motion, each continuing (as ``continue`` does) from the last
-    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes. A segment
+    :data:`COMPOSE_CONTEXT_SECONDS` made, with the prompt of the segment it makes, the join
+    smoothed on both sides (:func:`t2m.edit.keep.smooth_join`; the window's own seam
+    finishing smooths the new side only, as for a kept source). A segment
     whose prompt names a count and lasts longer than the count needs is made as that count
     followed by standing still (:meth:`t2m.pipeline.TextToMotion.count_parts`; needs the length
     model, else the segment is made whole).
@@ -233,8 +236,11 @@ def compose(
         if not features:
             features = [result.features for result in results]
         else:
+            # both sides of the join are the model's own motion (but a kept source's frames)
             features = [
-                np.concatenate([made, result.features[have:]])
+                smooth_join(
+                    np.concatenate([made, result.features[have:]]), len(made), spec.fps, kept
+                )
                 for made, result in zip(features, results)
             ]
     out = []

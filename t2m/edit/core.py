@@ -18,7 +18,11 @@ frame 0's root at the origin facing +Z):
    end, or the result's end). Reading the kept start with the posterior under the new text
    (``prefix_state``), and clocks that counted the kept start as part of the text's motion,
    made the regenerated part go on doing what the source did (the edit benchmark's continue:
-   a quarter fewer regenerated parts recognised before the finishing);
+   a quarter fewer regenerated parts recognised before the finishing). A text that names a
+   count and is given more of a stretch than the count needs (:func:`text_parts`) runs for
+   the time the count needs, then "a person stands still" takes over along the same rollout,
+   started as the clause plan starts its next clause (its own sentence state fed the text's
+   last code, its own clocks), so the count follows the text at any length;
 2. draws ``candidates`` noise sequences per result for the remaining snippets, in one batch;
 3. where targets lie past the kept start's next snippet (an end to reach, a body part, a path,
    keys), optimises the noise ``eps`` of the prior's ``z = mu + sigma * eps`` (``steps`` Adam
@@ -48,7 +52,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, get_args
 
 import numpy as np
 import torch
@@ -58,6 +62,9 @@ from t2m.edit.keep import finish_plan
 from t2m.edit.plan import EditPlan
 from t2m.edit.recover import recover_from_ric_torch
 from t2m.inference.generation import text_batch
+
+if TYPE_CHECKING:
+    from t2m.data.words import EncodedText
 
 logger = logging.getLogger(__name__)
 
@@ -136,22 +143,31 @@ def generate_plans(
     generator: torch.Generator,
     settings: SearchSettings = SearchSettings(),
 ) -> list[PlanResult]:
-    """Make every plan's result (plans of one length and prefix are batched together)."""
+    """Make every plan's result (plans of one length, prefix and text split are batched
+    together)."""
+    if not plans:
+        return []
     unit = pipe.spec.snippet_length
     from_start = settings.method != "best_of_n"
     if from_start and pipe.encoder is None:
         logger.warning("no movement encoder loaded: the edit does not continue from the kept start")
         from_start = False
     prefixes = [known_prefix_snippets(p, unit) if from_start else 0 for p in plans]
+    prepared = pipe.prepare([p.text for p in plans])
+    parts = [
+        text_parts(pipe, plan, text, known, unit)
+        for plan, text, known in zip(plans, prepared, prefixes)
+    ]
     results: list[PlanResult | None] = [None] * len(plans)
-    groups: dict[tuple[int, int, int], list[int]] = {}
+    groups: dict[tuple[int, int, int, tuple[int, ...]], list[int]] = {}
     for index, plan in enumerate(plans):
         optimise = settings.method == "optimize" or (
             settings.method == "auto" and has_soft_targets(plan)
         )
         steps = settings.steps if optimise else 0
-        groups.setdefault((plan.num_frames, prefixes[index], steps), []).append(index)
-    for group, ((frames, known, steps), members) in enumerate(groups.items(), start=1):
+        split = tuple(part.snippets for part in parts[index][:-1])
+        groups.setdefault((plan.num_frames, prefixes[index], steps, split), []).append(index)
+    for group, ((frames, known, steps, _), members) in enumerate(groups.items(), start=1):
         logger.info(
             "search %d/%d: %d results of %.1f s, %d candidates each, %d optimisation steps",
             group,
@@ -162,7 +178,14 @@ def generate_plans(
             steps,
         )
         found = _search(
-            pipe, [plans[i] for i in members], frames, known, generator, settings, steps
+            pipe,
+            [plans[i] for i in members],
+            [parts[i] for i in members],
+            frames,
+            known,
+            generator,
+            settings,
+            steps,
         )
         for index, (features, error) in zip(members, found):
             plan = plans[index]
@@ -170,6 +193,39 @@ def generate_plans(
             joints = recover_from_ric(kept, pipe.spec.num_joints).astype(np.float32)
             results[index] = PlanResult(kept, joints, plan.kept_mask(), error)
     return results  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class TextPart:
+    """One caption of the rollout past the kept start: its encoding, the snippets it runs for
+    (the last part runs to the result's end) and the snippets its clocks count down (its share
+    of the text's stretch, :func:`free_snippets`)."""
+
+    encoded: EncodedText
+    snippets: int
+    clock: int
+
+
+def text_parts(pipe, plan: EditPlan, prepared, known: int, unit: int) -> list[TextPart]:
+    """The captions the rollout past the kept start runs, in order: the plan's text over its
+    stretch (:func:`free_snippets`; the rollout goes on under it to the result's end), or, for
+    a text that names a count given more of a stretch than the count needs
+    (:meth:`t2m.pipeline.TextToMotion.count_parts`, with a length model), the text for the
+    time its count needs, then standing still to the result's end, each with its own clocks: as
+    the clause plan makes a counted clause at a fixed length (so "jumps twice" between kept
+    ends, under a kept body part or along a path jumps twice however long the stretch)."""
+    rollout = plan.num_frames // unit - known
+    free = free_snippets(plan, unit, known)
+    counted = prepared.encoded.count > 0 or any(c.count for c in prepared.clauses)
+    split = pipe.count_parts(prepared, free * unit) if counted else []
+    if len(split) < 2:
+        return [TextPart(prepared.encoded, rollout, free)]
+    first = split[0][1] // unit
+    (settle,) = pipe.prepare([split[1][0]])
+    return [
+        TextPart(prepared.encoded, first, first),
+        TextPart(settle.encoded, rollout - first, free - first),
+    ]
 
 
 def free_snippets(plan: EditPlan, unit: int, known: int) -> int:
@@ -185,13 +241,15 @@ def free_snippets(plan: EditPlan, unit: int, known: int) -> int:
 def _search(
     pipe,
     plans: Sequence[EditPlan],
+    parts: Sequence[Sequence[TextPart]],
     frames: int,
     known: int,
     generator: torch.Generator,
     settings: SearchSettings,
     steps: int,
 ) -> list[tuple[np.ndarray, float]]:
-    """Steps 1-4 of the module docstring for plans of one length and known prefix: the chosen
+    """Steps 1-4 of the module docstring for plans of one length, known prefix and text split
+    (``parts[i]``: plan i's :func:`text_parts`, the same snippets for every plan): the chosen
     candidate's decoded features (T, D) and its constraint error, per plan."""
     vae, device, dtype = pipe.vae, pipe.device, pipe.dtype
     unit, num_joints = pipe.spec.snippet_length, pipe.spec.num_joints
@@ -199,27 +257,30 @@ def _search(
     constrained = [bool(np.isfinite(p.target).any()) for p in plans]
     draws = settings.candidates if any(constrained) else 1
     batch = len(plans) * draws
-    encoded = [item.encoded for item in pipe.prepare([p.text for p in plans])]
-    encoded = [item for item in encoded for _ in range(draws)]  # plan-major
-    free = torch.tensor(
-        [free_snippets(p, unit, known) for p in plans], device=device
-    ).repeat_interleave(draws)  # (B,)
+    # per caption of the rollout: (snippets, sentence (B, 2Ht), word context, time codes)
+    captions = []
     with torch.no_grad():
-        words, pos, text_lengths = text_batch(encoded, pipe.device, dtype)
-        word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
-        context = vae.word_context(word_features, mask)
-        counts = torch.tensor([e.count for e in encoded], device=device)
+        for k in range(len(parts[0])):
+            encoded = [item[k].encoded for item in parts for _ in range(draws)]  # plan-major
+            clock = torch.tensor(
+                [item[k].clock for item in parts], device=device
+            ).repeat_interleave(draws)  # (B,)
+            words, pos, text_lengths = text_batch(encoded, pipe.device, dtype)
+            word_features, sentence, mask = vae.encode_text(words, pos, text_lengths)
+            counts = torch.tensor([e.count for e in encoded], device=device)
+            size = parts[0][k].snippets
+            # The caption's clocks (time to arrival, count clock) run over its own stretch only.
+            time_codes = vae.time_codes(clock, size, clock, counts)
+            captions.append((size, sentence, vae.word_context(word_features, mask), time_codes))
         known_codes = None
-        state = vae.initial_state(sentence, pipe.initial_code)
+        state = vae.initial_state(captions[0][1], pipe.initial_code)
         if known:
             source = np.stack([p.source_features[: known * unit] for p in plans])  # (P, K*4, D)
             normalised = pipe.normalizer.normalize(torch.from_numpy(source).to(device))
             known_codes = pipe.encoder(normalised[..., : pipe.encoder_input_size].float())
             known_codes = known_codes.to(dtype).repeat_interleave(draws, dim=0)  # (B, K, C)
             # The text's own start, fed the last kept code: as the clause plan starts a clause.
-            state = vae.initial_state(sentence, known_codes[:, -1])
-        # The text's clocks (time to arrival, count clock) run over its own stretch only.
-        time_codes = vae.time_codes(free, total - known, free, counts)
+            state = vae.initial_state(captions[0][1], known_codes[:, -1])
     noise = torch.randn(
         batch, total - known, vae.config.latent_size, generator=generator, device=device
     )
@@ -235,8 +296,16 @@ def _search(
 
     def decode(eps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """eps (B, S', Z) -> de-normalised features (B, T, D), squared error per item (B,)."""
-        _, outputs = vae.rollout(state, context, time_codes, eps.to(dtype))
-        codes = outputs.code
+        start, made = state, []
+        for size, sentence, context, time_codes in captions:
+            if made:  # the next caption starts as the clause plan starts a clause
+                start = vae.initial_state(sentence, made[-1][:, -1])
+            offset = sum(m.shape[1] for m in made)
+            _, outputs = vae.rollout(
+                start, context, time_codes, eps[:, offset : offset + size].to(dtype)
+            )
+            made.append(outputs.code)
+        codes = torch.cat(made, dim=1)
         if known_codes is not None:
             codes = torch.cat([known_codes, codes], dim=1)
         normalised = pipe.decoder(codes.to(pipe.decoder_dtype)).float()

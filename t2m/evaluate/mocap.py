@@ -129,6 +129,21 @@ CONTENT_CHECKS: dict[str, Callable[[Facts], bool]] = {
 """The Bandai-Namco content captions (as ``dataset_tools.sources.bvh`` writes them) and what
 :func:`mocap_facts` must show in a motion of that content."""
 
+CONTENT_LABELS = {
+    "walk": "a person walks forward.",
+    "walk-turn-left": "a person walks forward and turns left.",
+    "walk-turn-right": "a person walks forward and turns right.",
+    "run": "a person runs forward.",
+    "wave-both-hands": "a person waves both hands.",
+    "wave-left-hand": "a person waves the left hand.",
+    "wave-right-hand": "a person waves the right hand.",
+    "raise-up-both-hands": "a person raises both hands.",
+    "raise-up-left-hand": "a person raises the left hand.",
+    "raise-up-right-hand": "a person raises the right hand.",
+}
+"""Bandai-Namco-2's content labels (``cfg/content_label.txt`` without its prefix) and their
+captions in :data:`CONTENT_CHECKS`."""
+
 STAGES = ("autoencoder", "generator")
 
 
