@@ -233,6 +233,10 @@ SIDES = ("left", "right")
 """A side word that opens an untrained compound reads it ("left-handed" tagged as "lefthanded",
 "leftward", "rightwards" read as "left" / "right")."""
 
+VERB_SENSES: dict[str, str] = {"pace": "walk"}
+"""Trained words whose sense as a verb the training captions do not use ("at a slow pace" is the
+demo corpus' only "pace"): tagged as a verb ("paces forward"), read as the verb named here."""
+
 TABLE_POS = frozenset({"VERB", "NOUN", "PROPN", "ADJ", "ADV", "INTJ"})
 """Content words read through the tables above (a tagger calls an imperative's capitalised
 first verb a proper noun, "Jab using your right arm"; "walks leftward" an adverb)."""
@@ -320,7 +324,13 @@ def table_reading(
                 return context[after], f"{said} {after!r} after it"
     if context_only:
         return None
-    found = _first_trained(SYNONYMS.get(word, ()), trained)
+    stems = [word]
+    if word.endswith("ing") and len(word) > 5:  # a gerund the tagger left as a noun
+        stem = word[:-3]
+        stems += [stem, stem + "e", stem[:-1]]
+    found = next(
+        (found for w in stems if (found := _first_trained(SYNONYMS.get(w, ()), trained))), None
+    )
     if found:
         return found, "a motion synonym"
     found = _first_trained(MANNER.get(word, ()), trained)
@@ -357,6 +367,11 @@ def read_untrained(
     words = [word.lower() for word, _ in pairs]
     out, named = [], set()
     for i, ((word, pos), lower) in enumerate(zip(pairs, words, strict=True)):
+        sense = VERB_SENSES.get(lower)
+        if lower in trained and sense in trained and (pos == "VERB" or (i == 0 and pos == "PROPN")):
+            found = (sense, "its sense as a verb")
+            out.append(_named_reading(text, lower, pos, found, readings, named))
+            continue
         if lower in trained and lower in CONTEXT_SYNONYMS and pos in TABLE_POS:
             untrained = [w if w not in trained else "" for w in words[i + 1 :]]
             found = table_reading(lower, pos, untrained, trained, context_only=True)

@@ -252,3 +252,13 @@ def test_two_word_phrases_are_read_as_trained_words():
     assert read_phrases(pairs, trained) == pairs
     pairs = [("a", "DET"), ("round", "ADJ")]
     assert read_phrases(pairs, trained | {"around"}) == pairs
+
+
+def test_a_trained_noun_used_as_a_verb_and_an_untagged_gerund_are_read():
+    trained = {"walk", "pace", "forward", "at", "a", "slow", "wave", "with", "both", "arm"}
+    pairs = [("pace", "VERB"), ("forward", "ADV"), ("at", "ADP"), ("a", "DET")]
+    pairs += [("slow", "ADJ"), ("pace", "NOUN")]
+    read = [w for w, _ in read_untrained("", pairs, trained)]
+    assert read == ["walk", "forward", "at", "a", "slow", "pace"]  # the noun stays
+    pairs = [("greeting", "NOUN"), ("with", "ADP"), ("both", "DET"), ("arm", "NOUN")]
+    assert read_untrained("", pairs, trained)[0] == ("wave", "NOUN")
