@@ -233,9 +233,10 @@ SIDES = ("left", "right")
 """A side word that opens an untrained compound reads it ("left-handed" tagged as "lefthanded",
 "leftward", "rightwards" read as "left" / "right")."""
 
-VERB_SENSES: dict[str, str] = {"pace": "walk"}
+VERB_SENSES: dict[str, str] = {"pace": "walk", "circle": "walk"}
 """Trained words whose sense as a verb the training captions do not use ("at a slow pace" is the
-demo corpus' only "pace"): tagged as a verb ("paces forward"), read as the verb named here."""
+demo corpus' only "pace", "in a circle" its only "circle"): tagged as a verb ("paces forward",
+"circles around clockwise"), read as the verb named here."""
 
 TABLE_POS = frozenset({"VERB", "NOUN", "PROPN", "ADJ", "ADV", "INTJ"})
 """Content words read through the tables above (a tagger calls an imperative's capitalised
