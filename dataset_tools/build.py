@@ -20,6 +20,7 @@ re-run resumes.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import platform
@@ -96,6 +97,27 @@ def write_captions(out_dir: Path, results: Sequence[ClipResult], spacy_pos: bool
 
 
 # ----------------------------------------------------------------------------- splits
+
+_FIXED_SPLITS = frozenset({"train", "val", "test", "train_val", "all"})
+
+
+def pinned_splits(input_dir: Path, names: list[str]) -> dict[str, str]:
+    """Clips of ``names`` whose label in the source's ``labels.json`` names a split of their
+    own (``"split": "test_paraphrase"``, the demo corpus's held-out phrasings): clip -> split.
+    Such clips (and their mirrors) go to that split file only, never to train/val/test."""
+    path = Path(input_dir) / humanml3d.LABELS_FILE
+    if not path.is_file():
+        return {}
+    clips = json.loads(path.read_text(encoding="utf-8")).get("clips", {})
+    pinned = {}
+    for name in names:
+        split = clips.get(name, {}).get("split") if isinstance(clips.get(name), dict) else None
+        if split is None:
+            continue
+        if not (isinstance(split, str) and split.isidentifier() and split not in _FIXED_SPLITS):
+            raise UsageError(f"{path}: clip {name} names split {split!r}, not a new split name")
+        pinned[name] = split
+    return pinned
 
 
 def make_splits(
@@ -382,7 +404,11 @@ def _finish(
     if not finished:
         return _report(config, all_tasks, built, skipped, [], timings, started, {})
     all_names = sorted(name for task in finished for name in (task.name, mirror_name(task.name)))
-    mean, std, stats_info = compute_stats(config.out_dir, all_names)
+    # clips pinned to a split of their own (a held-out test) stay out of the statistics too, so
+    # that adding them changes nothing the stages train on
+    pinned = pinned_splits(config.input_dir, [task.name for task in finished])
+    held = {name for clip in pinned for name in (clip, mirror_name(clip))}
+    mean, std, stats_info = compute_stats(config.out_dir, [n for n in all_names if n not in held])
     humanml3d.write_mean_std(config.out_dir, mean, std)
     timings["stats_s"] = time.perf_counter() - clock
 
@@ -392,11 +418,19 @@ def _finish(
     for task in finished:
         if task.name not in stats_skipped and mirror_name(task.name) not in stats_skipped:
             groups.setdefault(task.path, []).append(task.name)
-    splits, unassigned = make_splits(groups, config.seed, config.splits_dir)
     split_names = sorted(
         name for names in groups.values() for n in names for name in (n, mirror_name(n))
     )
+    groups = {path: [n for n in names if n not in pinned] for path, names in groups.items()}
+    splits, unassigned = make_splits(
+        {path: names for path, names in groups.items() if names}, config.seed, config.splits_dir
+    )
     humanml3d.write_splits(config.out_dir, splits, split_names)
+    for split in sorted(set(pinned.values())):
+        splits[split] = sorted(
+            name for n, s in pinned.items() if s == split for name in (n, mirror_name(n))
+        )
+        humanml3d.write_split(config.out_dir, split, splits[split])
     timings["splits_s"] = time.perf_counter() - clock
 
     stats_info["unassigned_to_splits"] = unassigned

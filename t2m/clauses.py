@@ -139,6 +139,7 @@ def split_clauses(tokens: Sequence[str]) -> list[range]:
                 and words[i - 1] not in ("and", "or", "to")
                 and tags[i - 1] not in ("DET", "ADJ", "NUM")
                 and not words[i - 1].endswith("ing")  # "once done jabbing using the arm"
+                and word != "use"  # "using the arm" says how, lemmatised or read ("jab using")
             )
             split_leading = starts_here
         else:

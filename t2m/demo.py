@@ -8,7 +8,8 @@ Steps, each skipped when its result already exists (so a second run reuses the f
    finished, the evaluator (:func:`train_stages`);
 3. sample three example prompts, several motions each, rendered (``outputs/demo``; with
    ``parallel`` in a second process, its log in ``outputs/demo.log``);
-4. run a quick evaluation (``outputs/demo_eval``);
+4. run a quick evaluation (``outputs/demo_eval``), and one of the paraphrase split, captions in
+   wording no stage trained on (``outputs/demo_eval_paraphrase``), when the dataset has it;
 and print where everything is with a short summary.
 """
 
@@ -291,13 +292,40 @@ OMITTED_SPREAD = (
 )
 
 
-def quick_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict:
+def quick_evaluation(dataset: Path, run_dir: Path, out: Path, split: str = "test") -> dict:
     """Step 4: the evaluation protocol in its quick form (marked as such in its output), what
-    ``python -m t2m.evaluate --dataset DATASET --checkpoints RUN --quick --threads 1`` runs."""
+    ``python -m t2m.evaluate --dataset DATASET --checkpoints RUN --quick --threads 1 [--split
+    SPLIT]`` runs."""
     from t2m.evaluate import EvalConfig, evaluate, quick_config
 
-    config = quick_config(EvalConfig(num_threads=EVALUATION_THREADS))
+    config = quick_config(EvalConfig(split=split, num_threads=EVALUATION_THREADS))
     return evaluate(dataset, run_dir, out, config)
+
+
+PARAPHRASE_SPLIT = "test_paraphrase"
+"""The demo corpus's split captioned in wording no stage trained on
+(:data:`dataset_tools.synth.corpus.PARAPHRASE_SPLIT`), evaluated beside the test split."""
+
+
+def paraphrase_evaluation(dataset: Path, run_dir: Path, out: Path) -> dict | str | None:
+    """Step 4 again on the paraphrase split (into ``out``), when the dataset has one: its
+    summary, or why it could not be evaluated (a split of a small corpus holds fewer items than
+    one R-precision pool); None without such a split."""
+    split_file = dataset / f"{PARAPHRASE_SPLIT}.txt"
+    if not split_file.is_file() or not split_file.read_text(encoding="utf-8").strip():
+        return None
+    try:
+        return quick_evaluation(dataset, run_dir, out, PARAPHRASE_SPLIT)
+    except UsageError as error:
+        logger.warning("the %s split is not evaluated: %s", PARAPHRASE_SPLIT, error)
+        return str(error)
+
+
+def _evaluations(dataset: Path, run_dir: Path, eval_dir: Path) -> tuple[dict, dict | str | None]:
+    """The quick evaluation of the test split, then of the paraphrase split."""
+    summary = quick_evaluation(dataset, run_dir, eval_dir)
+    paraphrase_dir = eval_dir.parent / f"{eval_dir.name}_paraphrase"
+    return summary, paraphrase_evaluation(dataset, run_dir, paraphrase_dir)
 
 
 @dataclass
@@ -346,6 +374,7 @@ def run_demo(config: DemoConfig) -> str:
 
     check_out(out, overwrite=True)
     check_output_folder(eval_dir, "the evaluation folder")
+    check_output_folder(eval_dir.parent / f"{eval_dir.name}_paraphrase", "the evaluation folder")
     # 1. dataset
     watch = Stopwatch()
     if _dataset_ready(dataset):
@@ -365,13 +394,13 @@ def run_demo(config: DemoConfig) -> str:
     if config.parallel:
         log = out.parent / f"{out.name}.log"
         with SecondProcess("sampling the example prompts", sample_prompts, sampling, log) as side:
-            summary = quick_evaluation(dataset, run_dir, eval_dir)
+            summary, paraphrase = _evaluations(dataset, run_dir, eval_dir)
             side.join()
         times["samples and evaluation"] = str(watch)
     else:
         sample_prompts(*sampling)
         times["samples"], watch = str(watch), Stopwatch()
-        summary = quick_evaluation(dataset, run_dir, eval_dir)
+        summary, paraphrase = _evaluations(dataset, run_dir, eval_dir)
         times["evaluation"] = str(watch)
     table = (eval_dir / "results.md").read_text(encoding="utf-8")
 
@@ -396,6 +425,16 @@ def run_demo(config: DemoConfig) -> str:
         "",
         "headline     " + "\n".join(headline(summary)),
         f"  {OMITTED_SPREAD}",
+    ]
+    if isinstance(paraphrase, str):
+        lines += ["", f"paraphrases  the {PARAPHRASE_SPLIT} split is not evaluated: {paraphrase}"]
+    elif paraphrase is not None:
+        lines += [
+            "",
+            f"paraphrases  the {PARAPHRASE_SPLIT} split: captions in wording no stage trained "
+            f"on ({eval_dir.name}_paraphrase/results.md), " + "\n".join(headline(paraphrase)),
+        ]
+    lines += [
         "",
         table,
     ]

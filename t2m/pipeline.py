@@ -75,7 +75,7 @@ from t2m.inference.conversion import convert
 from t2m.inference.conversion import offered_precisions as offered_precisions
 from t2m.inference.generation import clause_codes, decode_features, text_batch
 from t2m.inference.loading import load_models
-from t2m.lexicon import read_untrained
+from t2m.lexicon import read_prompt
 from t2m.models.autoencoder import (
     CONTACT_DIMS,
     MovementDecoder,
@@ -322,7 +322,10 @@ class TextToMotion:
 
         Words the model was not trained on (``training_words``) are named in a warning and read
         as trained ones where they can be (:func:`t2m.lexicon.read_untrained`: "dash" as
-        "run"); the others keep their word vector where the vocabulary has one, else ``unk``. Raises
+        "run"); the others keep their word vector where the vocabulary has one, else ``unk``.
+        Counts and imperatives are read in the wording the model was trained on
+        (:func:`t2m.lexicon.read_prompt`: "two times" as "twice", "wave your hand" as "a person
+        wave their hand"). Raises
         UsageError (one line) for an empty prompt or one with no word the model was trained on.
         """
         from dataset_tools.texts import tag_prompts
@@ -358,7 +361,7 @@ class TextToMotion:
                     max_words,
                     " ".join(dropped),
                 )
-            pairs = read_untrained(text, pairs, self.training_words, self.vectorizer)
+            pairs = read_prompt(text, pairs, self.training_words, self.vectorizer)
             tokens = [f"{word}/{pos}" for word, pos in pairs]
             prepared.append(
                 PreparedText(

@@ -434,3 +434,18 @@ def test_checkpoint_backend_settles_counts_at_given_lengths_as_sampling_does(tin
     seen.clear()
     backend.with_plan("whole").generate(captions, np.array([40, 48]), seed=0)
     assert seen == [False]
+
+
+def test_checkpoint_backend_reads_untrained_caption_words_as_prompts_are(tiny_run):
+    """The generator reads a caption's untrained words as sampling reads a typed prompt's
+    (t2m.lexicon): "leaps" as "jumps"; the evaluator reads the caption as stored."""
+    backend = evaluate.CheckpointBackend.from_run_dir(tiny_run, batch_size=3)
+    assert "leap" not in backend.pipeline.training_words
+    leaps = Caption("a person leaps", ["a/DET", "person/NOUN", "leap/VERB"])
+    jumps = Caption("a person jumps", ["a/DET", "person/NOUN", "jump/VERB"])
+    lengths = np.array([40])
+    (read,) = backend.generate([leaps], lengths, seed=1)
+    (trained,) = backend.generate([jumps], lengths, seed=1)
+    assert np.array_equal(read, trained)
+    assert backend.readings == {"leap": "jump"}
+    assert not np.allclose(backend.embed_texts([leaps]), backend.embed_texts([jumps]))

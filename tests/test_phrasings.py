@@ -150,6 +150,7 @@ AS_BUILT: list[tuple[str, list[int]]] = [
     ("Duck down and come back up a couple of times.", [2]),
     ("Once done jabbing using the right arm a single time, stay motionless.", [1, 0]),
     ("The subject paces forward, subsequently applauds 2x.", [0, 2]),
+    ("Once done jabbing using your right arm thrice, scurry backward quickly.", [3, 0]),
 ]  # fmt: skip
 
 
@@ -173,6 +174,24 @@ def parsed() -> dict[str, list[int]]:
         tokens = [f"{word}/{pos}" for word, pos in pairs]
         out[text] = [repetition_count(clause) for clause in clause_captions(tokens)]
     return out
+
+
+def test_the_reading_of_prompts_keeps_every_clause_and_count():
+    """Read in the wording the model trained on (:func:`t2m.lexicon.read_prompt`: counts in
+    their usual wording, an imperative in the third person, "jabbing" read as "punch"), every
+    phrasing still gives its clauses and counts."""
+    from dataset_tools.texts import tag_captions, tag_prompts
+    from t2m.lexicon import read_prompt
+
+    texts = [text for text, _ in PHRASINGS + AS_BUILT]
+    tagged = tag_prompts([t for t, _ in PHRASINGS]) + tag_captions([t for t, _ in AS_BUILT])
+    trained = {word.lower() for pairs in tagged for word, _ in pairs}
+    trained |= {"a", "person", "their", "once", "twice", "punch"}
+    trained -= {"jab", "jabbing", "your"}
+    for text, pairs, (_, counts) in zip(texts, tagged, PHRASINGS + AS_BUILT, strict=True):
+        read = read_prompt(text, pairs, trained)
+        tokens = [f"{word}/{pos}" for word, pos in read]
+        assert [repetition_count(c) for c in clause_captions(tokens)] == counts, (text, tokens)
 
 
 def test_the_table_is_large_and_distinct():

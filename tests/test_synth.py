@@ -126,6 +126,7 @@ def test_corpus_layout_and_labels(tmp_path):
     )
     labels = json.loads((out / "labels.json").read_text())
     assert sorted(labels["clips"]) == [f"synth_{i:06d}" for i in range(5)]
+    assert source["paraphrase_clips"] == 0  # a tenth of 5 clips
     for name, label in labels["clips"].items():
         joints = np.load(out / "joints" / f"{name}.npy")
         assert joints.dtype == np.float32 and joints.shape == (label["frames"], 22, 3)
@@ -152,29 +153,72 @@ def test_z_up_conversion_is_a_proper_rotation():
     )
 
 
-def test_captions_name_the_side_and_heldout_wording_is_disjoint():
+def _captions(pool: str, clips: int = 60) -> list[str]:
     rng = np.random.default_rng(4)
-    train_words, heldout_words = set(), set()
+    out = []
+    for index in range(clips):
+        _, _, label = make_clip(11, index)
+        plan = [(s["action"], s["params"]) for s in label["segments"]]
+        out += [t.lower() for t in captions_for(plan, rng, pool=pool)]
+    return out
+
+
+# Phrasings of the held-out families (:mod:`dataset_tools.synth.captions`) no training caption
+# may contain; each occurs in the held-out captions of 60 clips.
+HELD_OUT_MARKERS = [" two times", " 2 times", " 2x", "couple of times", "stroll", "paces forward",
+                    "dash", "bounc", "duck", "applaud", "subsequently", "an individual",
+                    "the subject", "followed by", "tward"]  # fmt: skip
+
+
+def test_captions_name_the_side_and_heldout_wording_is_disjoint():
     for index in range(60):
         _, texts, label = make_clip(11, index)
         for segment in label["segments"]:
             side = segment["params"].get("side") or segment["params"].get("direction")
             if side in ("left", "right"):
                 assert all(side in t.lower() for t in texts), (texts, segment)
-        plan = [(s["action"], s["params"]) for s in label["segments"]]
-        for text in captions_for(plan, rng):
-            train_words.add(text.lower())
-        for text in captions_for(plan, rng, heldout=True):
-            heldout_words.add(text.lower())
+    train, heldout = _captions("train"), _captions("heldout")
     for subject in caption_module.SUBJECTS["heldout"]:
-        assert not any(t.startswith(subject) for t in train_words)
+        assert not any(t.startswith(subject) for t in train)
     for subject in caption_module.SUBJECTS["train"]:
-        assert not any(t.startswith(subject + " ") for t in heldout_words)
+        assert not any(t.startswith(subject + " ") for t in heldout)
     # Held-out verb templates never occur in training captions.
     for templates in caption_module._TEMPLATES.values():
         for present, _ in templates["heldout"]:
             head = present.split("{")[0].strip()
-            assert not any(head in t for t in train_words), head
+            assert not any(head in t for t in train), head
+    for marker in HELD_OUT_MARKERS:
+        assert not any(marker in t for t in train), marker
+        assert any(marker in t for t in heldout), marker
+
+
+def test_training_captions_vary_as_people_write():
+    train = _captions("train", clips=120)
+    for form in [" twice", " once", " times", " 3 times", " is ", "he ", "then", " before ",
+                 "after "]:  # fmt: skip
+        assert any(form in t for t in train), form
+    assert any(not t.endswith(".") for t in train)  # a few lose their full stop
+    # every imperative (held out) starts with a verb in its base form
+    assert (
+        caption_module.base_form("raises the left hand and waves") == "raise the left hand and wave"
+    )
+    assert caption_module.base_form("does two squats") == "do two squats"
+    assert caption_module.base_form("dashes ahead") == "dash ahead"
+    assert caption_module.base_form("lowers to the ground, sits, then stands up") == (
+        "lower to the ground, sit, then stand up"
+    )
+    assert caption_module.base_form("sits a moment and stands up") == "sit a moment and stand up"
+
+
+def test_paraphrase_captions_mix_training_and_held_out_families():
+    paraphrase = _captions("paraphrase")
+    train = set(_captions("train", clips=300))
+    assert not set(paraphrase) & train
+    assert any(
+        t.split(" ")[0] in ("walk", "jump", "run", "hop", "clap", "squat") for t in paraphrase
+    )
+    with pytest.raises(ValueError, match="unknown caption pool"):
+        caption_module.caption([("bow", {})], np.random.default_rng(0), "nope")
 
 
 def test_cli_writes_a_corpus_and_rejects_bad_input(tmp_path, capsys):
@@ -201,3 +245,81 @@ def test_contact_sheet_renders_a_png(tmp_path):
     )
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert contact_sheet_main(["--input", str(tmp_path / "missing"), "--out", str(png)]) == 2
+
+
+def test_paraphrase_clips_follow_the_corpus_and_keep_to_their_split(tmp_path):
+    from dataset_tools.build import pinned_splits
+    from dataset_tools.command import UsageError
+
+    out = tmp_path / "corpus"
+    source = write_corpus(out, 20, seed=5, progress=False)
+    labels = json.loads((out / "labels.json").read_text())["clips"]
+    assert source["paraphrase_clips"] == 2 and len(labels) == 22
+    pinned = [name for name, label in labels.items() if label.get("split")]
+    assert pinned == ["synth_000020", "synth_000021"]
+    assert {labels[n]["caption_pool"] for n in pinned} == {"paraphrase"}
+    assert pinned_splits(out, sorted(labels)) == dict.fromkeys(pinned, "test_paraphrase")
+    # the first clips are those of a corpus without paraphrase clips
+    plain = tmp_path / "plain"
+    write_corpus(plain, 20, seed=5, progress=False, paraphrase_clips=0)
+    assert _files(plain)["joints/synth_000019.npy"] == _files(out)["joints/synth_000019.npy"]
+    assert not (plain / "joints" / "synth_000020.npy").exists()
+    # a label may not pin a clip to a split the builder writes itself
+    labels["synth_000020"]["split"] = "train"
+    (out / "labels.json").write_text(json.dumps({"clips": labels}))
+    with pytest.raises(UsageError, match="names split 'train'"):
+        pinned_splits(out, sorted(labels))
+
+
+def test_paraphrase_clips_change_nothing_the_stages_train_on(tmp_path):
+    from dataset_tools import humanml3d
+    from dataset_tools.build import BuildConfig, build_dataset
+
+    built = {}
+    for name, extra in (("with", 3), ("without", 0)):
+        write_corpus(tmp_path / name / "src", 10, seed=2, progress=False, paraphrase_clips=extra)
+        config = BuildConfig("joints", tmp_path / name / "src", tmp_path / name / "ds", seed=2)
+        report = build_dataset(config)
+        built[name] = (tmp_path / name / "ds", report)
+    (with_dir, report), (without_dir, _) = built["with"], built["without"]
+    assert report["splits"]["test_paraphrase"] == 6  # 3 clips and their mirrors
+    assert humanml3d.read_split(with_dir, "test_paraphrase") == [
+        "Msynth_000010", "Msynth_000011", "Msynth_000012",
+        "synth_000010", "synth_000011", "synth_000012",
+    ]  # fmt: skip
+    for split in ("train", "val", "test"):
+        assert humanml3d.read_split(with_dir, split) == humanml3d.read_split(without_dir, split)
+    for a, b in zip(humanml3d.read_mean_std(with_dir), humanml3d.read_mean_std(without_dir)):
+        np.testing.assert_array_equal(a, b)
+
+
+COUNTED = ("jump", "hop", "punch", "squat", "clap")
+
+
+@pytest.mark.parametrize("pool", ["train", "paraphrase"])
+def test_the_clause_parser_reads_the_counts_and_clauses_of_every_pool(pool):
+    """Tagged as the builder tags them, captions give their clip's labelled clauses and counts
+    (a count of one may go unsaid)."""
+    pytest.importorskip("spacy")
+    from dataset_tools.texts import tag_captions
+    from t2m.clauses import clause_captions, repetition_count
+
+    rng = np.random.default_rng(9)
+    texts, wanted = [], []
+    for index in range(80):
+        _, _, label = make_clip(13, index)
+        segments = label["segments"]
+        plan = [(s["action"], s["params"]) for s in segments]
+        counts = [  # the actions whose captions say a count
+            s["params"].get("count", 1) if s["action"] in COUNTED else 0 for s in segments
+        ]
+        for text in captions_for(plan, rng, pool=pool):
+            texts.append(text)
+            wanted.append(counts)
+    wrong = []
+    for text, counts, pairs in zip(texts, wanted, tag_captions(texts), strict=True):
+        clauses = clause_captions([f"{word}/{pos}" for word, pos in pairs])
+        got = [repetition_count(clause) for clause in clauses]
+        if len(got) != len(counts) or any(g != c and (g, c) != (0, 1) for g, c in zip(got, counts)):
+            wrong.append((text, got, counts))
+    assert len(texts) > 150 and not wrong, wrong[:5]

@@ -6,6 +6,12 @@ Layout of ``out/``:
     labels.json               {"fps": 60, "clips": {name: {"frames", "segments", "subject", ...}}}
     source.json               {"fps": 60, "up": "z", "skeleton": "smpl", "generator": ..., ...}
 
+After the ``clips`` clips come ``paraphrase_clips`` more (default a tenth as many), captioned with
+the ``"paraphrase"`` pool of :mod:`dataset_tools.synth.captions` (phrasing families no training
+caption uses) and labelled ``"split": "test_paraphrase"``: the builder puts them and their
+mirrors into ``test_paraphrase.txt`` and into no other split, so no stage trains on their wording
+and ``t2m.evaluate --split test_paraphrase`` scores it.
+
 z-up here is the y-up motion turned by +90 degrees about x, (x, y, z) -> (x, -z, y): the inverse
 of the builder's z-up reader, so building restores the generated y-up motion exactly.
 
@@ -60,27 +66,41 @@ def clip_name(index: int) -> str:
     return f"synth_{index:06d}"
 
 
-def make_clip(seed: int, index: int, heldout: bool = False) -> tuple[np.ndarray, list[str], dict]:
-    """Clip ``index`` of corpus ``seed``: joints (T, 22, 3) float32 z-up, 3 captions, its label."""
+PARAPHRASE_SPLIT = "test_paraphrase"
+"""The split of the clips captioned in held-out phrasing families."""
+PARAPHRASE_FRACTION = 10
+"""By default one paraphrase clip per this many clips."""
+
+
+def make_clip(
+    seed: int, index: int, heldout: bool = False, pool: str | None = None
+) -> tuple[np.ndarray, list[str], dict]:
+    """Clip ``index`` of corpus ``seed``: joints (T, 22, 3) float32 z-up, 3 captions, its label.
+
+    ``pool`` words the captions (:data:`dataset_tools.synth.captions.POOLS`; default "train",
+    "heldout" with ``heldout``); "paraphrase" clips are labelled for :data:`PARAPHRASE_SPLIT`."""
+    pool = pool or ("heldout" if heldout else "train")
     clip = synthesize_clip(seed, index)
     caption_rng = np.random.default_rng([seed, index, 1])
     plan = [(s.action, s.params) for s in clip.segments]
-    texts = captions_for(plan, caption_rng, count=3, heldout=heldout)
+    texts = captions_for(plan, caption_rng, count=3, pool=pool)
     label = {
         "frames": int(clip.joints.shape[0]),
         "segments": [s.label() for s in clip.segments],
         "subject": clip.body.label(),
         "style": {k: round(v, 4) for k, v in asdict(clip.style).items()},
-        "caption_pool": "heldout" if heldout else "train",
+        "caption_pool": pool,
     }
+    if pool == "paraphrase":
+        label["split"] = PARAPHRASE_SPLIT
     joints = y_up_to_z_up(clip.joints).astype(np.float32)
     return joints, texts, label
 
 
-def _write_one(job: tuple[str, int, int, bool]) -> tuple[str, dict]:
-    out, seed, index, heldout = job
+def _write_one(job: tuple[str, int, int, str]) -> tuple[str, dict]:
+    out, seed, index, pool = job
     name = clip_name(index)
-    joints, texts, label = make_clip(seed, index, heldout)
+    joints, texts, label = make_clip(seed, index, pool=pool)
     save_npy_atomic(Path(out) / "joints" / f"{name}.npy", joints)
     write_text_atomic(Path(out) / "texts" / f"{name}.txt", "\n".join(texts) + "\n")
     return name, label
@@ -94,8 +114,12 @@ def write_corpus(
     workers: int = 1,
     force: bool = False,
     progress: bool = True,
+    paraphrase_clips: int | None = None,
 ) -> dict:
-    """Generate ``clips`` clips into ``out`` (layout in the module docstring); returns source.json.
+    """Generate ``clips`` clips into ``out`` (layout in the module docstring), then
+    ``paraphrase_clips`` clips for the paraphrase test split (default ``clips //``
+    :data:`PARAPHRASE_FRACTION`; none with ``heldout_phrasings``, whose every caption is held
+    out); returns source.json.
 
     Raises UsageError (a ValueError), before anything is written, for a clip count outside
     [1, MAX_CLIPS], a worker count outside [1, 4 per CPU core], a negative seed, an output
@@ -110,6 +134,12 @@ def write_corpus(
         raise UsageError(f"--workers must be between 1 and {most_workers}, got {workers}")
     if seed < 0:
         raise UsageError(f"--seed must be 0 or more, got {seed}")
+    if paraphrase_clips is None:
+        paraphrase_clips = 0 if heldout_phrasings else clips // PARAPHRASE_FRACTION
+    if not 0 <= paraphrase_clips <= MAX_CLIPS - clips:
+        raise UsageError(
+            f"paraphrase clips must be between 0 and {MAX_CLIPS - clips}, got {paraphrase_clips}"
+        )
     out = check_output_folder(out, "--out folder")
     source = {
         "fps": int(FPS),
@@ -120,27 +150,30 @@ def write_corpus(
         "seed": int(seed),
         "clips": int(clips),
         "heldout_phrasings": bool(heldout_phrasings),
+        "paraphrase_clips": int(paraphrase_clips),
     }
     existing = out / SOURCE_FILE
     if (out / "joints").exists() or (out / "texts").exists() or existing.exists():
         if not force:
             raise UsageError(f"{out} already holds a corpus; pass --force to replace it")
         _remove_corpus(out)
-    _check_disk_space(out, clips)
+    _check_disk_space(out, clips + paraphrase_clips)
     (out / "joints").mkdir(parents=True, exist_ok=True)
     (out / "texts").mkdir(parents=True, exist_ok=True)
 
-    jobs = ((str(out), int(seed), i, bool(heldout_phrasings)) for i in range(clips))
+    pool = "heldout" if heldout_phrasings else "train"
+    jobs = [(str(out), int(seed), i, pool) for i in range(clips)]
+    jobs += [(str(out), int(seed), clips + i, "paraphrase") for i in range(paraphrase_clips)]
     labels: dict[str, dict] = {}
-    bar = tqdm(total=clips, desc="synth", unit="clip", disable=not progress)
-    for name, label in imap_unordered(_write_one, jobs, min(workers, clips)):
+    bar = tqdm(total=len(jobs), desc="synth", unit="clip", disable=not progress)
+    for name, label in imap_unordered(_write_one, iter(jobs), min(workers, len(jobs))):
         labels[name] = label
         bar.update()
     bar.close()
     labels = {name: labels[name] for name in sorted(labels)}  # bytes independent of workers
     write_json_atomic(out / LABELS_FILE, {"fps": int(FPS), "up": "z", "clips": labels})
     write_json_atomic(existing, source)
-    log.info("wrote %d clips to %s", clips, out)
+    log.info("wrote %d clips (%d for %s) to %s", len(jobs), paraphrase_clips, PARAPHRASE_SPLIT, out)
     return source
 
 

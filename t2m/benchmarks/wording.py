@@ -6,10 +6,11 @@
 For each ``DATASET:SPLIT`` (a dataset built from the demo corpus), ``--items`` clips of the split
 (seeded choice, mirrors included) each give one of their captions (seeded), which goes through
 :meth:`t2m.pipeline.TextToMotion.generate` as a typed prompt would: lower-cased, tagged, words the
-model never trained on read as ones it did (:func:`t2m.lexicon.read_untrained`; ``--raw`` keeps
-their own vectors instead), lengths from the text2length model, the clause plan, generator seed 0,
-no foot clean-up (as ``t2m.evaluate`` scores). The corpus detectors then score each motion against
-its clip's labels, as the evaluation's semantic accuracy does
+model never trained on read as ones it did, counts and imperatives in the trained wording
+(:func:`t2m.lexicon.read_prompt`; ``--raw`` takes the prompt as tagged instead), lengths
+from the text2length model, the clause plan, generator seed 0, no foot clean-up (as
+``t2m.evaluate`` scores). The corpus detectors then score each motion against its clip's labels,
+as the evaluation's semantic accuracy does
 (:class:`dataset_tools.synth.scoring.SemanticScorer`): ``segments`` (share of labelled segments
 found), ``all`` (share of items with every segment found), ``counted`` (items with a segment
 counted two or more times, "claps five times") and ``counted_right`` (their share with every
@@ -88,14 +89,16 @@ def main(argv: list[str] | None = None) -> None:
         "--split", action="append", required=True, help="DATASET:SPLIT, e.g. data/demo:test"
     )
     parser.add_argument("--items", type=int, default=150, help="clips per split")
-    parser.add_argument("--raw", action="store_true", help="untrained words keep their own vectors")
+    parser.add_argument(
+        "--raw", action="store_true", help="the prompts as tagged (no reading of untrained words)"
+    )
     args = parser.parse_args(argv)
 
     import t2m.pipeline
     from t2m.pipeline import TextToMotion
 
-    if args.raw:  # the prompt as tagged, as before words were read as trained ones
-        t2m.pipeline.read_untrained = lambda text, pairs, *rest: list(pairs)
+    if args.raw:  # the prompt as tagged, as before prompts were read in the trained wording
+        t2m.pipeline.read_prompt = lambda text, pairs, *rest: list(pairs)
     pipe = TextToMotion.from_checkpoints(args.checkpoints, device="cpu")
     for where in args.split:
         dataset, _, split = where.rpartition(":")

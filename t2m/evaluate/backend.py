@@ -7,12 +7,15 @@ of ours or the original T2M release, through the shared text-to-motion pipeline
 and vocabulary that feed it, either a run's own evaluator stage (:meth:`Embedder.from_stage`) or
 the release's ``text_mot_match``, the field's standard evaluator (:meth:`Embedder.from_release`).
 Motions pass between the two as raw features: the generator de-normalises with its own
-statistics, the embedder normalises with the evaluator's.
+statistics, the embedder normalises with the evaluator's. The generator reads a caption as it
+would read the caption typed as a prompt: words it was not trained on read as trained ones
+(:func:`t2m.lexicon.read_prompt_tokens`); the evaluator reads the caption as stored.
 """
 
 from __future__ import annotations
 
 import copy
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +28,10 @@ from dataset_tools.spec import DatasetSpec
 from t2m.data.dataset import Caption
 from t2m.data.normalization import Normalizer
 from t2m.data.words import WordVectors
+from t2m.lexicon import read_prompt_tokens
 from t2m.models.evaluator import Evaluator
+
+logger = logging.getLogger(__name__)
 
 
 class Backend(Protocol):
@@ -201,6 +207,8 @@ class CheckpointBackend:
         """The dataset spec of the models (snippet length, longest motion, fps)."""
         # Replications reuse captions: encode each once per vocabulary.
         self._encoded: dict[tuple[str, tuple[str, ...]], Any] = {}
+        self.readings: dict[str, str] = {}
+        """Untrained words of the generated captions -> the trained words they were read as."""
 
     @classmethod
     def from_run_dir(
@@ -243,27 +251,52 @@ class CheckpointBackend:
         of them reads as several clauses (:meth:`~t2m.pipeline.TextToMotion.encode_clauses`)."""
         return any(len(self._clauses(self.pipeline, caption)) > 1 for caption in captions)
 
-    def _encode(self, vectorizer: Any, captions: Sequence[Caption]) -> list[Any]:
-        """Dataset tokens (``word/POS``) -> EncodedText, as the models were trained on them."""
+    def _encode(self, vectorizer: Any, tokens: Sequence[tuple[str, ...]]) -> list[Any]:
+        """``word/POS`` tokens of each caption -> EncodedText."""
         fingerprint = vectorizer.fingerprint()
         out = []
-        for caption in captions:
-            key = (fingerprint, tuple(caption.tokens))
+        for words in tokens:
+            key = (fingerprint, words)
             if key not in self._encoded:
-                self._encoded[key] = vectorizer.encode_tokens(caption.tokens)
+                self._encoded[key] = vectorizer.encode_tokens(words)
             out.append(self._encoded[key])
         return out
 
+    def _read(self, caption: Caption) -> tuple[str, ...]:
+        """A caption's dataset tokens as the generator reads them: its words the generator was
+        not trained on read as trained ones, as a typed prompt's are
+        (:func:`t2m.lexicon.read_prompt_tokens`); the readings are collected in
+        :attr:`readings` and logged once each."""
+        key = ("read", tuple(caption.tokens))
+        if key not in self._encoded:
+            pipeline, found = self.pipeline, {}
+            self._encoded[key] = tuple(
+                read_prompt_tokens(
+                    caption.text,
+                    caption.tokens,
+                    pipeline.training_words,
+                    pipeline.vectorizer,
+                    readings=found,
+                )
+            )
+            for word, reading in found.items():
+                if self.readings.get(word) != reading:
+                    logger.info("captions' word %r read as %r, as in a prompt", word, reading)
+                self.readings[word] = reading
+        return self._encoded[key]
+
     def _clauses(self, pipeline: Any, caption: Caption) -> tuple[Any, ...]:
-        """A caption's clauses encoded as standalone captions (cached like :meth:`_encode`)."""
+        """A caption's clauses (of its tokens as the generator reads them, :meth:`_read`)
+        encoded as standalone captions (cached like :meth:`_encode`)."""
         key = ("clauses", tuple(caption.tokens))
         if key not in self._encoded:
-            self._encoded[key] = pipeline.encode_clauses(caption.tokens)
+            self._encoded[key] = pipeline.encode_clauses(self._read(caption))
         return self._encoded[key]
 
     @torch.no_grad()
     def embed_texts(self, captions: Sequence[Caption]) -> np.ndarray:
-        encoded = self._encode(self.embedder.vectorizer, captions)
+        # the evaluator reads the captions as stored (its own measure, untrained words included)
+        encoded = self._encode(self.embedder.vectorizer, [tuple(c.tokens) for c in captions])
         out = []
         for chunk in _chunks(len(encoded), self.batch_size):
             items = encoded[chunk]
@@ -312,7 +345,8 @@ class CheckpointBackend:
 
         pipeline = self.pipeline
         generator = torch.Generator(pipeline.device).manual_seed(seed)
-        encoded = self._encode(pipeline.vectorizer, captions)
+        # the generator reads each caption as it would read the caption typed as a prompt
+        encoded = self._encode(pipeline.vectorizer, [self._read(c) for c in captions])
         # the clause plan draws and generates a caption of several clauses clause by clause (as
         # t2m.sample does); the paper's plan whole captions
         parts = [self._clauses(pipeline, c) if self.plan == "clauses" else () for c in captions]
