@@ -172,6 +172,8 @@ COMMANDS = {
     "t2m.edit.__main__:EditConfig t2m.edit.request:EditRequest,unset": "t2m.edit.__main__",
     "t2m.serve.__main__:ServeConfig": "t2m.serve.__main__",
     "t2m.evaluate.__main__:parser": "t2m.evaluate.__main__",
+    "t2m.evaluate.mocap_bench:MocapBenchConfig": "t2m.evaluate.mocap_bench",
+    "t2m.replay:ReplayConfig": "t2m.replay",
 }
 
 
