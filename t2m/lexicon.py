@@ -420,21 +420,6 @@ def _named_reading(
     return reading, pos
 
 
-def read_untrained_tokens(
-    text: str,
-    tokens: Sequence[str],
-    trained: Collection[str],
-    vocabulary: Any = None,
-    common: int = COMMON_WORDS,
-    readings: dict[str, str] | None = None,
-) -> list[str]:
-    """:func:`read_untrained` on ``word/POS`` tokens (a dataset caption's, as an evaluation
-    encodes them) instead of (word, POS) pairs."""
-    pairs = [token.rpartition("/")[::2] for token in tokens]
-    read = read_untrained(text, pairs, trained, vocabulary, common, readings)
-    return [f"{word}/{pos}" for word, pos in read]
-
-
 # ----------------------------------------------------------------------------- prompt shapes
 
 COUNT_FORMS: dict[int, tuple[tuple[tuple[str, str], ...], ...]] = {

@@ -98,10 +98,14 @@ def test_every_synonym_points_to_other_words(word):
 
 
 def test_tokens_are_read_as_pairs_are():
-    from t2m.lexicon import read_untrained_tokens
+    from t2m.lexicon import read_prompt, read_prompt_tokens
 
     tokens = ["a/DET", "person/NOUN", "bounce/VERB", "twice/ADV"]
-    assert read_untrained_tokens("", tokens, TRAINED, TABLE) == [
+    pairs = [tuple(token.split("/")) for token in tokens]
+    assert read_prompt_tokens("", tokens, TRAINED, TABLE) == [
+        f"{word}/{pos}" for word, pos in read_prompt("", pairs, TRAINED, TABLE)
+    ]
+    assert read_prompt_tokens("", tokens, TRAINED, TABLE) == [
         "a/DET",
         "person/NOUN",
         "jump/VERB",
