@@ -316,7 +316,7 @@ def edit(app, payload: object) -> dict:
         motions = edit_batch(pipe, [request], num_samples=samples, seed=seed)[0]
         return motions, prepared
 
-    if app.store.full():
+    if not app.store.wait_for_room():
         raise Busy(RESULTS_FULL)
     call = ModelCall(work, precision)
     try:

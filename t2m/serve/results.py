@@ -39,6 +39,10 @@ FILE_PATTERN = re.compile(
     r"|results\.(?:npy|json)"
 )
 DOWNLOAD_KINDS = ("npy", "bvh", "glb", "mp4", "gif")
+ROOM_WAIT_S = 5.0
+"""How long a new request waits for held answers to go out when they fill the disk cap (they go
+out moments after they are stored) before it is refused."""
+ROOM_POLL_S = 0.02
 CONTENT_TYPES = {
     ".npy": "application/octet-stream",
     ".bvh": "text/plain; charset=utf-8",
@@ -99,6 +103,7 @@ class ResultStore:
         self.fps = fps
         self.keep_seconds = keep_seconds
         self.max_bytes = max_bytes
+        self.room_wait_s = ROOM_WAIT_S
         self._results: dict[str, StoredResult] = {}
         self._expired: set[str] = set()
         self._lock = threading.Lock()
@@ -132,6 +137,17 @@ class ResultStore:
         with self._lock:
             held = [r for r in self._results.values() if r.held]
         return sum(r.size() for r in held) >= self.max_bytes
+
+    def wait_for_room(self) -> bool:
+        """Whether the store has room (:meth:`full` false) within :attr:`room_wait_s`: a held
+        request's answer goes out moments after it is stored, so a request that arrives in
+        between waits for that instead of being refused."""
+        deadline = time.monotonic() + self.room_wait_s
+        while self.full():
+            left = deadline - time.monotonic()
+            if left <= 0 or self._closed.wait(min(ROOM_POLL_S, left)):
+                return False
+        return True
 
     def get(self, request_id: str) -> StoredResult:
         """The live request ``request_id``; KeyError when unknown, Expired when removed."""

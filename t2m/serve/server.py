@@ -161,7 +161,7 @@ class App:
             self.limits,
             self.pipe.device.type,
         )
-        if self.store.full():
+        if not self.store.wait_for_room():
             raise api.Busy(api.RESULTS_FULL)
         job = GenerationJob(
             texts=[p.text for p in checked.prompts],

@@ -33,6 +33,7 @@ from __future__ import annotations
 import base64
 import json
 import socket
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -210,10 +211,26 @@ def test_the_clean_up_leaves_results_whose_answers_are_not_sent(pipe, tmp_path):
     store.close()
 
 
+def test_a_request_waits_for_unsent_results_that_go_out_within_the_wait(pipe, tiny_run, tmp_path):
+    """A request that arrives while held answers fill the cap is served once they go out (they
+    go out moments after they are stored), not refused."""
+    server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path, max_bytes=1)
+    server.start_in_thread()
+    try:
+        held = server.app.store.add(pipe.generate("a person walks", 1, 40, seed=0), 0, {}, True)
+        threading.Timer(0.3, server.app.store.release, (held.id,)).start()
+        body = {"prompts": ["a person walks forward#40"]}
+        status, answer, _ = call(server, "POST", "/api/generate", body)
+        assert status == 200 and len(answer["motions"]) == 1, answer
+    finally:
+        server.shutdown_app()
+
+
 def test_a_server_full_of_unsent_results_refuses_work_with_a_503(pipe, tiny_run, tmp_path):
     server = make_server(pipe, str(tiny_run), port=0, work_dir=tmp_path, max_bytes=1)
     server.start_in_thread()
     try:
+        server.app.store.room_wait_s = 0.2
         held = server.app.store.add(pipe.generate("a person walks", 1, 40, seed=0), 0, {}, True)
         body = {"prompts": ["a person walks forward#40"]}
         status, answer, _ = call(server, "POST", "/api/generate", body)
