@@ -76,12 +76,14 @@ NUMERICS_TESTS := tests/test_onednn.py tests/test_fast_recurrence.py tests/test_
 
 # The suite runs on TEST_WORKERS processes (pytest-xdist), whole test files to a worker so that
 # each module's fixtures are built once; each worker keeps torch to one thread (two workers of two
-# threads each oversubscribe two cores, and spinning OpenMP threads then slow everything).
+# threads each oversubscribe two cores, and spinning OpenMP threads then slow everything). The
+# tests marked timed (wall-clock bounds) run after it on their own.
 TEST_WORKERS ?= 2
 
 test: install
 	@$(py) -c 'from t2m.hardware import cpu_description; print("cpu:", cpu_description())'
-	OMP_NUM_THREADS=1 $(py) -m pytest -q -n $(call arg,TEST_WORKERS) --dist loadfile tests
+	OMP_NUM_THREADS=1 $(py) -m pytest -q -n $(call arg,TEST_WORKERS) --dist loadfile -m 'not timed' tests
+	$(py) -m pytest -q -p no:cacheprovider -m timed tests
 	ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 $(py) -m pytest -q -p no:cacheprovider $(NUMERICS_TESTS)
 
 lint: install

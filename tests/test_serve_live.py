@@ -201,6 +201,7 @@ def test_live_routes_refuse_what_is_not_there(live_server):
     assert _wait_until(lambda: _running(live_server) == 0)
 
 
+@pytest.mark.timed
 def test_a_slow_or_vanished_viewer_stalls_no_other(pipe):
     """Three sessions of one hub: a viewer whose writes block (a full socket), one whose writes
     fail (a closed tab) and a normal one. The normal one's frames keep their pace; the failing
@@ -274,6 +275,7 @@ def _start_live(driver, server) -> None:
     _wait(driver, "return document.getElementById('live-status').textContent.startsWith('live')")
 
 
+@pytest.mark.timed
 def test_enter_changes_the_live_motion_within_250_ms(browser, live_server):
     from selenium.webdriver.common.keys import Keys
 

@@ -248,6 +248,7 @@ def test_a_server_full_of_unsent_results_refuses_work_with_a_503(pipe, tiny_run,
 # -- the server stays available under a hostile client ---------------------------------------
 
 
+@pytest.mark.timed
 def test_info_answers_within_a_second_while_a_client_trickles_and_floods(server, pipe, monkeypatch):
     """Forty connections that send a request head and then trickle nothing (each holds a
     thread until its 60 s idle timeout), and two clients that keep the model busy with the
