@@ -317,12 +317,14 @@ class TextToMotion:
 
     # -- steps -------------------------------------------------------------------------------
 
-    def prepare(self, texts: Sequence[str]) -> list[PreparedText]:
+    def prepare(self, texts: Sequence[str], quiet: bool = False) -> list[PreparedText]:
         """Lower-case, tag and encode prompts (:func:`dataset_tools.texts.tag_prompts`).
 
-        Words the model was not trained on (``training_words``) are named in a warning and read
-        as trained ones where they can be (:func:`t2m.lexicon.read_untrained`: "dash" as
-        "run"); the others keep their word vector where the vocabulary has one, else ``unk``.
+        Words the model was not trained on (``training_words``) are read as trained ones where
+        they can be (:func:`t2m.lexicon.read_untrained`: "dash" as "run", a warning names the
+        reading); those still untrained are named in a warning and keep their word vector where
+        the vocabulary has one, else ``unk``. ``quiet``: no warnings (a check before the work
+        that prepares the same prompts again).
         Counts and imperatives are read in the wording the model was trained on
         (:func:`t2m.lexicon.read_prompt`: "two times" as "twice", "wave your hand" as "a person
         wave their hand"). Raises
@@ -347,21 +349,26 @@ class TextToMotion:
                     f"no known word in prompt {text!r}: the model was trained on none of its "
                     f"words ({listed})"
                 )
-            if unknown:
-                logger.warning(
-                    "prompt %r has words the model was not trained on: %s",
-                    text,
-                    ", ".join(unknown),
-                )
             dropped = tuple(words[max_words:])
-            if dropped:
+            if dropped and not quiet:
                 logger.warning(
                     "prompt %r is longer than %d words; ignoring: %s",
                     text,
                     max_words,
                     " ".join(dropped),
                 )
-            pairs = read_prompt(text, pairs, self.training_words, self.vectorizer)
+            # quiet: the readings are collected instead of logged
+            readings = {} if quiet else None
+            pairs = read_prompt(
+                text, pairs, self.training_words, self.vectorizer, readings=readings
+            )
+            unread = tuple(dict.fromkeys(w for w, _ in pairs if w not in self.training_words))
+            if unread and not quiet:
+                logger.warning(
+                    "prompt %r has words the model was not trained on: %s",
+                    text,
+                    ", ".join(unread),
+                )
             tokens = [f"{word}/{pos}" for word, pos in pairs]
             prepared.append(
                 PreparedText(

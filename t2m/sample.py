@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         pipe = config.load_pipeline(need_length_model=False)
     try:
-        pipe.prepare([p.text for p in prompts])  # refuses a prompt with no known word
+        pipe.prepare([p.text for p in prompts], quiet=True)  # refuses one with no known word
     except ValueError as error:
         raise UsageError(str(error)) from None
     prompts = config.prompts_for(pipe.spec)

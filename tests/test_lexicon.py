@@ -266,3 +266,21 @@ def test_a_trained_noun_used_as_a_verb_and_an_untagged_gerund_are_read():
     assert read == ["walk", "forward", "at", "a", "slow", "pace"]  # the noun stays
     pairs = [("greeting", "NOUN"), ("with", "ADP"), ("both", "DET"), ("arm", "NOUN")]
     assert read_untrained("", pairs, trained)[0] == ("wave", "NOUN")
+
+
+def test_a_prompt_names_each_reading_once_and_only_unread_words_as_untrained(pipe, caplog):
+    """The pipeline warns of what is still untrained after the reading (a read word is named
+    by its reading only), and a quiet prepare (the command's check before the work prepares
+    the same prompts again) logs nothing."""
+    trained = pipe.training_words
+    assert "walk" in trained and "stroll" not in trained and "zorbly" not in trained
+    text = "a person strolls forward zorbly"
+    with caplog.at_level(logging.WARNING):
+        pipe.prepare([text], quiet=True)
+    assert caplog.records == []
+    with caplog.at_level(logging.WARNING):
+        pipe.prepare([text])
+    messages = [record.getMessage() for record in caplog.records]
+    assert sum("read as 'walk'" in m for m in messages) == 1, messages
+    untrained = [m for m in messages if "has words the model was not trained on" in m]
+    assert len(untrained) == 1 and untrained[0].endswith(": zorbly"), messages
