@@ -74,24 +74,40 @@ def test_the_length_model_reads_each_clause_count(pipe, monkeypatch):
 def test_lengths_of_prompts_of_several_clauses_are_drawn_clause_by_clause(pipe):
     """With the clause plan a prompt of several clauses draws each clause's length as a clause
     (with its count) and sums them; prompts of one clause, and the whole plan, draw the whole
-    caption's length as before."""
+    caption's length as before. A clause (or a prompt of one clause) that names a count takes
+    its expected length (the rounded mean) in every repeat instead of its draw; the draws are
+    still made, so the others get the lengths they got before."""
     from t2m.models.length import sample_lengths
 
-    one, two = pipe.prepare([ONE, "someone hops twice, then claps five times"])
+    texts = [ONE, "someone hops twice, then claps five times", TWO, "someone claps five times"]
+    one, two, plain, single = pipe.prepare(texts)
+    assert [c.count for c in two.clauses] == [2, 5] and single.encoded.count == 5
     unit, spec = pipe.spec.snippet_length, pipe.spec
+    low = spec.min_frames // unit
     seed = lambda: torch.Generator().manual_seed(4)  # noqa: E731
-    drawn = pipe.sample_lengths([one, two], seed(), repeats=3)
+    drawn = pipe.sample_lengths([one, two, plain, single], seed(), repeats=3)
     with torch.inference_mode():
-        whole = pipe._length_logits([one.encoded, two.encoded], 8)
-        parts = pipe._length_logits(list(two.clauses), 8, clause=True)
+        whole = pipe._length_logits([one.encoded, single.encoded], 8)
+        parts = pipe._length_logits([*two.clauses, *plain.clauses], 8, clause=True)
+    mean = lambda logits: (  # noqa: E731
+        torch.softmax(logits.double(), -1) @ torch.arange(logits.shape[-1], dtype=torch.float64)
+    )
     generator = seed()
-    first = sample_lengths(whole[:1].repeat(3, 1), generator, min_units=spec.min_frames // unit)
+    first = sample_lengths(whole.repeat_interleave(3, 0), generator, min_units=low).view(2, 3)
     units = torch.multinomial(
         torch.softmax(parts, -1).repeat_interleave(3, 0), 1, generator=generator
-    )
-    summed = units.view(2, 3).sum(0).clamp(spec.min_frames // unit, spec.max_snippets)
-    assert drawn == [int(u) * unit for u in first.tolist() + summed.tolist()]
-    assert pipe.sample_lengths([one, two], seed(), repeats=3, by_clause=False) == [
+    ).view(4, 3)
+    need = torch.floor(mean(parts) + 0.5).long()
+    counted = units.clone()
+    counted[:2] = need[:2, None]  # hops twice, claps five times: their means, every repeat
+    sums = [counted[:2].sum(0), counted[2:].sum(0)]
+    sums = [s.clamp(low, spec.max_snippets) for s in sums]
+    alone = torch.floor(mean(whole[1:]) + 0.5).long().clamp(min=low).repeat(3)
+    expected = first[0].tolist() + sums[0].tolist() + sums[1].tolist() + alone.tolist()
+    assert drawn == [int(u) * unit for u in expected]
+    assert len(set(drawn[3:6])) == 1 and len(set(drawn[9:])) == 1  # counted: no spread
+    # the whole plan (the paper's) draws every length, a counted prompt's too
+    assert pipe.sample_lengths([one, single], seed(), repeats=3, by_clause=False) == [
         int(u) * unit
         for u in sample_lengths(whole.repeat_interleave(3, 0), seed(), spec.min_frames // unit)
         .clamp(max=spec.max_snippets)

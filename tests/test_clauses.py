@@ -177,3 +177,22 @@ def test_clause_targets_give_the_difference_to_the_uncertain_clauses():
     targets = clause_targets(6, [5, 20], [1, 1])
     assert targets.min() > 0
     assert share_snippets(6, targets, minimum=2) == [2, 4]
+
+
+def test_a_counted_clause_keeps_what_its_count_needs_while_another_can_give():
+    # "walks quickly, then claps six times": 30 snippets for means 18.3 and 17.8 (variances 13.5
+    # and 9.4) gave the claps 15 by the variance shares alone; counted, they get their 18
+    means, variances = [18.3, 17.8], [13.5, 9.4]
+    assert round(clause_targets(30, means, variances)[1]) == 15
+    counted = clause_targets(30, means, variances, counted=[False, True])
+    np.testing.assert_allclose(counted, [12, 18])
+    assert share_snippets(30, counted) == [12, 18]
+    # a surplus goes to the clause without a count too
+    np.testing.assert_allclose(clause_targets(40, means, variances, [False, True]), [22, 18])
+    # every clause counted (or none): the variance shares as before
+    for flags in ([True, True], [False, False]):
+        np.testing.assert_allclose(
+            clause_targets(30, means, variances, flags), clause_targets(30, means, variances)
+        )
+    with pytest.raises(ValueError, match="3 counted flags for 2 clauses"):
+        clause_targets(30, means, variances, [True, False, False])

@@ -12,9 +12,10 @@ from the text2length model, the clause plan, generator seed 0, no foot clean-up 
 ``t2m.evaluate`` scores). The corpus detectors then score each motion against its clip's labels,
 as the evaluation's semantic accuracy does
 (:class:`dataset_tools.synth.scoring.SemanticScorer`): ``segments`` (share of labelled segments
-found), ``all`` (share of items with every segment found), ``counted`` (items with a segment
-counted two or more times, "claps five times") and ``counted_right`` (their share with every
-counted segment right, its count included), and per action ``right/scored``. One seed and one
+found), ``all`` (share of items with every segment found), ``counted`` (items whose caption
+names a count of two or more of an action the detectors count, "claps five times": jumps, hops,
+punches, squats, claps; a wave's repetitions are never named, so waves are not counted items)
+and ``counted_right`` (their share with every such segment right, its count included), and per action ``right/scored``. One seed and one
 caption per item: the spread between runs is several hundredths.
 """
 
@@ -29,7 +30,7 @@ import numpy as np
 from dataset_tools import humanml3d
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.synth.detectors import MotionSignals
-from dataset_tools.synth.matching import align_segments
+from dataset_tools.synth.matching import COUNTED_EVENTS, align_segments
 from dataset_tools.synth.scoring import scorer_for
 
 
@@ -66,7 +67,7 @@ def score_split(pipe, dataset: Path, split: str, items: int, seed: int = 0) -> d
         repeated = [
             ok
             for segment, ok in zip(segments, found.matches, strict=True)
-            if segment["params"].get("count", 1) > 1
+            if segment["action"] in COUNTED_EVENTS and segment["params"].get("count", 1) > 1
         ]
         if repeated:
             counted += 1
