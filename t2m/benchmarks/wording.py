@@ -1,7 +1,7 @@
 """Prompts typed in other words: semantic accuracy of a split's captions taken as prompts.
 
 ``python -m t2m.benchmarks.wording --checkpoints checkpoints/demo --split data/demo:test_paraphrase
---split data/demo:test [--items 150] [--raw]``
+--split data/demo:test [--items 150] [--seeds 0,1,2] [--raw]``
 
 For each ``DATASET:SPLIT`` (a dataset built from the demo corpus), ``--items`` clips of the split
 (seeded choice, mirrors included) each give one of their captions (seeded), which goes through
@@ -15,8 +15,8 @@ as the evaluation's semantic accuracy does
 found), ``all`` (share of items with every segment found), ``counted`` (items whose caption
 names a count of two or more of an action the detectors count, "claps five times": jumps, hops,
 punches, squats, claps; a wave's repetitions are never named, so waves are not counted items)
-and ``counted_right`` (their share with every such segment right, its count included), and per action ``right/scored``. One seed and one
-caption per item: the spread between runs is several hundredths.
+and ``counted_right`` (their share with every such segment right, its count included), and per action ``right/scored``. One caption per
+item: the spread between seeds is several hundredths, so ``--seeds`` gives the mean of several.
 """
 
 from __future__ import annotations
@@ -91,6 +91,12 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--items", type=int, default=150, help="clips per split")
     parser.add_argument(
+        "--seeds",
+        default="0",
+        help="comma-separated seeds (clip choice and generation); one JSON line each, then the "
+        "mean of several",
+    )
+    parser.add_argument(
         "--raw", action="store_true", help="the prompts as tagged (no reading of untrained words)"
     )
     args = parser.parse_args(argv)
@@ -101,10 +107,19 @@ def main(argv: list[str] | None = None) -> None:
     if args.raw:  # the prompt as tagged, as before prompts were read in the trained wording
         t2m.pipeline.read_prompt = lambda text, pairs, *rest: list(pairs)
     pipe = TextToMotion.from_checkpoints(args.checkpoints, device="cpu")
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+    except ValueError:
+        raise SystemExit(f"--seeds: comma-separated integers, not {args.seeds!r}") from None
     for where in args.split:
         dataset, _, split = where.rpartition(":")
-        result = score_split(pipe, Path(dataset), split, args.items)
-        print(json.dumps({**result, "raw": args.raw}))
+        results = [score_split(pipe, Path(dataset), split, args.items, seed) for seed in seeds]
+        for seed, result in zip(seeds, results):
+            print(json.dumps({**result, "seed": seed, "raw": args.raw}))
+        if len(results) > 1:
+            keys = ("segments", "all", "counted_right")
+            mean = {k: round(float(np.mean([r[k] for r in results])), 3) for k in keys}
+            print(json.dumps({"split": where, "seeds": seeds, "mean": mean, "raw": args.raw}))
 
 
 if __name__ == "__main__":
