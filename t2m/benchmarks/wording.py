@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> None:
     from t2m.pipeline import TextToMotion
 
     if args.raw:  # the prompt as tagged, as before prompts were read in the trained wording
-        t2m.pipeline.read_prompt = lambda text, pairs, *rest: list(pairs)
+        t2m.pipeline.read_prompt = lambda text, pairs, *rest, **options: list(pairs)
     pipe = TextToMotion.from_checkpoints(args.checkpoints, device="cpu")
     try:
         seeds = [int(s) for s in args.seeds.split(",")]
