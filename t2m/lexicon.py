@@ -534,6 +534,13 @@ POSSESSIVES = {"your": ("their", "his", "her"), "yours": ("their", "his", "her")
 """Possessives of the one addressed (an imperative's "raise your left hand") read as the third
 person's, the first one trained."""
 
+MISTAGGED_VERB_POS = frozenset({"NOUN", "PROPN", "ADJ", "ADV", "INTJ"})
+"""Tags a tagger gives an opening imperative verb it took for something else ("Jab using your
+right arm" as an adverb, "Lower to the ground" as an adjective, "Bow" as a noun)."""
+
+IMPERATIVE_VERBS = frozenset({"bow", "nod", "salute", "march", "lunge", "crouch", "duck", "dodge"})
+"""Motion verbs besides the motion word lists that open an imperative as often as a noun does."""
+
 SUBJECT_WORDS = (("a", "DET"), ("person", "NOUN"))
 """The subject an imperative prompt gets ("walk forward" -> "a person walk forward")."""
 
@@ -542,8 +549,9 @@ def read_imperative(
     pairs: Sequence[tuple[str, str]], trained: Collection[str]
 ) -> list[tuple[str, str]]:
     """An imperative prompt ("walk forward, then wave your left hand") in the third person the
-    model was trained on: "a person" before an opening verb (tagged ``VERB``, or a motion verb a
-    tagger called a noun or a proper noun) and "your" as "their" (:data:`POSSESSIVES`); the
+    model was trained on: "a person" before an opening verb (tagged ``VERB``, a motion verb a
+    tagger took for another part of speech (:data:`MISTAGGED_VERB_POS`), or "do" before a
+    determiner or number: "do a front kick") and "your" as "their" (:data:`POSSESSIVES`); the
     words are lemmas already, so the verbs need no change. Other prompts come back as they are,
     but for "your"."""
     out = []
@@ -554,8 +562,11 @@ def read_imperative(
     if not out or not all(w in trained for w, _ in SUBJECT_WORDS):
         return out
     first, tag = out[0][0].lower(), out[0][1]
-    verb = tag == "VERB" or (
-        tag in ("NOUN", "PROPN") and (first in MOTION_WORDS["ACTION"] or first in SYNONYMS)
+    motion = first in MOTION_WORDS["ACTION"] or first in SYNONYMS or first in IMPERATIVE_VERBS
+    verb = (
+        tag == "VERB"
+        or (tag in MISTAGGED_VERB_POS and motion)
+        or (first == "do" and len(out) > 1 and out[1][1] in ("DET", "NUM"))
     )
     return [*SUBJECT_WORDS, *out] if verb else out
 

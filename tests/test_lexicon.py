@@ -220,6 +220,18 @@ def test_an_imperative_is_read_in_the_third_person():
     assert read_imperative(after, COUNTING) == after
     # no trained subject words: nothing to add
     assert read_imperative([("jump", "VERB")], {"jump"}) == [("jump", "VERB")]
+    # an opening motion verb the tagger took for an adverb, adjective or noun; "do" + a kick
+    subject = [("a", "DET"), ("person", "NOUN")]
+    for opening in (
+        [("punch", "ADV"), ("use", "VERB")],  # "jab using your right arm": jab read as punch
+        [("Lower", "ADJ"), ("to", "ADP")],
+        [("Bow", "NOUN"), ("follow", "VERB")],
+        [("Do", "AUX"), ("a", "DET"), ("front", "ADJ"), ("kick", "NOUN")],
+    ):
+        assert read_imperative(opening, COUNTING) == subject + opening
+    # but not a noun that is no motion, nor "do" that is no imperative
+    for other in ([("Left", "ADJ"), ("hand", "NOUN")], [("do", "AUX"), ("not", "PART")]):
+        assert read_imperative(other, COUNTING) == other
 
 
 def test_a_usual_count_keeps_its_tags():
