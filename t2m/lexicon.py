@@ -313,7 +313,7 @@ def table_reading(
     compounds (``context_only``: the context table alone); None when none does."""
     found = _first_trained(DIRECTIONS.get(word, ()), trained)
     if found:
-        return found, "a direction word"
+        return found, "the article" if word == "an" else "a direction word"
     if pos not in TABLE_POS:
         return None
     context = CONTEXT_SYNONYMS.get(word, {})

@@ -296,3 +296,12 @@ def test_a_prompt_names_each_reading_once_and_only_unread_words_as_untrained(pip
     assert sum("read as 'walk'" in m for m in messages) == 1, messages
     untrained = [m for m in messages if "has words the model was not trained on" in m]
     assert len(untrained) == 1 and untrained[0].endswith(": zorbly"), messages
+
+
+def test_the_article_an_is_named_as_an_article(caplog):
+    trained = {"a", "person", "jump"}
+    pairs = [("an", "DET"), ("individual", "NOUN"), ("jump", "VERB")]
+    with caplog.at_level(logging.WARNING, logger="t2m.lexicon"):
+        read = read_untrained("an individual jumps", pairs, trained)
+    assert [w for w, _ in read] == ["a", "person", "jump"]
+    assert "'an' was not trained on; read as 'a' (the article)" in caplog.text
