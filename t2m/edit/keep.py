@@ -1,8 +1,9 @@
 """Finishing an edit's result: the hard keep (the generated side of every seam smoothed, kept
 features copied, every seam eased, the root's heading and floor path bent to meet kept stretches
 and root targets), then the rigid fit on the model's skeleton that leaves kept joints where the
-source has them, then the foot-contact clean-up that never moves a kept or targeted joint (steps
-5-6 of :mod:`t2m.edit.core`)."""
+source has them, then the body's height near seams put back on the floor where the generated
+motion stands (:func:`keep_floor`), then the foot-contact clean-up that never moves a kept or
+targeted joint (steps 5-6 of :mod:`t2m.edit.core`)."""
 
 from __future__ import annotations
 
@@ -25,16 +26,69 @@ SEAM_SMOOTH_FRAMES = 8
 """Frames over which that smoothing fades out into the free run (fully applied on the first)."""
 
 
+FLOOR_CONTACT_M = 0.05
+"""Height (m) of the generated motion's lowest foot joint under which :func:`keep_floor` takes
+the foot as standing on the floor (the detectors' own contact height)."""
+FLOOR_SMOOTH_SIGMA = 1.0
+"""Standard deviation (frames) of the Gaussian over :func:`keep_floor`'s per-frame shift."""
+
+
 def finish_plan(
     generated: np.ndarray, plan: EditPlan, blend: int = 16, clean: bool = True
 ) -> np.ndarray:
     """Features (T, D) of a finished result: :func:`hard_keep`, then rigid on the model's
-    skeleton, the joints kept from the source left where they are, then (``clean``) the
-    foot-contact clean-up (:func:`dataset_tools.cleanup.clean_joints`) with every kept or
-    targeted joint held: kept joints stay exactly where the rigid fit leaves them."""
-    return finish_features(
-        hard_keep(generated, plan, blend), clean, held=plan.keep, clean_held=plan.kept_mask()
-    )
+    skeleton, the joints kept from the source left where they are, then :func:`keep_floor`
+    (frames with no kept joint only), then (``clean``) the foot-contact clean-up
+    (:func:`dataset_tools.cleanup.clean_joints`) with every kept or targeted joint held: kept
+    joints stay exactly where the rigid fit leaves them."""
+    rigid = finish_features(hard_keep(generated, plan, blend), False, held=plan.keep)
+    grounded = keep_floor(rigid, smooth_seams(generated, plan.keep), plan.keep)
+    return finish_features(grounded, clean, held=plan.keep, clean_held=plan.kept_mask())
+
+
+def _lowest_foot(features: np.ndarray, layout: FeatureLayout) -> np.ndarray:
+    """(T,) height of the lowest ankle or foot joint (SMPL 7, 8, 10, 11) of features (T, D)."""
+    heights = features[:, layout.ric][:, 1::3]  # (T, J-1): ric stores heights as they are
+    return heights[:, [7 - 1, 8 - 1, 10 - 1, 11 - 1]].min(axis=1)
+
+
+def keep_floor(
+    features: np.ndarray,
+    generated: np.ndarray,
+    keep: np.ndarray,
+    contact: float = FLOOR_CONTACT_M,
+    sigma: float = FLOOR_SMOOTH_SIGMA,
+) -> np.ndarray:
+    """Features (T, D) whose whole body is moved up or down, one amount per frame, on the
+    frames where no joint is kept (``keep`` (T, J)), so that the lowest foot joint stands where
+    ``generated`` (T, D: the model's output the seams were fitted to) has it whenever the model
+    has a foot within ``contact`` of the floor (height 0), and is never below the floor
+    otherwise; the shift is smoothed by a Gaussian of ``sigma`` frames (kept frames get none).
+
+    A seam's offsets carry the kept side's heights and their rate of change into the generated
+    side joint by joint, and the rigid fit then hangs the legs from the carried pelvis: a body
+    that was rising or falling at the seam floated up to 20 cm over the floor, or sank through
+    it, for most of a second, which reads as a jump (a walk or a stand not recognised; demo
+    model, ``continue`` 0.490 -> 0.542 of the regenerated parts recognised, docs/editing.md).
+    Frames with a kept joint (body edits) are left alone: kept joints never move. SMPL-like
+    skeletons of 22 joints only (others are returned unchanged)."""
+    layout = FeatureLayout.for_dim(features.shape[1])
+    free = ~keep.any(axis=1)
+    if layout.num_joints != 22 or not free.any() or free.all():
+        return features
+    out = features.astype(np.float64)
+    made, model = _lowest_foot(out, layout), _lowest_foot(generated, layout)
+    wanted = np.where(model < contact, model, np.maximum(made, 0.0))
+    shift = np.where(free, wanted - made, 0.0)
+    if sigma > 0:
+        shift = np.where(free, gaussian_filter1d(shift, sigma, mode="nearest"), 0.0)
+    if not shift.any():
+        return features
+    out[:, layout.root_height] += shift[:, None]
+    out[:, layout.ric.start + 1 : layout.ric.stop : 3] += shift[:, None]
+    step = np.append(np.diff(shift), 0.0)  # velocities are y-up in every facing frame
+    out[:, layout.local_velocity.start + 1 : layout.local_velocity.stop : 3] += step[:, None]
+    return out.astype(features.dtype)
 
 
 def joint_columns(num_joints: int) -> list[np.ndarray]:
