@@ -93,6 +93,17 @@ def test_a_body_carried_into_the_floor_is_lifted_out_of_it_and_kept_frames_stay(
     lifted[:, layout.ric.start + 1 : layout.ric.stop : 3] += 0.2
     lifted[:, layout.root_height] += 0.2
     np.testing.assert_array_equal(keep_floor(lifted, airborne, plan.keep), lifted)
+    # before a kept end the body is only lifted out of the floor, not put down on it: there the
+    # path is bent toward the kept end's, and feet put down slide
+    ends = plan.keep.copy()
+    ends[-KEPT:] = True
+    floating = keep_floor(lifted, generated, ends, sigma=0.0)
+    height = lowest_foot(floating)
+    middle = (KEPT + FRAMES - KEPT) // 2
+    assert height[KEPT:middle] == pytest.approx(0.0, abs=1e-6)  # after the kept start: down
+    assert height[middle + 1 : FRAMES - KEPT] == pytest.approx(0.2, abs=1e-6)  # before the end
+    sunk_ends = keep_floor(sunk, generated, ends, sigma=0.0)
+    assert lowest_foot(sunk_ends)[KEPT : FRAMES - KEPT] == pytest.approx(0.0, abs=1e-6)
     # every frame with a kept joint (a body edit) is left alone
     legs = np.zeros_like(plan.keep)
     legs[:, [0, 1, 2, 4, 5, 7, 8, 10, 11]] = True
