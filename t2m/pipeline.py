@@ -349,11 +349,10 @@ class TextToMotion:
         for text, pairs in zip(texts, tag_prompts(texts, spacy_pos=self.spacy_pos)):
             words = [word for word, _ in pairs]
             unknown = tuple(dict.fromkeys(w for w in words if w not in self.training_words))
-            if len(unknown) == len(set(words)):
-                listed = f"unknown: {', '.join(unknown)}" if unknown else "it has no words"
+            if not words:
                 raise UsageError(
                     f"no known word in prompt {text!r}: the model was trained on none of its "
-                    f"words ({listed})"
+                    "words (it has no words)"
                 )
             dropped = tuple(words[max_words:])
             if dropped and not quiet:
@@ -369,6 +368,11 @@ class TextToMotion:
                 text, pairs, self.training_words, self.vectorizer, readings=readings
             )
             unread = tuple(dict.fromkeys(w for w, _ in pairs if w not in self.training_words))
+            if len(unread) == len({w for w, _ in pairs}):  # nothing trained, even as read
+                raise UsageError(
+                    f"no known word in prompt {text!r}: the model was trained on none of its "
+                    f"words, nor on any reading of them (unknown: {', '.join(unknown)})"
+                )
             if unread and not quiet:
                 logger.warning(
                     "prompt %r has words the model was not trained on: %s",

@@ -181,6 +181,11 @@ def test_prompts_are_checked_against_the_training_words(tiny_run, caplog):
     assert "unknown: quantum, economic)" in str(error.value) and "\n" not in str(error.value)
     with pytest.raises(UsageError, match="no known word.*it has no words"):
         pipe.prepare(["42 !!"])
+    # a prompt none of whose words was trained on, but which reads as trained ones, is served
+    (moved,) = pipe.prepare(["Stroll onward"], quiet=True)
+    assert set(moved.unknown_words) == {"stroll", "onward"}  # read as "walk forward"
+    (walked,) = pipe.prepare(["a person walk forward"])
+    assert np.array_equal(moved.encoded.words, walked.encoded.words)
     (upper,), (lower,) = pipe.prepare(["A PERSON WALKS"]), pipe.prepare(["a person walks"])
     assert upper.unknown_words == () and np.array_equal(upper.encoded.words, lower.encoded.words)
 
