@@ -1,8 +1,12 @@
-"""Edits follow the text (issue 32 item 2), on the tiny trained run: the text's part starts as
-the clause plan starts a clause (its own sentence state, the last kept code fed, the clocks of
-its own stretch), not from the kept start read under the new text."""
+"""Edits follow the text (issue 32 item 2), on the tiny trained run: a new text's part starts
+as plain generation starts a caption (its own sentence state, the mean-pose code fed, the
+clocks of its own stretch); a text that goes on with the kept motion (``EditPlan.continues``:
+compose's next window of one line) as the clause plan starts a clause (the last kept code fed);
+neither from the kept start read under the new text."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -33,13 +37,17 @@ def _parts(pipe, plan, known: int):
     return [search.text_parts(pipe, plan, prepared, known, pipe.spec.snippet_length)]
 
 
-def test_the_texts_part_is_the_clause_plans_continuation(pipe, walk):
-    """The search's candidate is exactly what the model makes for the text as a clause that
-    follows the kept start: GRU states from the text's sentence, the last kept code fed first,
-    time to arrival and count clock over the text's own snippets. Reading the kept start with
-    the posterior under the new text, or clocks that count the kept start as the text's
-    motion, give other codes and fail."""
-    plan = _continue_plan(pipe, walk, COUNTED)
+@pytest.mark.parametrize("continues", [False, True], ids=["new text", "text goes on"])
+def test_the_texts_part_starts_as_a_caption_or_as_a_clause(pipe, walk, continues):
+    """The search's candidate is exactly what the model makes for the text after the kept
+    start: GRU states from the text's sentence, the mean-pose code fed first (a new text, as
+    plain generation starts a caption; feeding the last kept code made the part spend its
+    first half second leaving the kept pose) or the last kept code (a text that goes on, as
+    the clause plan starts a clause), time to arrival and count clock over the text's own
+    snippets. Reading the kept start with the posterior under the new text, clocks that count
+    the kept start as the text's motion, or the other first code give other codes and fail."""
+    plan = dataclasses.replace(_continue_plan(pipe, walk, COUNTED), continues=continues)
+    assert _continue_plan(pipe, walk).continues is False  # continue's text is a new one
     unit = pipe.spec.snippet_length
     known = known_prefix_snippets(plan, unit)
     total = plan.num_frames // unit
@@ -55,6 +63,7 @@ def test_the_texts_part_is_the_clause_plans_continuation(pipe, walk):
         source = torch.from_numpy(plan.source_features[: known * unit]).float()[None]
         normalised = pipe.normalizer.normalize(source)[..., : pipe.encoder_input_size]
         known_codes = pipe.encoder(normalised)  # (1, K, C)
+        assert not torch.allclose(known_codes[:, -1], pipe.initial_code)  # the starts differ
         (encoded,) = [item.encoded for item in pipe.prepare([COUNTED])]
         assert encoded.count == 3
         words, pos, lengths = text_batch([encoded], pipe.device, pipe.dtype)
@@ -68,7 +77,9 @@ def test_the_texts_part_is_the_clause_plans_continuation(pipe, walk):
             mask,
             torch.tensor([total - known]),
             noise=noise,
-            state=vae.initial_state(sentence, known_codes[:, -1]),
+            state=vae.initial_state(
+                sentence, known_codes[:, -1] if continues else pipe.initial_code
+            ),
             counts=torch.tensor([encoded.count]),
         )
         decoded = pipe.decoder(torch.cat([known_codes, made], dim=1)).float()
@@ -114,3 +125,28 @@ def test_the_texts_stretch_ends_at_a_kept_end(pipe, walk):
     assert free_snippets(inbetween, unit, known) == 25 - 5 - 5  # up to the kept last second
     body = EditRequest("body", TEXT, walk, part="lower").plan(pipe.spec)
     assert free_snippets(body, unit, 0) == body.num_frames // unit
+
+
+def test_compose_goes_on_with_a_line_and_starts_a_new_line_afresh(pipe, monkeypatch):
+    """compose's windows: the next window of one line goes on with it (fed the last code), a
+    new line's first window starts as its caption does."""
+    import t2m.edit
+    from t2m.edit.modes import Segment
+
+    seen = []
+    original = t2m.edit.generate_plans
+
+    def recording(pipe, plans, generator, settings):
+        seen.append([(plan.text, plan.continues) for plan in plans])
+        return original(pipe, plans, generator, settings)
+
+    monkeypatch.setattr(t2m.edit, "generate_plans", recording)
+    timeline = [Segment("a person walks forward", 0, 60), Segment("a person jumps", 60, 300)]
+    settings = SearchSettings(candidates=1)
+    t2m.edit.compose(pipe, timeline, 1, torch.Generator().manual_seed(0), settings)
+    # windows: 60 from rest, then the jump's 156 after 2 s of the walk, then its last 84
+    assert seen == [
+        [("a person walks forward", False)],
+        [("a person jumps", False)],
+        [("a person jumps", True)],
+    ]

@@ -231,7 +231,12 @@ def compose(
             target = np.full((size, spec.num_joints, 3), np.nan)
             plans = [EditPlan(text, size, target, np.zeros(target.shape[:2], bool))] * num_samples
         else:
-            plans = [_continuation(text, made[len(made) - have :], size, spec) for made in features]
+            # the same line's next window goes on with it; a new line starts as a caption does
+            goes_on = index > 0 and chunks[index - 1][0] == text
+            plans = [
+                _continuation(text, made[len(made) - have :], size, spec, goes_on)
+                for made in features
+            ]
         results = generate_plans(pipe, plans, generator, settings)
         if not features:
             features = [result.features for result in results]
@@ -269,8 +274,9 @@ def _counted_continue(pipe, plan: EditPlan) -> ComposePlan | None:
     return ComposePlan(segments, plan.source_features[:kept].astype(np.float32))
 
 
-def _continuation(text: str, tail: np.ndarray, size: int, spec) -> EditPlan:
-    """A plan that keeps ``tail`` (K, D) features whole and makes ``size`` more frames."""
+def _continuation(text: str, tail: np.ndarray, size: int, spec, continues: bool = True) -> EditPlan:
+    """A plan that keeps ``tail`` (K, D) features whole and makes ``size`` more frames;
+    ``continues``: the text goes on with what the tail does (:attr:`EditPlan.continues`)."""
     have = len(tail)
     frames = have + size
     target = np.full((frames, spec.num_joints, 3), np.nan)
@@ -281,7 +287,7 @@ def _continuation(text: str, tail: np.ndarray, size: int, spec) -> EditPlan:
     source[:have] = tail
     yaw = np.full(frames, np.nan)
     yaw[:have] = half_yaw_of(tail)
-    return EditPlan(text, frames, target, keep, source, yaw)
+    return EditPlan(text, frames, target, keep, source, yaw, continues)
 
 
 __all__ = [

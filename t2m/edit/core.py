@@ -11,18 +11,23 @@ frame 0's root at the origin facing +Z):
 :func:`generate_plans` then
 
 1. encodes the leading whole snippets that keep every joint (the kept start) with the frozen
-   movement encoder, and starts the text's part as the clause plan starts a clause
-   (:func:`t2m.inference.generation.clause_codes`): the GRU states from the text's own sentence
-   feature, the last kept code as the previous code, and the time codes (time to arrival,
-   count clock) of a motion as long as the text's stretch (:func:`free_snippets`: up to a kept
-   end, or the result's end). Reading the kept start with the posterior under the new text
+   movement encoder, and starts the text's part as plain generation starts a caption: the GRU
+   states from the text's own sentence feature, the mean-pose code as the previous code (the
+   last kept code instead where the plan's text goes on with the kept motion,
+   ``EditPlan.continues``: compose's next window of one line, a live prompt's next segment; as
+   the clause plan starts a clause), and the time codes (time to arrival, count clock) of a motion
+   as long as the text's stretch (:func:`free_snippets`: up to a kept end, or the result's
+   end). The decoder reads the kept codes and the text's together, and the finishing (step 5)
+   joins them. Reading the kept start with the posterior under the new text
    (``prefix_state``), and clocks that counted the kept start as part of the text's motion,
-   made the regenerated part go on doing what the source did (the edit benchmark's continue:
-   a quarter fewer regenerated parts recognised before the finishing). A text that names a
-   count and is given more of a stretch than the count needs (:func:`text_parts`) runs for
-   the time the count needs, then "a person stands still" takes over along the same rollout,
-   started as the clause plan starts its next clause (its own sentence state fed the text's
-   last code, its own clocks), so the count follows the text at any length;
+   made the regenerated part go on doing what the source did; feeding the last kept code still
+   made it spend its first half second leaving the kept pose (the edit benchmark's continue,
+   demo model: 0.542 of the regenerated parts recognised fed the kept code, 0.589 fresh, plain
+   generation 0.667; docs/editing.md). A text that names a count and is given more of a
+   stretch than the count needs (:func:`text_parts`) runs for the time the count needs, then
+   "a person stands still" takes over along the same rollout, started as the clause plan
+   starts its next clause (its own sentence state fed the text's last code, its own clocks),
+   so the count follows the text at any length;
 2. draws ``candidates`` noise sequences per result for the remaining snippets, in one batch;
 3. where targets lie past the kept start's next snippet (an end to reach, a body part, a path,
    keys), optimises the noise ``eps`` of the prior's ``z = mu + sigma * eps`` (``steps`` Adam
@@ -279,8 +284,14 @@ def _search(
             normalised = pipe.normalizer.normalize(torch.from_numpy(source).to(device))
             known_codes = pipe.encoder(normalised[..., : pipe.encoder_input_size].float())
             known_codes = known_codes.to(dtype).repeat_interleave(draws, dim=0)  # (B, K, C)
-            # The text's own start, fed the last kept code: as the clause plan starts a clause.
-            state = vae.initial_state(captions[0][1], known_codes[:, -1])
+            # A text that goes on with the kept motion is fed its last code (as the clause plan
+            # starts a clause); a new text the mean-pose code, as plain generation starts it.
+            goes_on = torch.tensor([p.continues for p in plans], device=device)
+            if bool(goes_on.any()):
+                goes_on = goes_on.repeat_interleave(draws)[:, None]  # (B, 1)
+                fresh = pipe.initial_code.to(dtype).expand_as(known_codes[:, -1])
+                previous = torch.where(goes_on, known_codes[:, -1], fresh)
+                state = vae.initial_state(captions[0][1], previous)
     noise = torch.randn(
         batch, total - known, vae.config.latent_size, generator=generator, device=device
     )

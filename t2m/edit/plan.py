@@ -19,6 +19,10 @@ class EditPlan:
     keep: np.ndarray  # (T, J) bool
     source_features: np.ndarray | None = None  # (T, D), used where keep
     source_half_yaw: np.ndarray | None = None  # (T,), used where keep[:, 0]
+    # The text goes on with what the kept start does (compose's next window of one line, a
+    # live prompt's next segment): its part is fed the last kept code, as the clause plan
+    # starts a clause. Otherwise (a new text) it starts as plain generation starts a caption.
+    continues: bool = False
 
     def kept_mask(self) -> np.ndarray:
         """(T, J) bool: joints copied from the source or given a target on each frame."""
