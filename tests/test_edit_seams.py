@@ -169,13 +169,16 @@ def test_the_benchmark_measures_the_half_second_around_a_seam():
 
 
 def test_edit_benchmark_own_ends_keep_the_captions_own_clip(tiny_dataset, tmp_path):
-    """``--own-ends``: an inbetween item keeps the first and last second of its caption's own
-    clip (so the kept ends fit the text), judges the middle, and the option is inbetween's only."""
+    """An inbetween item keeps the first and last second of its caption's own clip (so the
+    kept ends fit the text; the default, ``--own-ends``), judges the middle;
+    ``--no-own-ends`` keeps an unrelated source's ends around a 4 s middle; the option is
+    inbetween's only."""
     from dataset_tools import humanml3d
     from dataset_tools.command import UsageError
-    from t2m.evaluate.edit_bench import EditBenchConfig, build_items
+    from t2m.evaluate.edit_bench import EditBenchConfig, build_items, main
 
-    config = EditBenchConfig("inbetween", tiny_dataset, tmp_path, items=4, own_ends=True)
+    config = EditBenchConfig("inbetween", tiny_dataset, tmp_path, items=4)
+    assert config.own_ends is True
     for item in build_items(config, 20.0):
         clip = humanml3d.read_joints(humanml3d.joints_path(tiny_dataset, item.donors[0]))
         frames = len(item.request.source)
@@ -183,5 +186,12 @@ def test_edit_benchmark_own_ends_keep_the_captions_own_clip(tiny_dataset, tmp_pa
         np.testing.assert_array_equal(item.request.source, clip[:frames])
         assert item.part == (20, frames - 20) and item.seams == [20, frames - 20]
         assert item.request.keep_start == item.request.keep_end == 1.0
+    unrelated = EditBenchConfig("inbetween", tiny_dataset, tmp_path, items=4, own_ends=False)
+    for item in build_items(unrelated, 20.0):
+        assert item.part == (20, 100) and item.seams == [20, 100]
+        assert item.request.seconds == 6.0  # 1 s + a 4 s middle + 1 s, whatever the clips
     with pytest.raises(UsageError, match="--own-ends is an inbetween option"):
         EditBenchConfig("continue", tiny_dataset, tmp_path, own_ends=True)
+    assert EditBenchConfig("continue", tiny_dataset, tmp_path).own_ends is False
+    arguments = ["--edit", "continue", "--dataset", str(tiny_dataset), "--checkpoints", "x"]
+    assert main([*arguments, "--no-own-ends"]) == 2  # refused in one line

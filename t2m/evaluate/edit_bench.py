@@ -9,9 +9,12 @@ The edits (seeded; sources are real test motions, "donor" captions come from tes
 labelled action, so the corpus' detectors can check the regenerated part):
 
 * continue: keep 2 s of a source, 4 s from a donor's caption (regenerated: frames 40..120);
-* inbetween: keep 1 s at each end of a source, 4 s from a donor's caption in the middle (a
-  caption that moves the body contradicts an unrelated source's ends; ``--own-ends``: the
-  donor's own clip, its first and last second kept, its middle regenerated from its caption);
+* inbetween: keep the first and last second of the donor's own clip (at least 4 s, the result
+  as long as the clip, at most 9.8 s) and regenerate its middle from its caption, so that the
+  kept ends are ends a motion of the caption can join; ``--no-own-ends``: keep 1 s at each end
+  of an unrelated source, 4 s from the donor's caption in the middle (a caption that moves the
+  body, "walks forward", "turns left", contradicts a kept end at a place and facing it cannot
+  reach: no edit can follow both);
 * body: keep the lower body of a walking or running source, the rest from a donor's caption of
   an upper-body action (wave, raise, punch, clap);
 * path: the root path of a source (a point every second) with the source's own caption;
@@ -111,18 +114,22 @@ class EditBenchConfig:
     """cpu, cuda or auto"""
     precision: Literal["fp32", "bf16", "int8"] = "fp32"
     """inference precision"""
-    own_ends: bool = False
+    own_ends: bool | None = None
     """inbetween only: keep the ends of the caption's own clip (its first and last second, the
-    result as long as the clip), so that the kept ends fit the text, instead of an unrelated
-    source's"""
+    result as long as the clip), so that the kept ends fit the text (the default), or with
+    --no-own-ends an unrelated source's, whose place and facing a moving caption may not
+    reach"""
 
     def __post_init__(self) -> None:
         if self.items < 1 or self.candidates < 1 or self.steps < 0 or self.latency_edits < 0:
             raise UsageError(
                 "--items and --candidates must be >= 1, --steps and --latency-edits >= 0"
             )
-        if self.own_ends and self.edit != "inbetween":
-            raise UsageError("--own-ends is an inbetween option (--edit inbetween)")
+        if self.own_ends is not None and self.edit != "inbetween":
+            flag = "--own-ends" if self.own_ends else "--no-own-ends"
+            raise UsageError(f"{flag} is an inbetween option (--edit inbetween)")
+        if self.own_ends is None:
+            self.own_ends = self.edit == "inbetween"
         for method in self.methods:
             if method not in METHODS:
                 raise UsageError(f"unknown method {method!r}; use {', '.join(METHODS)}")
