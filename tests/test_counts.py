@@ -390,7 +390,8 @@ def _recorded_rollouts(pipe, monkeypatch) -> list[int]:
 def test_inbetween_runs_the_count_then_standing_along_one_rollout(settling):
     """Between kept ends, a counted text given more time than its count needs is the clause
     plan's counted clause followed by standing still, along one rollout: the text's sentence
-    state fed the last kept code, its clocks over the time it needs, then the settling
+    state fed the mean-pose code (a new text starts as a caption does), its clocks over the
+    time it needs, then the settling
     caption's sentence state fed the text's last code, its clocks over the rest of the
     stretch (up to the kept end), and on to the result's end."""
     from conftest import synth_joints
@@ -435,7 +436,8 @@ def test_inbetween_runs_the_count_then_standing_along_one_rollout(settling):
             clock = clock or free - need
             words, pos, lengths = text_batch([encoded], pipe.device, pipe.dtype)
             word_features, sentence, mask = vae.encode_text(words, pos, lengths)
-            state = vae.initial_state(sentence, codes[-1][:, -1])
+            previous = codes[-1][:, -1] if len(codes) > 1 else pipe.initial_code
+            state = vae.initial_state(sentence, previous)
             times = vae.time_codes(
                 torch.tensor([clock]), steps, torch.tensor([clock]), torch.tensor([encoded.count])
             )
