@@ -14,7 +14,7 @@ frame 0's root at the origin facing +Z):
    movement encoder, and starts the text's part as plain generation starts a caption: the GRU
    states from the text's own sentence feature, the mean-pose code as the previous code (the
    last kept code instead where the plan's text goes on with the kept motion,
-   ``EditPlan.continues``: compose's next window of one line, a live prompt's next segment; as
+   ``EditPlan.continues``: compose's next window of one line, every live stream segment; as
    the clause plan starts a clause), and the time codes (time to arrival, count clock) of a motion
    as long as the text's stretch (:func:`free_snippets`: up to a kept end, or the result's
    end). The decoder reads the kept codes and the text's together, and the finishing (step 5)

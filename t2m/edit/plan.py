@@ -19,8 +19,8 @@ class EditPlan:
     keep: np.ndarray  # (T, J) bool
     source_features: np.ndarray | None = None  # (T, D), used where keep
     source_half_yaw: np.ndarray | None = None  # (T,), used where keep[:, 0]
-    # The text goes on with what the kept start does (compose's next window of one line, a
-    # live prompt's next segment): its part is fed the last kept code, as the clause plan
+    # The text goes on with what the kept start does (compose's next window of one line, the
+    # live stream's segments): its part is fed the last kept code, as the clause plan
     # starts a clause. Otherwise (a new text) it starts as plain generation starts a caption.
     continues: bool = False
 
