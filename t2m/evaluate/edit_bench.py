@@ -92,8 +92,8 @@ class EditBenchConfig:
     """run folder (or the original release's folder)"""
     out: Path | None = field(default=None, metadata=option(metavar="DIR"))
     """output folder (default <checkpoints>/edit_results/<mode>)"""
-    items: int = field(default=64, metadata=option(metavar="N"))
-    """edits per method"""
+    items: int = field(default=300, metadata=option(metavar="N"))
+    """edits per method (at 64 the semantic accuracy moves by about 0.05 between seeds)"""
     methods: tuple[str, ...] = ("auto", "optimize", "posterior", "best_of_n")
     """search methods to compare (t2m.edit.SearchSettings.method)"""
     candidates: int = field(default=8, metadata=option(metavar="N"))
