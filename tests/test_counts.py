@@ -418,7 +418,7 @@ def test_inbetween_runs_the_count_then_standing_along_one_rollout(settling):
         (need, need, 2),
         (total - known - need, free - need, 0),
     ]
-    settings = SearchSettings(method="posterior", candidates=1)
+    settings = SearchSettings(method="posterior", candidates=1, end_draws=1)
     (found,) = search._search(
         pipe, [plan], [parts], plan.num_frames, known, torch.Generator().manual_seed(4), settings, 0
     )

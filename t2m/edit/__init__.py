@@ -55,7 +55,8 @@ source or the targets; renderings draw it in another colour.
 ``settings`` (:class:`SearchSettings`): ``method`` ``auto`` (default: ``optimize`` where some
 targets cannot be kept exactly, i.e. keys on joints other than the root's floor position,
 ``posterior`` elsewhere), ``optimize``, ``posterior`` or ``best_of_n`` (the baseline);
-``candidates`` (8), ``steps`` (20), ``learning_rate``, ``noise_weight``, ``blend_frames``. Bad
+``candidates`` (8), ``steps`` (20), ``learning_rate``, ``noise_weight``, ``blend_frames``,
+``end_draws`` (3: an inbetween draws this many times ``candidates``). Bad
 requests raise :class:`dataset_tools.command.UsageError` (a ValueError) with one line.
 """
 

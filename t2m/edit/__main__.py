@@ -84,7 +84,8 @@ class EditConfig(OutputOptions):
     it: slower, the model reaches them itself), posterior (no optimisation)
     or best_of_n (the baseline)"""
     candidates: int = field(default=8, metadata=option(metavar="N"))
-    """noise draws per result, the closest to the constraints kept"""
+    """noise draws per result, the closest to the constraints kept (an inbetween draws three
+    times as many)"""
     steps: int = field(default=20, metadata=option(metavar="N"))
     """optimisation steps of --method optimize (and auto)"""
     max_timeline_lines: int = field(default=100, metadata=option(metavar="N"))
@@ -165,13 +166,20 @@ def check_search_memory(
     hidden_size: int = 1024,
 ) -> None:
     """Refuse, before generating, a search that cannot fit in memory: at worst every plain edit's
-    results are searched in one batch of ``--candidates`` draws each, every frame taking
+    results are searched in one batch of ``--candidates`` draws each (an inbetween's
+    :attr:`t2m.edit.SearchSettings.end_draws` times as many), every frame taking
     :data:`SEARCH_BYTES_PER_FRAME` plus :data:`SEARCH_BYTES_PER_HIDDEN` per unit of the
     generator's ``hidden_size``, on top of :data:`SEARCH_FIXED_BYTES`; compose searches one
     ``window`` (the model's longest motion) at a time."""
+    from t2m.edit.core import SearchSettings
     from t2m.train.runtime import available_memory
 
-    plain = [f for r, f in zip(requests, frames) if r.mode != "compose"]
+    ends = SearchSettings().end_draws  # an inbetween draws this many times --candidates
+    plain = [
+        f * (ends if r.mode == "inbetween" else 1)
+        for r, f in zip(requests, frames)
+        if r.mode != "compose"
+    ]
     composed = [f for r, f in zip(requests, frames) if r.mode == "compose"]
     window = max([sum(plain)] + [min(f, window) for f in composed])
     per_frame = SEARCH_BYTES_PER_FRAME + SEARCH_BYTES_PER_HIDDEN * hidden_size

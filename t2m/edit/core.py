@@ -28,7 +28,8 @@ frame 0's root at the origin facing +Z):
    "a person stands still" takes over along the same rollout, started as the clause plan
    starts its next clause (its own sentence state fed the text's last code, its own clocks),
    so the count follows the text at any length;
-2. draws ``candidates`` noise sequences per result for the remaining snippets, in one batch;
+2. draws ``candidates`` noise sequences per result for the remaining snippets, in one batch
+   (``end_draws`` times as many where a kept end is met by drawing alone: inbetween);
 3. where targets lie past the kept start's next snippet (an end to reach, a body part, a path,
    keys), optimises the noise ``eps`` of the prior's ``z = mu + sigma * eps`` (``steps`` Adam
    steps) through the generator, the movement decoder and the differentiable joint recovery
@@ -94,6 +95,12 @@ class SearchSettings:
         learning_rate: Adam's step size on the noise.
         noise_weight: weight of mean(eps^2), which keeps the noise likely.
         blend_frames: frames over which a seam's offset is eased away.
+        end_draws: where a kept end is met by drawing alone (an inbetween without targets to
+            optimise for), ``candidates`` times this many draws: the draw whose decoded end
+            lies nearest the kept end needs the least bending of its path, which otherwise
+            undoes the text (edit benchmark, inbetween, demo model, 300 items x 3 seeds: 8
+            draws 0.87 of plain generation's semantic accuracy, 16 draws 0.89, 24 draws 0.91;
+            ``continue`` the same with 24).
     """
 
     method: Method = "auto"
@@ -102,12 +109,20 @@ class SearchSettings:
     learning_rate: float = 0.1
     noise_weight: float = 1e-3
     blend_frames: int = 16
+    end_draws: int = 3
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.candidates < 1 or self.steps < 0 or self.blend_frames < 1:
-            raise ValueError("candidates and blend_frames must be >= 1, steps >= 0")
+        if self.candidates < 1 or self.steps < 0 or self.blend_frames < 1 or self.end_draws < 1:
+            raise ValueError("candidates, blend_frames and end_draws must be >= 1, steps >= 0")
+
+    def draws(self, plans: Sequence[EditPlan], steps: int) -> int:
+        """Noise draws per result for plans searched together: ``candidates``, times
+        ``end_draws`` where one of them has a kept end and no optimisation runs (not for
+        ``best_of_n``, the baseline of ``candidates`` prior samples)."""
+        ends = self.method != "best_of_n" and steps == 0 and any(has_kept_end(p) for p in plans)
+        return self.candidates * (self.end_draws if ends else 1)
 
 
 @dataclass(frozen=True)
@@ -128,6 +143,15 @@ def has_soft_targets(plan: EditPlan) -> bool:
     given = np.isfinite(plan.target) & ~plan.keep[..., None]
     given[:, 0, [0, 2]] = False
     return bool(given.any())
+
+
+def has_kept_end(plan: EditPlan) -> bool:
+    """Whether every joint is kept again on some frame after the first free one (inbetween)."""
+    if plan.source_features is None:
+        return False
+    full = plan.keep.all(axis=1)
+    free = np.flatnonzero(~full)
+    return bool(len(free)) and bool(full[free[0] :].any())
 
 
 def known_prefix_snippets(plan: EditPlan, unit: int) -> int:
@@ -179,7 +203,7 @@ def generate_plans(
             len(groups),
             len(members),
             frames / pipe.spec.fps,
-            settings.candidates,
+            settings.draws([plans[i] for i in members], steps),
             steps,
         )
         found = _search(
@@ -260,7 +284,7 @@ def _search(
     unit, num_joints = pipe.spec.snippet_length, pipe.spec.num_joints
     total = frames // unit
     constrained = [bool(np.isfinite(p.target).any()) for p in plans]
-    draws = settings.candidates if any(constrained) else 1
+    draws = settings.draws(plans, steps) if any(constrained) else 1
     batch = len(plans) * draws
     # per caption of the rollout: (snippets, sentence (B, 2Ht), word context, time codes)
     captions = []
