@@ -96,10 +96,13 @@ PLANS = ("clauses", "whole")
 """How a prompt is generated: clause by clause (:mod:`t2m.clauses`) or in one pass (the paper)."""
 
 
-def _means(logits: torch.Tensor) -> np.ndarray:
-    """Expected lengths in snippets (float64 (N,)) of length logits (N, K)."""
-    probs = torch.softmax(logits.double(), -1).cpu().numpy()
-    return probs @ np.arange(probs.shape[-1], dtype=np.float64)
+def _moments(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """Expected lengths in snippets and their variances (float64 (N,) each) of length logits
+    (N, K)."""
+    probs = torch.softmax(logits.detach().double(), -1).cpu().numpy()
+    units = np.arange(probs.shape[-1], dtype=np.float64)
+    means = probs @ units
+    return means, probs @ units**2 - means**2
 
 
 @dataclass(frozen=True)
@@ -444,11 +447,7 @@ class TextToMotion:
         if not encoded:
             return np.zeros(0), np.zeros(0)
         with torch.inference_mode():
-            logits = self._length_logits(encoded, batch_size=256, clause=clause)
-            probs = torch.softmax(logits.double(), -1).cpu().numpy()
-        units = np.arange(probs.shape[-1], dtype=np.float64)
-        means = probs @ units
-        return means, probs @ units**2 - means**2
+            return _moments(self._length_logits(encoded, batch_size=256, clause=clause))
 
     def sample_lengths(
         self,
@@ -499,7 +498,7 @@ class TextToMotion:
                         [len(item.clauses) < 2 and item.encoded.count > 0 for item in single]
                     )
                     if counted.any():
-                        need = torch.from_numpy(needed_snippets(_means(logits[counted])))
+                        need = torch.from_numpy(needed_snippets(_moments(logits[counted])[0]))
                         drawn[counted] = need.clamp(min=min_units).to(drawn)[:, None]
                 units[torch.tensor([not parts for parts in split])] = drawn.cpu()
             clauses = [c for item, parts in zip(prepared, split) if parts for c in item.clauses]
@@ -509,7 +508,7 @@ class TextToMotion:
                 drawn = torch.multinomial(probs, 1, generator=generator).view(-1, repeats).cpu()
                 counted = torch.tensor([c.count > 0 for c in clauses])
                 if at_mean and counted.any():
-                    need = torch.from_numpy(needed_snippets(_means(logits[counted])))
+                    need = torch.from_numpy(needed_snippets(_moments(logits[counted])[0]))
                     drawn[counted] = need.to(drawn)[:, None]
                 start = 0
                 for row, (item, parts) in enumerate(zip(prepared, split)):

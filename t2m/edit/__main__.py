@@ -174,7 +174,7 @@ def check_search_memory(
     from t2m.edit.core import SearchSettings
     from t2m.train.runtime import available_memory
 
-    ends = SearchSettings().end_draws  # an inbetween draws this many times --candidates
+    ends = SearchSettings.end_draws  # an inbetween draws this many times --candidates
     plain = [
         f * (ends if r.mode == "inbetween" else 1)
         for r, f in zip(requests, frames)
