@@ -24,7 +24,9 @@ Everything else (root, spine, arms) is untouched. ``held`` joints (an edit's joi
 source, :func:`clean_joints`) are never moved: a leg whose knee, ankle or foot is held on a frame
 is left exactly as given there, a contact run that reaches held frames is planted at its mean
 over its free frames, and the correction fades in over :data:`HELD_BLEND_FRAMES` frames away
-from held frames.
+from held frames; within that fade, and for a run that goes on from held frames, the foot is
+planted outright (:func:`plant_near_held`: the toe stays, the heel lifts where the leg cannot
+reach).
 
 :func:`clean_features` does the same on raw
 features and writes the cleaned joints back into them (the root and the model's contact
@@ -70,6 +72,13 @@ HELD_BLEND_FRAMES = 16
 frames the fade itself raised the seam jerk to 1.28x-1.37x that of real motion; over 20 it
 left foot skating at 0.159 against real motion's 0.158 once edits keep the body on the floor
 (t2m.edit.keep.keep_floor); over 16, 1.11x real jerk and skating 0.148."""
+
+
+HELD_PLANT_RAMP_FRAMES = 6
+"""Frames over which a foot planted next to held frames (:func:`plant_near_held`) takes over
+from the faded correction, counted from the nearest held frame (smoothstep)."""
+HELD_PLANT_RELEASE_FRAMES = 6
+"""Frames over which such a plant hands back to the faded correction after its run ends."""
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -224,6 +233,153 @@ def _held_weights(held: np.ndarray) -> np.ndarray:
     return _smoothstep(nearest / (HELD_BLEND_FRAMES + 1))
 
 
+def _pivot_ankle(
+    toe: np.ndarray, rigid: np.ndarray, hip: np.ndarray, foot: np.ndarray, limit: np.ndarray
+) -> np.ndarray:
+    """Ankles (N, 3) at distance ``foot`` (N,) from ``toe`` (N, 3), turned about the toe from
+    ``rigid`` (where the foot's own shape puts them) toward ``hip`` by the least angle that
+    brings them within ``limit`` (N,) of the hip: the heel lifts as a stance foot's does when the
+    body moves past it. Every row must be reachable pointing at the hip."""
+    start = rigid - toe
+    start /= np.maximum(np.linalg.norm(start, axis=-1, keepdims=True), 1e-12)
+    toward = hip - toe
+    toward /= np.maximum(np.linalg.norm(toward, axis=-1, keepdims=True), 1e-12)
+
+    def ankle(share: np.ndarray) -> np.ndarray:
+        direction = (1.0 - share)[:, None] * start + share[:, None] * toward
+        direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-12)
+        return toe + foot[:, None] * direction
+
+    low, high = np.zeros(len(toe)), np.ones(len(toe))
+    for _ in range(30):  # bisection on the share of the turn: 1e-9 of it
+        middle = 0.5 * (low + high)
+        reaches = np.linalg.norm(ankle(middle) - hip, axis=-1) <= limit
+        high = np.where(reaches, middle, high)
+        low = np.where(reaches, low, middle)
+    fits = np.linalg.norm(rigid - hip, axis=-1) <= limit
+    return np.where(fits[:, None], rigid, ankle(high))
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    return vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-12)
+
+
+def _mix(a: np.ndarray, b: np.ndarray, share: np.ndarray) -> np.ndarray:
+    """``a + share (b - a)`` row by row (``share`` (N,))."""
+    return a + share[:, None] * (b - a)
+
+
+def _place_foot(
+    out: np.ndarray,
+    joints: np.ndarray,
+    rows: np.ndarray,
+    leg: tuple[int, int, int, int],
+    children: list[int],
+    toes: np.ndarray,
+    toe_to_ankle: np.ndarray,
+) -> None:
+    """Write one leg into ``out`` on ``rows``: the ankle at ``toes + toe_to_ankle`` (N, 3), the
+    knee by :func:`two_bone_knee` from ``joints`` (thigh and shin keep their lengths), the toe
+    and the ankle's other children following the ankle where the IK holds it back."""
+    hip, knee, ankle, toe = leg
+    wanted = toes + toe_to_ankle
+    knees, ankles = two_bone_knee(
+        joints[rows, hip], joints[rows, knee], joints[rows, ankle], wanted
+    )
+    out[rows, knee] = knees
+    out[rows, ankle] = ankles
+    out[rows, toe] = toes + (ankles - wanted)
+    for child in children:
+        out[rows, child] = joints[rows, child] + (ankles - joints[rows, ankle])
+
+
+def plant_near_held(
+    joints: np.ndarray,
+    cleaned: np.ndarray,
+    contact: np.ndarray,
+    frozen: np.ndarray,
+    leg: tuple[int, int, int, int],
+    children: list[int],
+) -> np.ndarray:
+    """``cleaned`` (T, J, 3) with one leg's contact runs next to held frames planted outright.
+
+    Near held frames :func:`clean_joints` fades its correction in (:data:`HELD_BLEND_FRAMES`),
+    so a foot on the floor there still slides with the generated motion (the edit benchmark's
+    inbetween: 0.331 of the first second's frames skating against 0.241 in real motion). Here
+    a contact run that goes on from held frames keeps the toe where the held frames leave it,
+    and one that starts within the fade keeps it where the faded correction puts it on its first
+    frame (its height brought into [0, :data:`PLANT_HEIGHT_M`]); the ankle follows the foot's own
+    shape while the leg reaches (:data:`SOFT_REACH` of its length, or more where the generated
+    leg is longer), else turns about the toe toward the hip (the heel lifts); where even that
+    cannot reach, the plant ends. The planted leg takes over from ``cleaned`` over
+    :data:`HELD_PLANT_RAMP_FRAMES` from the nearest held frame and hands back over
+    :data:`HELD_PLANT_RELEASE_FRAMES` after the plant ends. Runs that reach held frames later
+    (a kept end) keep ``cleaned``: the held frames decide where that foot stands.
+
+    ``contact``, ``frozen``: (T,) bool; ``leg``: hip, knee, ankle and toe joints; ``children``:
+    the ankle's other children (moved with it).
+    """
+    hip, knee, ankle, toe = leg
+    out = cleaned.copy()
+    weights = _held_weights(frozen)
+    lowest = np.minimum(joints[:, ankle, 1], joints[:, toe, 1])
+    held_rows = np.flatnonzero(frozen)
+    thigh = np.linalg.norm(joints[:, knee] - joints[:, hip], axis=-1)
+    shin = np.linalg.norm(joints[:, ankle] - joints[:, knee], axis=-1)
+    foot = np.linalg.norm(joints[:, toe] - joints[:, ankle], axis=-1)
+    for start, end in contact_runs(contact):
+        if np.median(lowest[start:end]) > MAX_PLANT_HEIGHT_M:
+            continue
+        held = frozen[start:end]
+        rows = np.arange(start, end)[~held]
+        if not len(rows) or (held.any() and not held[0]):
+            continue
+        if not held.any() and (weights[rows] >= 1.0).all():
+            continue  # out of the fade: the plain clean-up planted it
+        if rows[-1] - rows[0] + 1 != len(rows):
+            rows = rows[: int(np.argmax(np.diff(rows) > 1)) + 1]  # up to the next held frame
+        anchor = (joints[rows[0] - 1, toe] if held.any() else cleaned[rows[0], toe]).copy()
+        anchor[1] = np.clip(anchor[1], 0.0, PLANT_HEIGHT_M)
+        toes = np.repeat(anchor[None], len(rows), axis=0)
+        hips = joints[rows, hip]
+        limit = np.maximum(
+            np.linalg.norm(joints[rows, ankle] - hips, axis=-1),
+            SOFT_REACH * (thigh[rows] + shin[rows]),
+        )
+        reachable = np.linalg.norm(hips - toes, axis=-1) <= limit + foot[rows]
+        if not reachable[0]:
+            continue
+        if not reachable.all():
+            stop = int(np.argmin(reachable))
+            rows, toes, hips, limit = rows[:stop], toes[:stop], hips[:stop], limit[:stop]
+        rigid = toes + joints[rows, ankle] - joints[rows, toe]
+        ankles = _pivot_ankle(toes, rigid, hips, foot[rows], limit)
+        # Blend toe positions and foot directions (not joints: the foot keeps its length), the
+        # knee placed by IK for the blended ankle: in from the held frames, out after the plant.
+        nearest = np.abs(rows[:, None] - held_rows[None, :]).min(axis=1)
+        share = _smoothstep(nearest / (HELD_PLANT_RAMP_FRAMES + 1))
+        directions = _mix(
+            _unit(cleaned[rows, ankle] - cleaned[rows, toe]), _unit(ankles - toes), share
+        )
+        toes = _mix(cleaned[rows, toe], toes, share)
+        _place_foot(out, joints, rows, leg, children, toes, _unit(directions) * foot[rows, None])
+        last = rows[-1]
+        after = np.arange(last + 1, min(last + 1 + HELD_PLANT_RELEASE_FRAMES, len(joints)))
+        after = after[~frozen[after]]
+        if len(after):
+            release = 1.0 - _smoothstep((after - last) / (HELD_PLANT_RELEASE_FRAMES + 1))
+            toes = cleaned[after, toe] + release[:, None] * (out[last, toe] - cleaned[last, toe])
+            directions = _mix(
+                _unit(cleaned[after, ankle] - cleaned[after, toe]),
+                np.repeat(_unit(out[last, ankle] - out[last, toe])[None], len(after), axis=0),
+                release,
+            )
+            _place_foot(
+                out, joints, after, leg, children, toes, _unit(directions) * foot[after, None]
+            )
+    return out
+
+
 def clean_joints(
     joints: np.ndarray,
     contacts: np.ndarray,
@@ -235,7 +391,9 @@ def clean_joints(
     ``held`` (T, J) bool: joints that must not move (an edit's kept joints). A leg is left exactly
     as given on the frames where its knee, ankle or foot joints are held; elsewhere its correction
     is faded in over :data:`HELD_BLEND_FRAMES` frames from those frames, and contact runs that
-    reach them plant the foot at its mean over their free frames. None: the plain clean-up.
+    reach them plant the foot at its mean over their free frames; contact runs that go on from
+    held frames or start within the fade are planted outright (:func:`plant_near_held`). None:
+    the plain clean-up.
 
     Raises ValueError for shapes that do not fit.
     """
@@ -264,19 +422,20 @@ def clean_joints(
         offsets = foot_offsets(joints[:, ankle], joints[:, toe], contact, held=frozen)
         if frozen is not None and frozen.any():
             offsets = offsets * _held_weights(frozen)[:, None]
-        if not np.any(offsets):
-            continue
-        new_knee, new_ankle = two_bone_knee(
-            joints[:, hip], joints[:, knee], joints[:, ankle], joints[:, ankle] + offsets
-        )
-        out[:, knee] = new_knee
-        out[:, ankle] = new_ankle
-        # The toe (and anything below the ankle) moves with the ankle: the foot stays rigid.
-        for joint in range(skeleton.num_joints):
-            if parents[joint] == ankle or joint == toe:
-                out[:, joint] = joints[:, joint] + (new_ankle - joints[:, ankle])
-        if frozen is not None:  # exactly as given (the IK of a zero offset rounds)
-            out[np.ix_(frozen, leg)] = joints[np.ix_(frozen, leg)]
+        if np.any(offsets):
+            new_knee, new_ankle = two_bone_knee(
+                joints[:, hip], joints[:, knee], joints[:, ankle], joints[:, ankle] + offsets
+            )
+            out[:, knee] = new_knee
+            out[:, ankle] = new_ankle
+            # The toe (and anything below the ankle) moves with the ankle: the foot stays rigid.
+            for joint in range(skeleton.num_joints):
+                if parents[joint] == ankle or joint == toe:
+                    out[:, joint] = joints[:, joint] + (new_ankle - joints[:, ankle])
+        if frozen is not None and frozen.any():
+            children = [j for j, p in enumerate(parents) if p == ankle and j != toe]
+            out = plant_near_held(joints, out, contact, frozen, (hip, knee, ankle, toe), children)
+            out[np.ix_(frozen, leg)] = joints[np.ix_(frozen, leg)]  # exactly as given
     return out
 
 
@@ -335,6 +494,8 @@ __all__ = [
     "BLEND_FRAMES",
     "CONTACT_THRESHOLD",
     "HELD_BLEND_FRAMES",
+    "HELD_PLANT_RAMP_FRAMES",
+    "HELD_PLANT_RELEASE_FRAMES",
     "MAX_PLANT_HEIGHT_M",
     "MIN_CONTACT_FRAMES",
     "PLANT_HEIGHT_M",
@@ -342,6 +503,7 @@ __all__ = [
     "clean_features",
     "clean_joints",
     "contact_runs",
+    "plant_near_held",
     "foot_offsets",
     "two_bone_knee",
 ]

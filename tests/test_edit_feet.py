@@ -152,3 +152,87 @@ def test_a_held_legs_correction_is_whole_within_0_8_s():
     assert np.all(weights[:20] == 0.0)
     assert weights[20 + 15] > 0.99 and weights[20 + 16] == 1.0  # whole 0.8 s after the held legs
     assert 0.3 < weights[20 + 7] < 0.7  # eased, not cut
+
+
+def gliding_stance(frames: int = 40, step: float = 0.02) -> np.ndarray:
+    """Joints (frames, 22, 3): a stance on bent knees (thigh 0.40, shin 0.42, hip to ankle 0.76,
+    toe 0.14 from the ankle) whose whole body glides forward ``step`` m a frame (0.4 m/s at
+    20 fps): planted feet slide with it, as they do when a seam's correction moves the legs."""
+    thigh, shin, reach = 0.40, 0.42, 0.76
+    down = (thigh**2 - shin**2 + reach**2) / (2 * reach)
+    pose = np.zeros((22, 3))
+    pose[:, 1] = np.linspace(0.9, 1.7, 22)
+    for side, (hip, knee, ankle, toe) in zip((1.0, -1.0), ((1, 4, 7, 10), (2, 5, 8, 11))):
+        pose[hip] = [0.1 * side, 0.85, 0.0]
+        pose[knee] = [0.1 * side, 0.85 - down, np.sqrt(thigh**2 - down**2)]
+        pose[ankle] = [0.1 * side, 0.85 - reach, 0.0]
+        pose[toe] = [0.1 * side, 0.01, 0.12]
+    joints = np.repeat(pose[None], frames, axis=0)
+    joints[..., 2] += step * np.arange(frames)[:, None]
+    return joints
+
+
+GLIDE = 60  # frames of the gliding stance: the glide outruns the planted leg within them
+
+
+def _held_legs(frames: int, rows: slice) -> np.ndarray:
+    held = np.zeros((frames, 22), bool)
+    held[rows, LOWER] = True
+    return held
+
+
+def test_a_foot_planted_at_a_kept_start_stays_where_the_kept_frames_left_it(monkeypatch):
+    """A contact run going on from held frames keeps the toe where they leave it (no fade), the
+    heel lifting once the leg cannot reach it, and lets go where even that cannot reach."""
+    joints = gliding_stance(GLIDE)
+    contacts = np.zeros((GLIDE, 4))
+    contacts[:, :2] = 1.0  # the left foot planted throughout
+    held = _held_legs(GLIDE, slice(0, 10))
+    cleaned = cleanup.clean_joints(joints, contacts, held=held)
+    np.testing.assert_array_equal(cleaned[held], joints[held])
+    toe, ankle, knee, hip = 10, 7, 4, 1
+    anchor = joints[9, toe, [0, 2]]
+    full = 10 + cleanup.HELD_PLANT_RAMP_FRAMES + 1  # the plant's share is whole from here
+    # Exactly still while planted (the anchor copied; the IK's unit direction times distance
+    # rounds the ankle, which the toe follows: a few roundings at <= 1 m). Without the plant
+    # the faded correction lets the toe slide 1-2 cm a frame here (the glide is 2 cm).
+    drift = np.abs(cleaned[full : full + 8, toe][:, [0, 2]] - anchor).max()
+    assert drift < 1e-9, drift
+    monkeypatch.setattr(cleanup, "plant_near_held", lambda joints, cleaned, *args: cleaned)
+    faded = cleanup.clean_joints(joints, contacts, held=held)
+    assert np.abs(faded[full : full + 8, toe][:, [0, 2]] - anchor).max() > 0.02
+    # the foot keeps its length and the leg its bones (IK), the heel lifts as the body moves on
+    for a, b in ((toe, ankle), (ankle, knee), (knee, hip)):
+        np.testing.assert_allclose(
+            np.linalg.norm(cleaned[:, a] - cleaned[:, b], axis=-1),
+            np.linalg.norm(joints[:, a] - joints[:, b], axis=-1),
+            rtol=0,
+            atol=1e-9,  # the bisection's 2^-30 of a turn moves no length; roundings at <= 1 m
+        )
+    lifted = cleaned[full:, ankle, 1] - joints[full:, ankle, 1]
+    assert lifted.max() > 0.02  # the heel rose while the toe stayed
+    # out of reach even turned toward the hip: the plant ends and hands back to the faded
+    # correction over HELD_PLANT_RELEASE_FRAMES
+    still = np.abs(cleaned[:, toe][:, [0, 2]] - anchor).max(axis=-1) < 1e-9
+    end = int(np.flatnonzero(still)[-1]) + 1
+    assert end < GLIDE - cleanup.HELD_PLANT_RELEASE_FRAMES - 2, end  # the glide outruns the leg
+    assert np.linalg.norm(joints[end, hip] - cleaned[end - 1, toe]) > 0.82  # beyond the leg
+    # eased: the toe's largest step is a fraction of the way back (1.5 / 7 of it for a smoothstep
+    # over 6 frames; all of it in one frame without the release)
+    way = np.linalg.norm(faded[end + 6, toe] - cleaned[end - 1, toe])
+    steps = np.linalg.norm(np.diff(cleaned[end - 1 : end + 7, toe], axis=0), axis=-1)
+    assert way > 0.1 and steps.max() < 0.4 * way, (way, steps.max())
+    back = slice(end + cleanup.HELD_PLANT_RELEASE_FRAMES, None)
+    np.testing.assert_allclose(cleaned[back], faded[back], rtol=0, atol=1e-12)
+
+
+def test_a_run_reaching_a_kept_end_is_planted_as_before(monkeypatch):
+    """Before a kept end, the held frames decide where the foot stands: such a run keeps the
+    faded correction (planted at its free frames' mean)."""
+    joints = gliding_stance(GLIDE)
+    contacts = np.zeros((GLIDE, 4))
+    contacts[GLIDE - 20 :, :2] = 1.0  # a run starting within the fade before the kept end
+    held = _held_legs(GLIDE, slice(GLIDE - 10, GLIDE))
+    cleaned = cleanup.clean_joints(joints, contacts, held=held)
+    monkeypatch.setattr(cleanup, "plant_near_held", lambda joints, cleaned, *args: cleaned)
+    np.testing.assert_array_equal(cleaned, cleanup.clean_joints(joints, contacts, held=held))
