@@ -283,6 +283,10 @@ def _place_foot(
     and the ankle's other children following the ankle where the IK holds it back."""
     hip, knee, ankle, toe = leg
     wanted = toes + toe_to_ankle
+    # nothing of the foot below the floor (a turned foot can point its heel down)
+    lift = np.maximum(-np.minimum(wanted[:, 1], toes[:, 1]), 0.0)
+    toes = toes + lift[:, None] * np.array([0.0, 1.0, 0.0])
+    wanted = toes + toe_to_ankle
     knees, ankles = two_bone_knee(
         joints[rows, hip], joints[rows, knee], joints[rows, ankle], wanted
     )
@@ -338,9 +342,12 @@ def plant_near_held(
             continue  # out of the fade: the plain clean-up planted it
         if rows[-1] - rows[0] + 1 != len(rows):
             rows = rows[: int(np.argmax(np.diff(rows) > 1)) + 1]  # up to the next held frame
-        anchor = (joints[rows[0] - 1, toe] if held.any() else cleaned[rows[0], toe]).copy()
-        anchor[1] = np.clip(anchor[1], 0.0, PLANT_HEIGHT_M)
+        anchor = joints[rows[0] - 1, toe] if held.any() else cleaned[rows[0], toe]
         toes = np.repeat(anchor[None], len(rows), axis=0)
+        # heights as the lock sets them: the foot's lowest joint into [0, PLANT_HEIGHT_M]
+        toes[:, 1] = (
+            joints[rows, toe, 1] + np.clip(lowest[rows], 0.0, PLANT_HEIGHT_M) - lowest[rows]
+        )
         hips = joints[rows, hip]
         limit = np.maximum(
             np.linalg.norm(joints[rows, ankle] - hips, axis=-1),

@@ -236,3 +236,24 @@ def test_a_run_reaching_a_kept_end_is_planted_as_before(monkeypatch):
     cleaned = cleanup.clean_joints(joints, contacts, held=held)
     monkeypatch.setattr(cleanup, "plant_near_held", lambda joints, cleaned, *args: cleaned)
     np.testing.assert_array_equal(cleaned, cleanup.clean_joints(joints, contacts, held=held))
+
+
+def test_a_planted_foot_with_its_toes_up_stays_above_the_floor():
+    """The plant sets heights as the lock does (the foot's lowest joint into [0, 2 cm]): a toe
+    raised above its heel is not pulled to the floor, which would push the heel through it
+    (sitting down, the demo model's feet do this: a heel 9 cm under the floor read as no sit)."""
+    joints = gliding_stance(GLIDE, step=0.005)
+    joints[:, [10, 11], 1] = 0.15  # toes 6 cm above the ankles (0.09)
+    joints[..., 1] -= 0.05  # ankles at 4 cm: a contact the clean-up plants
+    above = [j for j in range(22) if j not in (4, 5, 7, 8, 10, 11)]
+    joints[:, above, 1] -= 0.25  # the body low over its feet (sitting down): the leg reaches
+    contacts = np.zeros((GLIDE, 4))
+    contacts[:, :2] = 1.0
+    held = _held_legs(GLIDE, slice(0, 10))
+    cleaned = cleanup.clean_joints(joints, contacts, held=held)
+    assert cleaned[:, [7, 10], 1].min() >= 0.0
+    full = 10 + cleanup.HELD_PLANT_RAMP_FRAMES + 1
+    drift = np.abs(cleaned[full : full + 8, 10][:, [0, 2]] - joints[9, 10, [0, 2]]).max()
+    assert drift < 1e-9, drift  # still planted where the kept frames left it
+    # the heel at the lock's 2 cm, or above it where it lifts as the body moves on
+    assert cleaned[full : full + 8, 7, 1].min() >= 0.02 - 1e-9
