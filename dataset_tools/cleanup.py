@@ -312,7 +312,9 @@ def plant_near_held(
     inbetween: 0.331 of the first second's frames skating against 0.241 in real motion). Here
     a contact run that goes on from held frames keeps the toe where the held frames leave it,
     and one that starts within the fade keeps it where the faded correction puts it on its first
-    frame (its height brought into [0, :data:`PLANT_HEIGHT_M`]); the ankle follows the foot's own
+    frame (horizontally: heights as the lock sets them, the foot's lowest joint into
+    [0, :data:`PLANT_HEIGHT_M`], and nothing of the foot under the floor; a toe pulled down to
+    the floor pushed a raised heel through it); the ankle follows the foot's own
     shape while the leg reaches (:data:`SOFT_REACH` of its length, or more where the generated
     leg is longer), else turns about the toe toward the hip (the heel lifts); where even that
     cannot reach, the plant ends. The planted leg takes over from ``cleaned`` over
