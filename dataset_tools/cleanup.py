@@ -233,6 +233,10 @@ def _held_weights(held: np.ndarray) -> np.ndarray:
     return _smoothstep(nearest / (HELD_BLEND_FRAMES + 1))
 
 
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    return vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-12)
+
+
 def _pivot_ankle(
     toe: np.ndarray, rigid: np.ndarray, hip: np.ndarray, foot: np.ndarray, limit: np.ndarray
 ) -> np.ndarray:
@@ -240,15 +244,10 @@ def _pivot_ankle(
     ``rigid`` (where the foot's own shape puts them) toward ``hip`` by the least angle that
     brings them within ``limit`` (N,) of the hip: the heel lifts as a stance foot's does when the
     body moves past it. Every row must be reachable pointing at the hip."""
-    start = rigid - toe
-    start /= np.maximum(np.linalg.norm(start, axis=-1, keepdims=True), 1e-12)
-    toward = hip - toe
-    toward /= np.maximum(np.linalg.norm(toward, axis=-1, keepdims=True), 1e-12)
+    start, toward = _unit(rigid - toe), _unit(hip - toe)
 
     def ankle(share: np.ndarray) -> np.ndarray:
-        direction = (1.0 - share)[:, None] * start + share[:, None] * toward
-        direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-12)
-        return toe + foot[:, None] * direction
+        return toe + foot[:, None] * _unit(_mix(start, toward, share))
 
     low, high = np.zeros(len(toe)), np.ones(len(toe))
     for _ in range(30):  # bisection on the share of the turn: 1e-9 of it
@@ -258,10 +257,6 @@ def _pivot_ankle(
         low = np.where(reaches, low, middle)
     fits = np.linalg.norm(rigid - hip, axis=-1) <= limit
     return np.where(fits[:, None], rigid, ankle(high))
-
-
-def _unit(vectors: np.ndarray) -> np.ndarray:
-    return vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-12)
 
 
 def _mix(a: np.ndarray, b: np.ndarray, share: np.ndarray) -> np.ndarray:
