@@ -299,6 +299,7 @@ def plant_near_held(
     frozen: np.ndarray,
     leg: tuple[int, int, int, int],
     children: list[int],
+    weights: np.ndarray,
 ) -> np.ndarray:
     """``cleaned`` (T, J, 3) with one leg's contact runs next to held frames planted outright.
 
@@ -318,11 +319,11 @@ def plant_near_held(
     (a kept end) keep ``cleaned``: the held frames decide where that foot stands.
 
     ``contact``, ``frozen``: (T,) bool; ``leg``: hip, knee, ankle and toe joints; ``children``:
-    the ankle's other children (moved with it).
+    the ankle's other children (moved with it); ``weights``: the fade's shares
+    (:func:`_held_weights` of ``frozen``, as ``clean_joints`` applied them).
     """
     hip, knee, ankle, toe = leg
     out = cleaned.copy()
-    weights = _held_weights(frozen)
     lowest = np.minimum(joints[:, ankle, 1], joints[:, toe, 1])
     held_rows = np.flatnonzero(frozen)
     thigh = np.linalg.norm(joints[:, knee] - joints[:, hip], axis=-1)
@@ -425,7 +426,8 @@ def clean_joints(
             continue
         offsets = foot_offsets(joints[:, ankle], joints[:, toe], contact, held=frozen)
         if frozen is not None and frozen.any():
-            offsets = offsets * _held_weights(frozen)[:, None]
+            weights = _held_weights(frozen)
+            offsets = offsets * weights[:, None]
         if np.any(offsets):
             new_knee, new_ankle = two_bone_knee(
                 joints[:, hip], joints[:, knee], joints[:, ankle], joints[:, ankle] + offsets
@@ -438,7 +440,8 @@ def clean_joints(
                     out[:, joint] = joints[:, joint] + (new_ankle - joints[:, ankle])
         if frozen is not None and frozen.any():
             children = [j for j, p in enumerate(parents) if p == ankle and j != toe]
-            out = plant_near_held(joints, out, contact, frozen, (hip, knee, ankle, toe), children)
+            leg_joints = (hip, knee, ankle, toe)
+            out = plant_near_held(joints, out, contact, frozen, leg_joints, children, weights)
             out[np.ix_(frozen, leg)] = joints[np.ix_(frozen, leg)]  # exactly as given
     return out
 
