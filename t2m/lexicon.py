@@ -10,8 +10,9 @@
 - :data:`RELEASE_MOTION_WORDS`: the original T2M release's shorter lists, with which captions
   encode exactly as the release's models and evaluator were fed.
 - :func:`read_untrained`: a prompt word the model never trained on ("dashes", "bounces",
-  "ducks") read as one it did ("run", "jump", "squat"): through :data:`SYNONYMS` (motion verbs
-  whose vectors mislead) or, failing that, its nearest trained word in the word vectors.
+  "ducks", "persn") read as one it did ("run", "jump", "squat", "person"): through
+  :data:`SYNONYMS` (motion verbs whose vectors mislead) and the other tables, as a typo, or,
+  failing those, its nearest trained word in the word vectors.
 """
 
 from __future__ import annotations
@@ -238,6 +239,24 @@ VERB_SENSES: dict[str, str] = {"pace": "walk", "circle": "walk"}
 demo corpus' only "pace", "in a circle" its only "circle"): tagged as a verb ("paces forward",
 "circles around clockwise"), read as the verb named here."""
 
+SIDE_WARDS = ("ward", "wards")
+"""Endings that make a side a direction ("moves leftward"): read as "to the left", as the
+training captions say a direction to one side ("walks to the left side"); "walks left" alone
+reads as a turn to the left in the models trained on the demo corpus."""
+
+LEMMA_SLIPS: dict[str, str] = {"bind": "bound"}
+"""Lemmas a tagger gives by mistake, and the word meant: spaCy's small English model lemmatises
+the imperative "bound" ("Bound forward") as "bind"; in a motion prompt it is the leap."""
+
+TYPO_MIN_LENGTH = 4
+"""Shortest trained word an unknown word (no word vector at all) is read as when it is one edit
+away (a letter left out, added, changed or two swapped: "persn", "cirlce")."""
+
+FUNCTION_POS = {"to": "ADP", "the": "DET", "a": "DET"}
+"""The part of speech a reading that is a function word takes, whatever the word it stands for
+was tagged ("leftward" is an adverb, its reading "to the left" a preposition, an article and a
+noun)."""
+
 TABLE_POS = frozenset({"VERB", "NOUN", "PROPN", "ADJ", "ADV", "INTJ"})
 """Content words read through the tables above (a tagger calls an imperative's capitalised
 first verb a proper noun, "Jab using your right arm"; "walks leftward" an adverb)."""
@@ -288,16 +307,54 @@ def _first_trained(options: Sequence[str], trained: Collection[str]) -> str | No
 
 
 def _compound(word: str, trained: Collection[str]) -> str | None:
-    """A compound's trained reading: a side word that opens it ("lefthanded" -> "left"), else
-    its last part when both parts are trained words ("sideshuffle" -> "shuffle")."""
+    """A compound's trained reading: a side word and a direction ending ("leftward" -> "to the
+    left", :data:`SIDE_WARDS`), a side word that opens it ("lefthanded" -> "left"), else its
+    last part when both parts are trained words ("sideshuffle" -> "shuffle")."""
     for side in SIDES:
         if word.startswith(side) and len(word) > len(side) + 2 and side in trained:
+            toward = ("to", "the", side)
+            if word[len(side) :] in SIDE_WARDS and all(w in trained for w in toward):
+                return " ".join(toward)
             return side
     for cut in range(3, len(word) - 2):
         head, tail = word[:cut], word[cut:]
         if head in trained and tail in trained:
             return tail
     return None
+
+
+def _one_edit(a: str, b: str) -> bool:
+    """Whether ``a`` becomes ``b`` by one letter left out, added, changed, or two neighbouring
+    letters swapped."""
+    if a == b or abs(len(a) - len(b)) > 1:
+        return False
+    if len(a) > len(b):
+        a, b = b, a
+    i = next((k for k in range(len(a)) if a[k] != b[k]), len(a))
+    if len(a) < len(b):
+        return a[i:] == b[i + 1 :]
+    return a[i + 1 :] == b[i + 1 :] or (
+        i + 1 < len(a) and a[i] == b[i + 1] and a[i + 1] == b[i] and a[i + 2 :] == b[i + 2 :]
+    )
+
+
+def typo_reading(word: str, trained: Collection[str]) -> str | None:
+    """The trained word ``word`` is a typo of: one edit away (:func:`_one_edit`), at least
+    :data:`TYPO_MIN_LENGTH` letters, the one sharing the most opening and closing letters with
+    it where several are ("slowy": "slowly" over "slow"); None when none is, or two tie."""
+
+    def shared(other: str) -> int:
+        most = min(len(word), len(other))
+        start = next((k for k, (x, y) in enumerate(zip(word, other)) if x != y), most)
+        end = next((k for k, (x, y) in enumerate(zip(word[::-1], other[::-1])) if x != y), most)
+        return start + end
+
+    found = sorted(
+        (-shared(w), w) for w in trained if len(w) >= TYPO_MIN_LENGTH and _one_edit(word, w)
+    )
+    if not found or (len(found) > 1 and found[0][0] == found[1][0]):
+        return None
+    return found[0][1]
 
 
 def table_reading(
@@ -325,7 +382,7 @@ def table_reading(
                 return context[after], f"{said} {after!r} after it"
     if context_only:
         return None
-    stems = [word]
+    stems = [word, *([LEMMA_SLIPS[word]] if word in LEMMA_SLIPS else [])]
     if word.endswith("ing") and len(word) > 5:  # a gerund the tagger left as a noun
         stem = word[:-3]
         stems += [stem, stem + "e", stem[:-1]]
@@ -355,8 +412,9 @@ def read_untrained(
 ) -> list[tuple[str, str]]:
     """A tagged prompt's (word, POS) pairs with each content word the model was not trained on
     (not in ``trained``) read as a word it was: by the tables (:func:`table_reading`: words
-    after it that decide, motion synonyms, speed words, words for a person, compounds), else its
-    nearest trained word in the word vectors of ``vocabulary`` (a
+    after it that decide, motion synonyms, speed words, words for a person, compounds, a
+    tagger's lemma slips), a typo when the word has no vector at all (:func:`typo_reading`),
+    else its nearest trained word in the word vectors of ``vocabulary`` (a
     :class:`t2m.data.words.WordVectors`: its ``index`` and ``vectors``) when it is a verb or a
     noun (:data:`READ_AS_POS`), their cosine is at least :data:`MIN_SIMILARITY` and the word is
     not among the table's first ``common`` rows (:data:`COMMON_WORDS`). Words are compared
@@ -371,18 +429,21 @@ def read_untrained(
         sense = VERB_SENSES.get(lower)
         if lower in trained and sense in trained and (pos == "VERB" or (i == 0 and pos == "PROPN")):
             found = (sense, "its sense as a verb")
-            out.append(_named_reading(text, lower, pos, found, readings, named))
+            out.extend(_named_reading(text, lower, pos, found, readings, named))
             continue
         if lower in trained and lower in CONTEXT_SYNONYMS and pos in TABLE_POS:
             untrained = [w if w not in trained else "" for w in words[i + 1 :]]
             found = table_reading(lower, pos, untrained, trained, context_only=True)
             if found and found[0] != lower:
-                out.append(_named_reading(text, lower, pos, found, readings, named))
+                out.extend(_named_reading(text, lower, pos, found, readings, named))
                 continue
         if lower in trained or (pos not in TABLE_POS and lower not in DIRECTIONS):
             out.append((word, pos))
             continue
         reading, why = table_reading(lower, pos, words[i + 1 :], trained) or (None, "")
+        if reading is None and vocabulary is not None and lower not in vocabulary.index:
+            reading = typo_reading(lower, trained)
+            why = "a typo: one letter away"
         if (
             reading is None
             and pos in READ_AS_POS
@@ -396,7 +457,7 @@ def read_untrained(
         if reading is None:
             out.append((word, pos))
             continue
-        out.append(_named_reading(text, lower, pos, (reading, why), readings, named))
+        out.extend(_named_reading(text, lower, pos, (reading, why), readings, named))
     return out
 
 
@@ -407,9 +468,10 @@ def _named_reading(
     found: tuple[str, str],
     readings: dict[str, str] | None,
     named: set[tuple[str, str]],
-) -> tuple[str, str]:
-    """The (reading, POS) pair of ``word``, collected in ``readings`` or else named in a warning
-    (once per prompt)."""
+) -> list[tuple[str, str]]:
+    """The (word, POS) pairs of ``word``'s reading (a function word takes its own part of
+    speech, :data:`FUNCTION_POS`; a reading of several words, "to the left", the last one
+    ``pos``), collected in ``readings`` or else named in a warning (once per prompt)."""
     reading, why = found
     if readings is not None:
         readings.setdefault(word, reading)
@@ -417,7 +479,10 @@ def _named_reading(
         named.add((word, reading))
         untrained = "" if why.startswith("the untrained") else "was not trained on; "
         logger.warning("prompt %r: %r %sread as %r (%s)", text, word, untrained, reading, why)
-    return reading, pos
+    *first, last = reading.split(" ")
+    tagged = [(w, FUNCTION_POS.get(w, pos)) for w in first]
+    side_pos = "NOUN" if first else pos  # "to the left": the side as the training tags it
+    return [*tagged, (last, FUNCTION_POS.get(last, side_pos))]
 
 
 # ----------------------------------------------------------------------------- prompt shapes

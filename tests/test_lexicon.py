@@ -136,7 +136,7 @@ def test_tokens_are_read_as_pairs_are():
         ("Jab use your left arm", "punch use your left arm"),
         # compounds: a side word opens it, or two trained words make it
         ("greet with a lefthanded wave", "wave with a left wave"),
-        ("move rightward", "walk right"),
+        ("move rightward", "walk to the right"),
         ("move laterally toward the left", "walk sideways to the left"),
         ("reach skyward with both arm", "raise up with both arm"),
         ("an individual walk", "a person walk"),
@@ -154,6 +154,37 @@ def test_tables_read_untrained_words_in_context(words, read):
     tags |= {"Jab": "PROPN", "lefthanded": "ADJ", "rightward": "ADV", "individual": "NOUN"}
     pairs = [(w, tags.get(w, "VERB")) for w in words.split()]
     assert " ".join(w for w, _ in read_untrained(words, pairs, trained)) == read
+
+
+def test_instruments_sides_lemma_slips_and_typos_are_read():
+    from t2m.lexicon import typo_reading
+
+    trained = set("a person the to kick jump forward left right foot".split())
+    trained |= {"circle", "slow", "slowly", "walk"}
+
+    def read(words, tags=None, vocabulary=TABLE):
+        pairs = [(w, (tags or {}).get(w, "VERB")) for w in words.split()]
+        return read_untrained(words, pairs, trained, vocabulary)
+
+    # a side with a direction ending: "to the left", the side tagged as the training tags it
+    assert read("walk leftward", {"leftward": "ADV"})[1:] == [
+        ("to", "ADP"),
+        ("the", "DET"),
+        ("left", "NOUN"),
+    ]
+    # the tagger's lemma of the imperative "bound"
+    assert read("bind forward")[0] == ("jump", "VERB")
+    # a word with no vector at all, one edit from a trained word: a typo
+    assert [w for w, _ in read("a persn kick", {"persn": "NOUN"})] == ["a", "person", "kick"]
+    assert typo_reading("cirlce", trained) == "circle"  # two letters swapped
+    assert typo_reading("slowy", trained) == "slowly"  # nearer "slowly" than "slow"
+    assert typo_reading("wlak", trained) == "walk"
+    assert typo_reading("kicks", {"kick", "kicky"}) is None  # two equally near
+    assert typo_reading("kcik", trained) == "kick"  # two neighbours swapped
+    assert typo_reading("kcki", trained) is None  # two edits
+    assert typo_reading("tha", trained) is None  # too short to tell
+    # a word with a vector is a word, not a typo ("blorf" stays as it is)
+    assert read("a blorf kick", {"blorf": "NOUN"})[1] == ("blorf", "NOUN")
 
 
 def test_tables_read_only_content_words_and_collect_readings(caplog):
