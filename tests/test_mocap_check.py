@@ -18,7 +18,7 @@ def facts(**changes) -> dict:
         "forward_speed_mps": 1.2, "path_speed_mps": 1.2, "speed_scale": 1.0,
         "yaw_change_deg": 0.0, "heading_change_deg": 0.0, "airborne_count": 0,
         "cadence_hz": 1.9, "arm_up_left": 0.0, "arm_up_right": 0.0, "arm_swings_left": 0,
-        "arm_swings_right": 0,
+        "arm_swings_right": 0, "travel_angle_deg": 0.0, "bow_depth_deg": 0.0,
     }  # fmt: skip
     return {**base, **changes}
 
@@ -54,6 +54,34 @@ def test_content_checks_tell_the_contents_apart():
     assert not any(checks[c](walking) for c in checks if "hand" in c)
 
 
+def test_bandai_namco_1_checks_tell_directions_dashes_and_bows_apart():
+    checks = mocap.CONTENT_CHECKS
+    back = facts(forward_speed_mps=-0.9, path_speed_mps=0.9, travel_angle_deg=178.0)
+    left = facts(forward_speed_mps=0.8, path_speed_mps=1.0, travel_angle_deg=30.0)
+    right = facts(forward_speed_mps=0.8, path_speed_mps=1.0, travel_angle_deg=-30.0)
+    ahead = facts()
+    walks = {
+        "a person walks backward.": back,
+        "a person walks to the left.": left,
+        "a person walks to the right.": right,
+        "a person walks forward.": ahead,
+    }
+    for caption, motion in walks.items():  # each direction passes its own check only
+        assert [checks[c](motion) for c in walks] == [c == caption for c in walks], caption
+    assert checks["a person walks backward."](facts(path_speed_mps=0.9, travel_angle_deg=-170.0))
+    assert not checks["a person walks backward."](facts(path_speed_mps=0.1, travel_angle_deg=180))
+    assert not checks["a person walks to the left."]({**left, "airborne_count": 3})  # a run
+    # A dash is a fast run; a slower run is no dash, nor is a fast walk.
+    assert checks["a person dashes forward."](facts(path_speed_mps=3.2, airborne_count=4))
+    assert not checks["a person dashes forward."](facts(path_speed_mps=2.0, airborne_count=4))
+    assert not checks["a person dashes forward."](facts())
+    # A bow: the trunk pitches forward and back, in place.
+    bow = facts(forward_speed_mps=0.0, path_speed_mps=0.05, bow_depth_deg=40.0)
+    assert checks["a person bows."](bow)
+    assert not checks["a person bows."]({**bow, "bow_depth_deg": 10.0})
+    assert not checks["a person bows."]({**bow, "path_speed_mps": 1.2})
+
+
 def test_mocap_facts_measure_arms_steps_and_heading():
     from dataset_tools.synth.clip import synthesize_action
 
@@ -72,6 +100,13 @@ def test_mocap_facts_measure_arms_steps_and_heading():
     assert 1.4 < walking["cadence_hz"] < mocap.RUN_CADENCE_HZ
     turn = mocap.mocap_facts(at_20_fps("turn", {"direction": "right", "angle": 90}, 2), 20)
     assert -120 < turn["heading_change_deg"] < -60
+    assert abs(walking["travel_angle_deg"]) < 5 and walking["bow_depth_deg"] < 5
+    for direction, angle in (("backward", 180), ("left", 90), ("right", -90)):
+        params = {**walk, "direction": direction}
+        moved = mocap.mocap_facts(at_20_fps("walk", params, 4), 20)["travel_angle_deg"]
+        assert abs((moved - angle + 180) % 360 - 180) < 15, direction
+    bow = mocap.mocap_facts(at_20_fps("bow", {"depth_deg": 45, "hold_s": 0.5}, 3), 20)
+    assert 35 < bow["bow_depth_deg"] < 55
 
 
 @pytest.mark.skipif(not MOCAP.is_dir(), reason="needs ../shared/mocap")
@@ -93,7 +128,12 @@ def test_tiny_check_end_to_end(tmp_path):
         workers=1,
     )
     results = mocap.run_check(config)
-    assert set(results["contents"]) == set(mocap.CONTENT_CHECKS)
+    bn2 = (
+        "walk", "walk-turn-left", "walk-turn-right", "run", "wave-both-hands", "wave-left-hand",
+        "wave-right-hand", "raise-up-both-hands", "raise-up-left-hand", "raise-up-right-hand",
+    )  # fmt: skip
+    # the contents the dataset holds (not Bandai-Namco-1's, which the check has no clips of)
+    assert set(results["contents"]) == {mocap.CONTENT_LABELS[content] for content in bn2}
     for row in results["contents"].values():
         assert row["generated"]["motions"] == 1 and row["real"]["motions"] >= 1
     walk = results["contents"]["a person walks forward."]["real"]

@@ -1,14 +1,21 @@
-"""The real-motion-capture benchmark: Bandai-Namco-2 with its styles, the full protocol, one command.
+"""The real-motion-capture benchmark: Bandai-Namco-1 and -2 with their styles, the full protocol,
+one command.
 
 ``python -m t2m.evaluate.mocap_bench`` (``make mocap-bench``), in numbered steps, each reused
 when it is done and resumed when it was interrupted:
 
-1. read the captures (``../shared/mocap/bandai-namco-2``: 420 BVH clips, 10 contents x 7 styles x
-   6 takes, labels in ``<clip>.json`` and ``cfg/*_label.txt``), write captions that name content
-   and style in varied wording (:func:`clip_captions`) and a split by take (:func:`split_takes`:
-   each content and style has one take in the test split, one in about half the cases in the
-   validation split, the rest in training; a clip's mirror goes with it), and build the
-   HumanML3D-layout dataset with mirrors (``dataset_tools build --source bvh --texts --splits``);
+1. read the captures of every ``--mocap`` folder (:func:`read_all`): Bandai-Namco-2
+   (``../shared/mocap/bandai-namco-2``, the default: 420 BVH clips, 10 contents x 7 styles x 6
+   takes) and, given by its folder, Bandai-Namco-1 (not in ``../shared``: 175 clips of 17
+   contents in 15 styles, mostly one take of each). Labels are in ``<clip>.json`` and
+   ``cfg/*_label.txt``; a ``.json`` without its ``.bvh`` is skipped. Styles that mean the same
+   in both datasets share one label (:data:`STYLE_ALIASES`: Bandai-Namco-1's old, tired,
+   masculinity and childish are elderly, exhausted, masculine and youthful), so that the
+   captions and the style classifier agree. Captions name content and style in varied wording
+   (:func:`clip_captions`); the split (:func:`split_clips`) keeps whole takes apart where a
+   content and style has several (:func:`split_takes`) and holds out content x style
+   combinations where it has one; a clip's mirror goes with it. The HumanML3D-layout dataset
+   with mirrors is built from them (``dataset_tools build --source bvh --texts --splits``);
 2. train the four stages (autoencoder, length, generator, evaluator) at the preset (``demo``:
    sized in optimiser steps); the length model and the evaluator train in a second process
    while the autoencoder and the generator train, as ``make demo`` does;
@@ -18,13 +25,11 @@ when it is done and resumed when it was interrupted:
 4. run the evaluation protocol of ``python -m t2m.evaluate`` on the test split (R-precision,
    FID, MM-Dist, diversity, multimodality for real and generated rows) with a scorer
    (:class:`BenchScorer`) that adds, for every row, the content accuracy of the real-mocap
-   check's detectors (:data:`t2m.evaluate.mocap.CONTENT_CHECKS`) and the style accuracy of the
-   classifier, per content and per style;
+   check's detectors (:data:`t2m.evaluate.mocap.CONTENT_CHECKS`; the gestures of
+   :data:`t2m.evaluate.mocap.NOT_JUDGED` have no check and count neither way) and the style
+   accuracy of the classifier, per content and per style;
 5. write ``results.json`` and ``results.md`` (the protocol's table, then per content and per
    style real against generated) and print the table.
-
-Only Bandai-Namco-2 is covered: Bandai-Namco-1 (other contents and styles, for which the content
-detectors have no checks) is not part of it.
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ import sys
 import time
 import zlib
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +50,8 @@ from scipy.optimize import minimize
 from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
 from dataset_tools.io import write_json_atomic, write_text_atomic
 from dataset_tools.representation import FeatureLayout, recover_from_ric
-from t2m.evaluate.mocap import CONTENT_CHECKS, CONTENT_LABELS, mocap_facts
+from dataset_tools.spec import HUMANML3D
+from t2m.evaluate.mocap import CONTENT_CHECKS, CONTENT_LABELS, NOT_JUDGED, mocap_facts
 
 logger = logging.getLogger("t2m.evaluate.mocap_bench")
 
@@ -57,19 +63,37 @@ MIRRORED_CONTENT = {
     "walk-turn-left": "walk-turn-right",
     "wave-left-hand": "wave-right-hand",
     "raise-up-left-hand": "raise-up-right-hand",
+    "walk-left": "walk-right",
 }
 MIRRORED_CONTENT.update({right: left for left, right in MIRRORED_CONTENT.items()})
+
+STYLE_ALIASES = {
+    "old": "elderly",
+    "tired": "exhausted",
+    "masculinity": "masculine",
+    "childish": "youthful",
+}
+"""Bandai-Namco-1's names of the styles Bandai-Namco-2 also has, and Bandai-Namco-2's name the
+benchmark uses for both (active, feminine and normal have one name in both)."""
+
+MIN_SECONDS = HUMANML3D.min_frames / HUMANML3D.fps
+"""Clips shorter than this are skipped by training and evaluation (the spec's shortest motion);
+the split puts them into training, where they count for nothing."""
 
 
 @dataclass(frozen=True)
 class Capture:
-    """One BVH clip: its dataset name (the build's: the file's stem), content, style and take."""
+    """One BVH clip: its dataset name (the build's: the file's stem), content, style (after
+    :data:`STYLE_ALIASES`), take, source (the name's ``dataset-N`` prefix) and length in seconds
+    (from the BVH header; None: unknown)."""
 
     name: str
     path: Path
     content: str
     style: str
     take: str
+    source: str = ""
+    seconds: float | None = None
 
 
 def _label_lines(path: Path) -> list[str]:
@@ -83,13 +107,31 @@ def data_folder(mocap: Path) -> Path:
     return mocap / "data" if (mocap / "data").is_dir() else mocap
 
 
+def bvh_seconds(path: Path) -> float | None:
+    """A BVH file's length (frames x frame time) from its header; None when the header does not
+    say (the build then judges the file)."""
+    frames = None
+    try:
+        with path.open(encoding="utf-8", errors="replace") as lines:
+            for line in lines:
+                key, _, value = line.strip().partition(":")
+                if key == "Frames":
+                    frames = int(value)
+                elif key == "Frame Time":
+                    return None if frames is None else frames * float(value)
+    except (OSError, ValueError):
+        return None
+    return None
+
+
 def read_captures(mocap: Path) -> list[Capture]:
     """Every labelled BVH clip of a Bandai-Namco folder (its root, or its ``data/`` folder beside
-    ``cfg/``), sorted by name. UsageError (one line) for a missing folder or a wrong layout."""
+    ``cfg/``), sorted by name; a ``.json`` without its ``.bvh`` is no clip. UsageError (one
+    line) for a missing folder, a wrong layout, or a content or style without caption words."""
     if not mocap.is_dir():
         raise UsageError(
-            f"--mocap {mocap}: no such folder (the Bandai-Namco-2 captures of ../shared/mocap/"
-            "bandai-namco-2; ../shared/README.md)"
+            f"--mocap {mocap}: no such folder (a Bandai-Namco folder: Bandai-Namco-2 is "
+            "../shared/mocap/bandai-namco-2, Bandai-Namco-1 is given by its own folder)"
         )
     data = data_folder(mocap)
     cfg = data.parent / "cfg"
@@ -104,12 +146,6 @@ def read_captures(mocap: Path) -> list[Capture]:
         contents, styles = (_label_lines(path) for path in labels.values())
     except (OSError, UnicodeDecodeError) as error:
         raise UsageError(f"--mocap {mocap}: unreadable label file ({error})") from None
-    unknown = sorted(set(contents) - set(CONTENT_LABELS))
-    if unknown:
-        raise UsageError(
-            f"--mocap {mocap}: contents {unknown} have no content check (the benchmark covers "
-            "the ten contents of Bandai-Namco-2)"
-        )
     captures = []
     for path in sorted(data.glob("*.bvh")):
         try:
@@ -121,16 +157,63 @@ def read_captures(mocap: Path) -> list[Capture]:
                 f"a style of cfg/ ({type(error).__name__}: {error})"
             ) from None
         take = path.stem.rsplit("_", 1)[-1]
-        captures.append(Capture(path.stem, path, content, style, take))
+        source = path.stem.split("_", 1)[0]
+        style = STYLE_ALIASES.get(style, style)
+        captures.append(Capture(path.stem, path, content, style, take, source, bvh_seconds(path)))
     if not captures:
         raise UsageError(f"--mocap {mocap}: no .bvh file in {data}")
+    for kind, known, found in (
+        ("contents", CONTENT_PHRASES, {c.content for c in captures}),
+        ("styles", STYLE_WORDS, {c.style for c in captures}),
+    ):
+        unknown = sorted(found - set(known))
+        if unknown:
+            raise UsageError(
+                f"--mocap {mocap}: {kind} {unknown} have no caption words (the benchmark knows "
+                "those of Bandai-Namco-1 and -2)"
+            )
     return captures
+
+
+def read_all(folders: Sequence[Path]) -> list[Capture]:
+    """The captures of several Bandai-Namco folders (:func:`read_captures`), sorted by name;
+    UsageError (one line) when a folder is given twice or two folders hold a clip of one name."""
+    if not folders:
+        raise UsageError("--mocap needs at least one Bandai-Namco folder")
+    seen: dict[Path, Path] = {}
+    where: dict[str, Path] = {}
+    for folder in folders:
+        resolved = data_folder(folder).resolve()
+        if resolved in seen:
+            raise UsageError(f"--mocap {folder}: given twice (as {seen[resolved]})")
+        seen[resolved] = folder
+    captures = []
+    for folder in folders:
+        for capture in read_captures(folder):
+            if capture.name in where:
+                raise UsageError(
+                    f"--mocap {folder}: clip {capture.name} is also in {where[capture.name]}"
+                )
+            where[capture.name] = folder
+            captures.append(capture)
+    return sorted(captures, key=lambda capture: capture.name)
+
+
+def source_title(source: str) -> str:
+    """``dataset-1`` -> ``Bandai-Namco-1`` (the datasets' own name); others as they are."""
+    prefix, _, number = source.partition("-")
+    return f"Bandai-Namco-{number}" if prefix == "dataset" and number.isdigit() else source
 
 
 def mirrored(capture: Capture) -> Capture:
     """The capture's mirror as the build writes it (``M`` + name): left and right swapped."""
     content = MIRRORED_CONTENT.get(capture.content, capture.content)
-    return Capture(f"M{capture.name}", capture.path, content, capture.style, capture.take)
+    return replace(capture, name=f"M{capture.name}", content=content)
+
+
+def judged(content: str) -> bool:
+    """Whether the content checks judge motions of ``content`` (else :data:`NOT_JUDGED`)."""
+    return content in CONTENT_LABELS
 
 
 # ----------------------------------------------------------------------------- captions
@@ -170,9 +253,44 @@ CONTENT_PHRASES = {
         "lifts the left hand up",
         "puts the left arm up",
     ),
+    # Bandai-Namco-1 (walk and run above are in both)
+    "dash": ("dashes forward", "sprints forward", "sprints ahead", "runs forward very fast"),
+    "walk-back": ("walks backward", "walks backwards", "steps backward", "walks back"),
+    "walk-left": (
+        "walks to the left",
+        "walks sideways to the left",
+        "moves to the left",
+        "steps sideways to the left",
+    ),
+    "bow": ("bows", "bows politely", "takes a bow", "bends forward in a bow"),
+    "bye": (
+        "waves goodbye with one hand",
+        "waves bye with one hand",
+        "says goodbye with a wave of the hand",
+        "waves one hand to say goodbye",
+    ),
+    "byebye": (
+        "waves goodbye with both hands",
+        "waves bye with both hands",
+        "says goodbye waving both hands",
+        "waves both hands to say goodbye",
+    ),
+    "guide": (
+        "shows the way with the hand",
+        "guides the way with one arm",
+        "points the way",
+        "gestures to show the way",
+    ),
+    "respond": ("responds", "answers", "gives a response", "responds to someone"),
+    "call": ("calls out to someone", "calls someone", "calls to someone", "calls out"),
+    "punch": ("punches", "throws punches", "punches forward", "throws a few punches"),
+    "kick": ("kicks", "kicks forward", "does a kick", "kicks with one leg"),
+    "slash": ("slashes with a sword", "swings a sword", "slashes", "strikes with a sword"),
+    "dance-short": ("dances", "does a short dance", "dances briefly", "dances a little"),
+    "dance-long": ("dances", "does a long dance", "dances for a while", "keeps dancing"),
 }
-"""Ways of saying each content (a verb phrase after the subject); the right-handed contents are
-the left-handed ones with the side swapped."""
+"""Ways of saying each content (a verb phrase after the subject); the right-handed and
+rightward contents are the left ones with the side swapped."""
 for _left, _right in MIRRORED_CONTENT.items():
     if _left in CONTENT_PHRASES and _right not in CONTENT_PHRASES:
         CONTENT_PHRASES[_right] = tuple(p.replace("left", "right") for p in CONTENT_PHRASES[_left])
@@ -224,8 +342,52 @@ STYLE_WORDS = {
         ("in a youthful way", "like a young person", "like a child", "with youthful energy"),
         ("playfully", "cheerfully", "happily"),
     ),
+    # Bandai-Namco-1 only
+    "happy": StyleWords(
+        ("a happy person", "a cheerful person", "a happy man", "a joyful woman"),
+        ("in a happy way", "with joy", "in a joyful mood", "full of joy"),
+        ("joyfully", "gleefully", "merrily"),
+    ),
+    "sad": StyleWords(
+        ("a sad person", "an unhappy person", "a sad man", "a sad woman"),
+        ("in a sad way", "sadly", "with sorrow", "in a gloomy way"),
+        ("sadly", "gloomily", "mournfully"),
+    ),
+    "angry": StyleWords(
+        ("an angry person", "a furious man", "an angry man", "an angry woman"),
+        ("in an angry way", "with anger", "furiously", "in a rage"),
+        ("angrily", "furiously", "aggressively"),
+    ),
+    "proud": StyleWords(
+        ("a proud person", "a proud man", "an arrogant man", "a haughty woman"),
+        ("in a proud way", "with pride", "with the chest out", "full of pride"),
+        ("arrogantly", "haughtily", "pompously"),
+    ),
+    "not-confident": StyleWords(
+        ("a shy person", "an insecure person", "a timid man", "a nervous woman"),
+        ("in an unsure way", "without confidence", "in a timid way", "nervously"),
+        ("timidly", "hesitantly", "nervously", "shyly"),
+    ),
+    "musical": StyleWords(
+        ("a dancer", "a musical person", "a rhythmic dancer", "a musical man"),
+        ("in a musical way", "to a rhythm", "like a dancer", "as if dancing to music"),
+        ("rhythmically", "musically", "theatrically"),
+    ),
+    "giant": StyleWords(
+        ("a giant", "a huge man", "a heavy giant", "an enormous person"),
+        ("like a giant", "in a heavy way", "with huge heavy steps", "like a huge monster"),
+        ("heavily", "ponderously", "clumsily"),
+    ),
+    "chimpira": StyleWords(
+        ("a thug", "a punk", "a gangster", "a hoodlum"),
+        ("like a thug", "in a thuggish way", "like a punk", "like a gangster"),
+        ("menacingly", "cockily", "insolently"),
+    ),
 }
-"""Style words the word vectors know (GloVe 6B); the ``normal`` style's subjects are plain."""
+"""Style words the word vectors know (GloVe 6B), one set per style label (Bandai-Namco-1's
+aliases of :data:`STYLE_ALIASES` read as Bandai-Namco-2's names); the ``normal`` style's subjects
+are plain; ``chimpira`` is Japanese for a small-time thug. No word of one style is another's
+(Bandai-Namco-2's words are as they were, so that its benchmark alone is unchanged)."""
 
 
 def clip_captions(capture: Capture, seed: int = 0) -> list[str]:
@@ -257,16 +419,23 @@ def caption_words() -> set[str]:
 
 # ----------------------------------------------------------------------------- splits
 
+HELD_OUT_MIN_CLIPS = 3
+"""A content with at least this many single-take clips (one per style) holds some out."""
+HELD_OUT_TEST_SHARE = 0.2
+HELD_OUT_VAL_SHARE = 0.1
+"""Of such a content's clips, this share (at least one) goes to the test split, this share
+(rounded) to validation: 3 test and 2 validation clips of 15 styles."""
+
 
 def split_takes(captures: Sequence[Capture], seed: int = 0) -> dict[str, list[str]]:
-    """Clip names by split, whole takes (a clip: one take of one content and style): of each
-    content and style with three takes or more, one drawn for the test split, one for the
-    validation split in every other combination (the first included), the rest for training;
-    with two, one for test and one for training; with one, training. Mirrors follow their clip
-    in the build."""
-    groups: dict[tuple[str, str], list[Capture]] = {}
+    """Clip names by split, whole takes (a clip: one take of one content and style of one
+    source): of each content and style with three takes or more, one drawn for the test split,
+    one for the validation split in every other combination (the first included), the rest for
+    training; with two, one for test and one for training; with one, training. Mirrors follow
+    their clip in the build."""
+    groups: dict[tuple[str, str, str], list[Capture]] = {}
     for capture in captures:
-        groups.setdefault((capture.content, capture.style), []).append(capture)
+        groups.setdefault((capture.source, capture.content, capture.style), []).append(capture)
     rng = np.random.default_rng(seed)
     splits: dict[str, list[str]] = {"train": [], "val": [], "test": []}
     for number, key in enumerate(sorted(groups)):
@@ -280,6 +449,57 @@ def split_takes(captures: Sequence[Capture], seed: int = 0) -> dict[str, list[st
     return {split: sorted(names) for split, names in splits.items()}
 
 
+def split_clips(captures: Sequence[Capture], seed: int = 0) -> dict[str, list[str]]:
+    """Clip names by split. A content and style with two takes or more is split by take
+    (:func:`split_takes`: Bandai-Namco-2, and Bandai-Namco-1's walk, call, punch and slash).
+    Where a content has one take per style (the rest of Bandai-Namco-1), content x style
+    combinations are held out: of each content with :data:`HELD_OUT_MIN_CLIPS` such clips or
+    more, the clips of some styles go to the test split and to validation
+    (:data:`HELD_OUT_TEST_SHARE`, :data:`HELD_OUT_VAL_SHARE`), the others to training; a
+    content with fewer goes to training whole, and so do single takes shorter than
+    :data:`MIN_SECONDS` (skipped there). The test styles are the next ones in one seeded order
+    of the styles from content to content (the validation styles follow them), so that every
+    style is held out about equally often.
+    Deterministic for a seed; each source's takes are split as if it were alone (Bandai-Namco-2's
+    split is the same with Bandai-Namco-1 beside it); mirrors follow their clip in the build."""
+    groups: dict[tuple[str, str, str], list[Capture]] = {}
+    for capture in captures:
+        groups.setdefault((capture.source, capture.content, capture.style), []).append(capture)
+    splits: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+    several: dict[str, list[Capture]] = {}  # by source: each source's takes as if alone
+    for (source, *_), group in groups.items():
+        if len(group) >= 2:
+            several.setdefault(source, []).extend(group)
+    for source in sorted(several):
+        for split, names in split_takes(several[source], seed).items():
+            splits[split] += names
+    singles: dict[tuple[str, str], list[Capture]] = {}
+    for (source, content, _), group in groups.items():
+        if len(group) == 1:
+            capture = group[0]
+            if capture.seconds is not None and capture.seconds < MIN_SECONDS:
+                splits["train"].append(capture.name)
+            else:
+                singles.setdefault((source, content), []).append(capture)
+    styles = sorted({c.style for group in singles.values() for c in group})
+    order = np.random.default_rng([seed, 1]).permutation(len(styles))
+    rank = {style: int(position) for style, position in zip(styles, order, strict=True)}
+    offset = 0
+    for key in sorted(singles):
+        clips = singles[key]
+        if len(clips) < HELD_OUT_MIN_CLIPS:
+            splits["train"] += [c.name for c in clips]
+            continue
+        clips = sorted(clips, key=lambda c: ((rank[c.style] - offset) % len(styles), c.name))
+        num_test = max(1, round(HELD_OUT_TEST_SHARE * len(clips)))
+        num_val = round(HELD_OUT_VAL_SHARE * len(clips))
+        for k, capture in enumerate(clips):
+            split = "test" if k < num_test else "val" if k < num_test + num_val else "train"
+            splits[split].append(capture.name)
+        offset += num_test
+    return {split: sorted(names) for split, names in splits.items()}
+
+
 def write_build_inputs(captures: Sequence[Capture], folder: Path, seed: int) -> tuple[Path, Path]:
     """The captions (``texts/<clip>.txt``) and split files (``splits/*.txt``) the build reads;
     returns the two folders."""
@@ -289,9 +509,25 @@ def write_build_inputs(captures: Sequence[Capture], folder: Path, seed: int) -> 
     for capture in captures:
         lines = [f"{caption}#0.0#0.0" for caption in clip_captions(capture, seed)]
         write_text_atomic(texts / f"{capture.name}.txt", "\n".join(lines) + "\n")
-    for split, names in split_takes(captures, seed).items():
+    for split, names in split_clips(captures, seed).items():
         write_text_atomic(splits / f"{split}.txt", "".join(f"{name}\n" for name in names))
     return texts, splits
+
+
+def build_input_folder(captures: Sequence[Capture], folders: Sequence[Path], inputs: Path) -> Path:
+    """The folder the build reads the BVH files from: the one ``--mocap`` folder's ``data/``,
+    or for several, ``<inputs>/bvh`` with a link to every clip (names are unique: they carry
+    their ``dataset-N_`` prefix)."""
+    if len(folders) == 1:
+        return data_folder(folders[0])
+    links = inputs / "bvh"
+    links.mkdir(parents=True, exist_ok=True)
+    for capture in captures:
+        link = links / capture.path.name
+        if link.is_symlink() or link.exists():
+            link.unlink()
+        link.symlink_to(capture.path.resolve())
+    return links
 
 
 # ----------------------------------------------------------------------------- style classifier
@@ -391,7 +627,7 @@ class StyleClassifier:
 # ----------------------------------------------------------------------------- scoring
 
 
-SCORES_VERSION = 2
+SCORES_VERSION = 3
 """What :class:`BenchScorer` returns, numbered: an evaluation made with other scores is redone."""
 
 
@@ -402,7 +638,10 @@ class BenchScorer:
     Keys: ``all`` (content accuracy, tabled as the protocol's semantic accuracy),
     ``action_<content>``, ``style`` and ``style_<style>``, ``style_in_<content>`` and
     ``content_in_<style>`` (the accuracies within one content or style), ``speed_<content>``
-    and ``speed_<style>`` (mean horizontal root speed, m/s: the walking-in-place symptom)."""
+    and ``speed_<style>`` (mean horizontal root speed, m/s: the walking-in-place symptom).
+    Motions of a content without a check (:data:`t2m.evaluate.mocap.NOT_JUDGED`) are left out
+    of every content accuracy (no ``action_<content>``; ``all`` and ``content_in_<style>`` over
+    the judged motions only, absent when there are none); they count for style and speed."""
 
     def __init__(self, labels: dict[str, Capture], classifier: StyleClassifier, fps: float):
         self.labels, self.classifier, self.fps = labels, classifier, fps
@@ -414,28 +653,40 @@ class BenchScorer:
         if not known:
             return {}
         styles = self.classifier.predict(np.stack([pooled_features(m) for _, m in known]))
-        content_ok, style_ok, speeds = [], [], []
+        content_ok: list[bool | None] = []  # None: not judged
+        style_ok, speeds = [], []
         for (capture, motion), style in zip(known, styles, strict=True):
             facts = mocap_facts(recover_from_ric(motion, 22), self.fps)
-            content_ok.append(bool(CONTENT_CHECKS[CONTENT_LABELS[capture.content]](facts)))
+            check = CONTENT_CHECKS.get(CONTENT_LABELS.get(capture.content, ""))
+            content_ok.append(None if check is None else bool(check(facts)))
             style_ok.append(style == capture.style)
             speeds.append(facts["path_speed_mps"])
-        scores = {"all": float(np.mean(content_ok)), "style": float(np.mean(style_ok))}
+
+        def judged_share(members: Sequence[int]) -> float | None:
+            judged = [content_ok[k] for k in members if content_ok[k] is not None]
+            return float(np.mean(judged)) if judged else None
+
+        scores = {"style": float(np.mean(style_ok))}
+        content = judged_share(range(len(known)))
+        if content is not None:
+            scores["all"] = content
         groups: dict[str, list[int]] = {}
         for k, (capture, _) in enumerate(known):
             groups.setdefault(f"content:{capture.content}", []).append(k)
             groups.setdefault(f"style:{capture.style}", []).append(k)
         for group, members in groups.items():
             kind, label = group.split(":")
-            content = float(np.mean([content_ok[k] for k in members]))
+            content = judged_share(members)
             style = float(np.mean([style_ok[k] for k in members]))
             scores[f"speed_{label}"] = float(np.mean([speeds[k] for k in members]))
             if kind == "content":
-                scores[f"action_{label}"] = content
+                if content is not None:
+                    scores[f"action_{label}"] = content
                 scores[f"style_in_{label}"] = style
             else:
                 scores[f"style_{label}"] = style
-                scores[f"content_in_{label}"] = content
+                if content is not None:
+                    scores[f"content_in_{label}"] = content
         return scores
 
 
@@ -446,8 +697,10 @@ class BenchScorer:
 class MocapBenchConfig:
     """``python -m t2m.evaluate.mocap_bench``: what to build, train and evaluate, and where."""
 
-    mocap: Path = field(default=DEFAULT_MOCAP, metadata=option(metavar="DIR"))
-    """the Bandai-Namco-2 folder (data/*.bvh with a .json each, cfg/*_label.txt)"""
+    mocap: tuple[Path, ...] = field(default=(), metadata=option(metavar="DIR"))
+    """one or more Bandai-Namco folders, each data/*.bvh with a .json each and
+    cfg/*_label.txt (none given: Bandai-Namco-2, ../shared/mocap/bandai-namco-2); Bandai-Namco-1
+    is not in ../shared: give its folder beside Bandai-Namco-2's (--mocap BN2 BN1)"""
     dataset: Path = field(default=Path("data/bandai_bench"), metadata=option(metavar="DIR"))
     """the dataset folder to build (reused when built; its captions and splits go beside it,
     into <dataset>_inputs)"""
@@ -479,6 +732,9 @@ class MocapBenchConfig:
     """processes for the dataset build"""
 
     def __post_init__(self) -> None:
+        if isinstance(self.mocap, (str, os.PathLike)):
+            self.mocap = (Path(self.mocap),)
+        self.mocap = tuple(Path(folder) for folder in self.mocap) or (DEFAULT_MOCAP,)
         if self.threads < 0:
             raise UsageError("--threads must be 0 (the default choice) or more")
         if min(self.replications, self.mm_texts, self.workers) < 1:
@@ -640,11 +896,12 @@ def run_evaluation(config: MocapBenchConfig, scorer: BenchScorer) -> dict:
 def _write_protocol(summary: dict, folder: Path) -> None:
     from t2m.evaluate.report import format_markdown
 
-    text = format_markdown(summary, "Bandai-Namco-2 benchmark: the evaluation protocol")
+    text = format_markdown(summary, "Bandai-Namco benchmark: the evaluation protocol")
     text += (
         "\nHere the semantic accuracy is the content accuracy: the share of motions in which "
         "the real-mocap check's content detectors (t2m.evaluate.mocap.CONTENT_CHECKS) recognise "
-        "the clip's content; the per-action table is per content. Style accuracies are in "
+        "the clip's content, over the contents they judge (t2m.evaluate.mocap.NOT_JUDGED are "
+        "left out); the per-action table is per content. Style accuracies are in "
         "results.json (semantic_accuracy_style*) and in ../results.md.\n"
     )
     folder.mkdir(parents=True, exist_ok=True)
@@ -686,11 +943,13 @@ def run_bench(config: MocapBenchConfig) -> dict:
     load = {"start": os.getloadavg()}
     timings: dict = {}
     # 1. captures, captions, splits, dataset
-    captures = read_captures(config.mocap)
+    captures = read_all(config.mocap)
     labels = {c.name: c for capture in captures for c in (capture, mirrored(capture))}
+    sources = sorted({source_title(c.source) for c in captures})
     logger.info(
-        "%d captures: %d contents x %d styles; Bandai-Namco-1 is not part of this benchmark",
+        "%d captures of %s: %d contents x %d styles",
         len(captures),
+        " and ".join(sources),
         len({c.content for c in captures}),
         len({c.style for c in captures}),
     )
@@ -701,6 +960,16 @@ def run_bench(config: MocapBenchConfig) -> dict:
                 f"--dataset {config.dataset} holds a dataset that this benchmark did not build "
                 f"(no {inputs}/splits beside it); choose another --dataset"
             )
+        built = {
+            name
+            for split in ("train", "val", "test")
+            for name in (inputs / "splits" / f"{split}.txt").read_text(encoding="utf-8").split()
+        }
+        if built != {c.name for c in captures}:
+            raise UsageError(
+                f"--dataset {config.dataset} was built from other captures than those of "
+                f"--mocap {' '.join(map(str, config.mocap))}; choose another --dataset"
+            )
         timings["build"] = "reused"
     else:
         clock = time.perf_counter()
@@ -708,7 +977,7 @@ def run_bench(config: MocapBenchConfig) -> dict:
         build_dataset(
             BuildConfig(
                 "bvh",
-                data_folder(config.mocap),
+                build_input_folder(captures, config.mocap, inputs),
                 config.dataset,
                 texts_dir=texts,
                 splits_dir=splits,
@@ -741,17 +1010,35 @@ def run_bench(config: MocapBenchConfig) -> dict:
     load["end"] = os.getloadavg()
     _keep_earlier_times(timings, _read_json(config.out / "results.json"))
     # 5. results
+    contents = sorted({c.content for c in captures})
     results = {
-        "mocap": str(config.mocap),
-        "sources": ["Bandai-Namco-2"],
-        "missing_sources": ["Bandai-Namco-1 (not on this machine)"],
+        "mocap": [str(folder) for folder in config.mocap],
+        "sources": sources,
+        "missing_sources": [
+            f"{name} (not given: --mocap takes its folder)"
+            for name in ("Bandai-Namco-1", "Bandai-Namco-2")
+            if name not in sources
+        ],
         "dataset": str(config.dataset),
         "checkpoints": str(config.checkpoints),
         "preset": config.preset,
         "settings": config.eval_settings(),
         "captures": len(captures),
-        "contents": sorted({c.content for c in captures}),
+        "captures_by_source": {
+            name: sum(source_title(c.source) == name for c in captures) for name in sources
+        },
+        "contents": contents,
+        "not_judged": {
+            content: NOT_JUDGED.get(content, "no check")
+            for content in contents
+            if not judged(content)
+        },
         "styles": sorted({c.style for c in captures}),
+        "style_aliases": {
+            alias: style
+            for alias, style in STYLE_ALIASES.items()
+            if style in {c.style for c in captures}
+        },
         "style_classifier": classifier_info,
         "protocol": {row: _row_summary(values) for row, values in summary["rows"].items()},
         "deviations": summary["deviations"],
@@ -842,13 +1129,26 @@ def format_results(results: dict) -> str:
         ("content_accuracy", "Content acc. ↑"),
         ("style_accuracy", "Style acc. ↑"),
     )
+    sources = results["sources"]
+    by_source = results.get("captures_by_source", {})
+    counts = ", ".join(f"{by_source[name]} of {name}" for name in sources if name in by_source)
+    missing = "".join(f" {name} is not covered (not given)." for name in results["missing_sources"])
+    aliases = results.get("style_aliases", {})
+    merged = (
+        " Styles of one meaning share a label: "
+        + ", ".join(f"{alias} = {style}" for alias, style in aliases.items())
+        + "."
+        if aliases and len(sources) > 1
+        else ""
+    )
     lines = [
-        "# Real motion capture benchmark (Bandai-Namco-2)",
+        f"# Real motion capture benchmark ({' and '.join(sources)})",
         "",
-        f"{results['captures']} captures of Bandai-Namco-2 ({len(results['contents'])} contents "
-        f"x {len(results['styles'])} styles, with mirrors); Bandai-Namco-1 is not covered (not "
-        f"available). Preset `{results['preset']}`, all four stages trained on the training "
-        f"takes; test split: one take of every content and style and its mirror, "
+        f"{results['captures']} captures ({counts}; {len(results['contents'])} contents, "
+        f"{len(results['styles'])} styles, with mirrors).{missing}{merged} Preset "
+        f"`{results['preset']}`, all four stages trained on the training split; test split: "
+        f"held-out takes of each content and style with several takes, held-out content x "
+        f"style combinations where there is one take, each with its mirror; "
         f"{results['num_items']} items a replication (of {results['num_items_available']}), "
         f"{settings['replications']} replications, seed {settings['seed']}; mean ±95% interval.",
         "",
@@ -878,10 +1178,22 @@ def format_results(results: dict) -> str:
     ]
     columns.append((SAMPLED_LENGTH, "sampled length"))
     columns = [(row, title) for row, title in columns if row in rows]
-    labelled = [
-        (content, content, f"_{content}", f"_in_{content}") for content in results["contents"]
+    # contents and styles without test motions (all their clips in training) are named below
+    untested = [
+        label
+        for label in (*results["contents"], *results["styles"])
+        if f"speed_mps_{label}" not in rows.get(REAL, {})
     ]
-    labelled += [(f"*{style}*", style, f"_in_{style}", f"_{style}") for style in results["styles"]]
+    labelled = [
+        (content, content, f"_{content}", f"_in_{content}")
+        for content in results["contents"]
+        if content not in untested
+    ]
+    labelled += [
+        (f"*{style}*", style, f"_in_{style}", f"_{style}")
+        for style in results["styles"]
+        if style not in untested
+    ]
     labelled.append(("**all**", None, "", ""))
     speed_columns = columns[:2]
     lines += [
@@ -897,10 +1209,23 @@ def format_results(results: dict) -> str:
         + " |",
         "|---|" + "---|" * (len(columns) + len(speed_columns)),
     ]
+    not_judged = results.get("not_judged", {})
     for title, label, content_key, _ in labelled:
         cells = [_cell(rows[row].get(f"content_accuracy{content_key}"), 2) for row, _ in columns]
+        if label in not_judged:
+            cells = ["not judged"] * len(columns)
         cells += [_cell(rows[row].get(f"speed_mps_{label}"), 2) for row, _ in speed_columns]
         lines.append(f"| {title} | " + " | ".join(cells) + " |")
+    if not_judged:
+        lines += [
+            "",
+            "Not judged (no content check; left out of every content accuracy, counted for "
+            "style and speed): "
+            + "; ".join(f"{content}: {why}" for content, why in not_judged.items())
+            + ".",
+        ]
+    if untested:
+        lines += ["", f"No test motions (every clip in training): {', '.join(untested)}."]
     lines += [
         "",
         "Style accuracy (the classifier names the clip's style), per content and per style:",
@@ -950,9 +1275,10 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m t2m.evaluate.mocap_bench``; exit status 0, or 2 with a one-line reason."""
     parser = CommandParser(
         prog="python -m t2m.evaluate.mocap_bench",
-        description="Real motion capture benchmark: build Bandai-Namco-2 (every content and "
-        "style, mirrors) with captions naming content and style, train the four stages, run "
-        "the evaluation protocol on held-out takes with content and style accuracy.",
+        description="Real motion capture benchmark: build Bandai-Namco-2 and, given, "
+        "Bandai-Namco-1 (every content and style, mirrors) with captions naming content and "
+        "style, train the four stages, run the evaluation protocol on held-out takes and "
+        "content x style combinations with content and style accuracy.",
     )
     config = parse_config(parser, MocapBenchConfig, argv)
     results = run_bench(config)
@@ -968,8 +1294,10 @@ __all__ = [
     "StyleClassifier",
     "clip_captions",
     "main",
+    "read_all",
     "read_captures",
     "run_bench",
+    "split_clips",
     "split_takes",
 ]
 
