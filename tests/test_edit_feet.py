@@ -257,3 +257,41 @@ def test_a_planted_foot_with_its_toes_up_stays_above_the_floor():
     assert drift < 1e-9, drift  # still planted where the kept frames left it
     # the heel at the lock's 2 cm, or above it where it lifts as the body moves on
     assert cleaned[full : full + 8, 7, 1].min() >= 0.02 - 1e-9
+
+
+def test_a_planted_knee_bends_toward_the_toes_when_the_generated_leg_is_straight(monkeypatch):
+    """The planted leg's knee is placed by IK in the plane of the generated knee; a straight
+    generated leg gives no such plane, and one that wobbles a millimetre from side to side made
+    the knee bend left on one frame and right on the next (20-30 cm jumps at the edit benchmark's
+    seams). Knees bend toward the toes there (:data:`cleanup.KNEE_POLE_PRIOR_M`)."""
+    frames = 8
+    hip = np.zeros((frames, 3))
+    ankle = np.repeat([[0.0, -0.82, 0.0]], frames, axis=0)  # straight down, thigh + shin 0.82
+    knee = (hip + ankle) / 2
+    knee[:, 0] += 0.001 * (-1.0) ** np.arange(frames)  # wobbling sideways by a millimetre
+    target = ankle + [0.0, 0.1, 0.0]  # 10 cm closer: the knee must bend
+    toes = np.repeat([[0.0, 0.0, 1.0]], frames, axis=0)
+    sides = {}
+    for hint in (None, toes):
+        bent, _ = cleanup.two_bone_knee(hip, knee, ankle, target, hint)
+        sides[hint is None] = bent[:, [0, 2]]
+    flips = np.sign(sides[True][:, 0])
+    assert np.all(flips[1:] != flips[:-1])  # without the toes' direction: left, right, left...
+    forward = sides[False]
+    assert np.all(forward[:, 1] > 0.15) and np.abs(forward[:, 0]).max() < 0.01  # toward the toes
+    # the plant gives the IK its foot's direction
+    given = []
+    ik = cleanup.two_bone_knee
+
+    def recording(hip, knee, ankle, target, forward=None):
+        given.append(forward)
+        return ik(hip, knee, ankle, target, forward)
+
+    monkeypatch.setattr(cleanup, "two_bone_knee", recording)
+    joints = gliding_stance(GLIDE)
+    contacts = np.zeros((GLIDE, 4))
+    contacts[:, :2] = 1.0
+    cleanup.clean_joints(joints, contacts, held=_held_legs(GLIDE, slice(0, 10)))
+    hints = [f for f in given if f is not None]
+    assert hints  # the plant's IK is given the foot's direction: ankle to toe, mostly ahead (+z)
+    assert np.mean(np.concatenate(hints)[:, 2] > 0.0) > 0.8
