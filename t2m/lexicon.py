@@ -443,7 +443,7 @@ def read_untrained(
         reading, why = table_reading(lower, pos, words[i + 1 :], trained) or (None, "")
         if reading is None and vocabulary is not None and lower not in vocabulary.index:
             reading = typo_reading(lower, trained)
-            why = "a typo: one letter away"
+            why = "a typo: one letter off or two swapped"
         if (
             reading is None
             and pos in READ_AS_POS
