@@ -444,6 +444,9 @@ def plant_near_held(
                 np.repeat(_unit(out[edge, ankle] - out[edge, toe])[None], len(around), axis=0),
                 release,
             )
+            # the whole lean here: the step onto a kept toe moves the foot far from the given
+            # leg, and a faded lean let 1% more knees bend backward before kept ends
+            whole = np.ones(len(around))
             _place_foot(
                 out,
                 joints,
@@ -452,7 +455,7 @@ def plant_near_held(
                 children,
                 toes,
                 _unit(directions) * foot[around, None],
-                weights[around],
+                whole,
             )
     return out
 
