@@ -87,7 +87,7 @@ def test_the_generated_side_of_a_seam_is_smoothed():
     jerk = np.abs(np.diff(out[:, columns[0]], 3))  # jerk[t]: frames t..t+3
     raw_jerk = np.abs(np.diff(generated[:, columns[0]], 3))  # 0.08 everywhere
     # across the seam and over the first three free frames a small share of the jitter is left
-    # (observed <= 0.009 of 0.08: the Gaussian of 1.5 frames, fading out over 8 frames; without
+    # (observed <= 0.008 of 0.08: the Gaussian of 2.5 frames, fading out over 9 frames; without
     # the smoothing the seam's offset leaves the jitter whole)
     seam = jerk[KEPT - 3 : KEPT + 1]
     assert seam.max() < 0.25 * raw_jerk.max(), seam
