@@ -402,17 +402,14 @@ def plant_near_held(
             SOFT_REACH * (thigh[rows] + shin[rows]),
         )
         reachable = np.linalg.norm(hips - toes, axis=-1) <= limit + foot[rows]
-        if into_held:  # the plant begins where the leg reaches the held frames' foot
-            if not reachable[-1]:
-                continue
-            keep = slice(len(rows) - int(np.argmin(reachable[::-1])), None)
-            if reachable.all():
-                keep = slice(None)
-        else:
-            if not reachable[0]:
-                continue
-            keep = slice(None) if reachable.all() else slice(None, int(np.argmin(reachable)))
+        out_of_reach = np.flatnonzero(~reachable)
+        if into_held:  # the plant begins after the last frame the leg cannot reach the toe on
+            keep = slice(out_of_reach[-1] + 1 if len(out_of_reach) else 0, None)
+        else:  # the plant ends at the first such frame
+            keep = slice(None, out_of_reach[0] if len(out_of_reach) else None)
         rows, toes, hips, limit = rows[keep], toes[keep], hips[keep], limit[keep]
+        if not len(rows):
+            continue
         if into_held and frozen[max(rows[0] - HELD_PLANT_RELEASE_FRAMES, 0) : rows[0]].any():
             continue  # no room for the step onto the kept toe: it stands on earlier held frames
         rigid = toes + joints[rows, ankle] - joints[rows, toe]
