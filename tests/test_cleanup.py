@@ -159,6 +159,37 @@ def test_a_foot_below_the_floor_is_lifted_to_it():
     np.testing.assert_allclose(lengths(cleaned), lengths(sunk), rtol=0, atol=bound)
 
 
+def _hovering_step(height_in_run: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One foot standing still at ``height_in_run`` (its toe) over frames 10-19, the contact run,
+    with 5 cm of air on either side, ankle 6 cm above the toe: (ankle, toe, contact)."""
+    toe = np.zeros((30, 3))
+    toe[:, 1] = 0.05
+    toe[10:20, 1] = height_in_run
+    ankle = toe + np.array([0.0, 0.06, -0.1])
+    contact = np.zeros(30, dtype=bool)
+    contact[10:20] = True
+    return ankle, toe, contact
+
+
+def test_a_lowered_foot_leaves_the_floor_as_generated():
+    ankle, toe, contact = _hovering_step(0.04)  # hovering 4 cm: lowered to 2 cm in the run
+    offsets = cleanup.foot_offsets(ankle, toe, contact)
+    assert np.allclose(offsets[14:16, 1], cleanup.PLANT_HEIGHT_M - 0.04, atol=1e-6)
+    # Out of the run only the Gaussian's tail of the 2 cm step (2.5 sigma and more: under
+    # 0.13 mm); a lowering carried on over BLEND_FRAMES held the foot 4.7 mm lower 3 frames out.
+    outside = np.r_[0:8, 22:30]
+    assert np.abs(offsets[outside, 1]).max() < 2e-4
+
+
+def test_a_lift_out_of_the_floor_fades_out():
+    ankle, toe, contact = _hovering_step(-0.02)  # sunk 2 cm: lifted onto the floor in the run
+    offsets = cleanup.foot_offsets(ankle, toe, contact)
+    assert np.allclose(offsets[14:16, 1], 0.02, atol=1e-6)
+    # Two frames after the run half the lift is left (smoothstep over BLEND_FRAMES + 1 = 4),
+    # rounded by the Gaussian: the foot does not drop back at once.
+    assert 0.006 < offsets[21, 1] < 0.014 and 0.006 < offsets[8, 1] < 0.014
+
+
 def test_contact_runs_close_one_frame_gaps_and_drop_short_runs():
     signal = np.array([1, 1, 0, 1, 1, 0, 0, 1, 0, 0, 1, 1, 1], dtype=bool)
     assert cleanup.contact_runs(signal) == [(0, 5), (10, 13)]

@@ -15,13 +15,13 @@ import pytest
 
 from dataset_tools import cleanup
 from dataset_tools.kinematics import forward_kinematics
+from dataset_tools.physical import skating_ratio
 from dataset_tools.representation import FeatureLayout, process_motion, recover_from_ric
 from dataset_tools.rotations import axis_angle_to_quat
 from dataset_tools.skeleton import SMPL
 from t2m.edit.keep import finish_plan
 from t2m.edit.plan import EditPlan
 from t2m.edit.source import half_yaw_of
-from t2m.evaluate.edit_bench import skating_ratio
 from tests.conftest import synth_joints
 
 FRAMES, KEPT, FPS = 80, 24, 20.0

@@ -37,10 +37,10 @@ Columns (per method):
   of segments recognised, each judged on its own 4 s, and below the table per timeline
   position: the first segment starts from rest, the others continue the one before);
   ``plain`` gives the same for plain generation of the same captions and lengths;
-* ``skate``: the foot-skating ratio (feet 10 and 11; a frame skates when a foot is within 5 cm of
-  the floor in two consecutive frames and its speed and its 5-frame mean speed both exceed
-  0.5 m/s; skating frames / (T - 1), mean over motions) of the results, of plain generation and
-  of the real motions (as for the seams);
+* ``skate``: the foot-skating ratio (:func:`dataset_tools.physical.skating_ratio`: feet 10 and
+  11; a frame skates when a foot is within 5 cm of the floor in two consecutive frames and its
+  speed and its 5-frame mean speed both exceed 0.5 m/s; skating frames / (T - 1), mean over
+  motions) of the results, of plain generation and of the real motions (as for the seams);
 * ``R@3 / FID``: R-precision (top 3, batches of 32) and FID of the regenerated parts against
   the donors' real motions with the run's evaluator stage, beside plain generation (when the
   run has an evaluator and there are at least 32 items; else n/a);
@@ -64,6 +64,7 @@ import torch
 from dataset_tools import humanml3d
 from dataset_tools.command import CommandParser, UsageError, command, option, parse_config
 from dataset_tools.io import check_output_folder, write_json_atomic, write_text_atomic
+from dataset_tools.physical import skating_ratio
 from dataset_tools.synth.detectors import detect_labels
 from dataset_tools.synth.matching import clip_matches, label_matches
 from t2m.edit import EditRequest, SearchSettings, edit_batch
@@ -313,18 +314,6 @@ def build_items(config: EditBenchConfig, fps: float) -> list[Item]:
 
 
 # ---------------------------------------------------------------------------- statistics
-
-
-def skating_ratio(joints: np.ndarray, fps: float) -> float:
-    """Foot-skating ratio of joints (T, 22, 3) (the definition in the module docstring)."""
-    feet = joints[:, [10, 11]]  # (T, 2, 3)
-    speed = np.linalg.norm(np.diff(feet[..., [0, 2]], axis=0), axis=-1) * fps  # (T-1, 2)
-    kernel = np.ones(5) / 5
-    windowed = np.stack([np.convolve(speed[:, k], kernel, mode="same") for k in range(2)], axis=-1)
-    low = feet[..., 1] < 0.05
-    grounded = low[1:] & low[:-1]
-    skating = (grounded & (speed > 0.5) & (windowed > 0.5)).any(axis=-1)
-    return float(skating.sum() / max(len(joints) - 1, 1))
 
 
 SEAM_WINDOW_SECONDS = 0.5
