@@ -314,13 +314,13 @@ def _place_foot(
     children: list[int],
     toes: np.ndarray,
     toe_to_ankle: np.ndarray,
-    prior: np.ndarray,
+    prior: np.ndarray | None = None,
 ) -> None:
     """Write one leg into ``out`` on ``rows``: the ankle at ``toes + toe_to_ankle`` (N, 3), the
     knee by :func:`two_bone_knee` from ``joints`` (thigh and shin keep their lengths; bent toward
     the toes where the generated leg is straight, by ``prior`` (N,) of
-    :data:`KNEE_POLE_PRIOR_M`), the toe and the ankle's other children following the ankle where
-    the IK holds it back."""
+    :data:`KNEE_POLE_PRIOR_M`, all of it where None), the toe and the ankle's other children
+    following the ankle where the IK holds it back."""
     hip, knee, ankle, toe = leg
     wanted = toes + toe_to_ankle
     # nothing of the foot below the floor (a turned foot can point its heel down)
@@ -449,18 +449,10 @@ def plant_near_held(
                 np.repeat(_unit(out[edge, ankle] - out[edge, toe])[None], len(around), axis=0),
                 release,
             )
-            # the whole lean here: the step onto a kept toe moves the foot far from the given
-            # leg, and a faded lean let 1% more knees bend backward before kept ends
-            whole = np.ones(len(around))
+            # the whole lean here (prior None): the step onto a kept toe moves the foot far from
+            # the given leg, and a faded lean let 1% more knees bend backward before kept ends
             _place_foot(
-                out,
-                joints,
-                around,
-                leg,
-                children,
-                toes,
-                _unit(directions) * foot[around, None],
-                whole,
+                out, joints, around, leg, children, toes, _unit(directions) * foot[around, None]
             )
     return out
 
