@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from dataset_tools import cleanup, physical
+from dataset_tools.kinematics import forward_kinematics
 from dataset_tools.representation import FeatureLayout, process_motion, recover_from_ric
+from dataset_tools.rotations import axis_angle_to_quat
 from dataset_tools.skeleton import SMPL
 from tests.conftest import synth_joints
 from tests.tolerances import U, float64_bound
@@ -273,3 +275,51 @@ def test_a_large_correction_keeps_the_knee_bending_forward():
     bend = new_knee - hip - np.sum((new_knee - hip) * axis) * axis
     assert bend[0, 2] > 0.05  # still ahead of the new hip-ankle line, not behind it
     np.testing.assert_allclose(np.linalg.norm(new_knee - hip), np.linalg.norm(knee - hip))
+
+
+def _ahead(joints: np.ndarray, hip: int, knee: int, ankle: int) -> np.ndarray:
+    """(T,) how far the knee sits in front of its hip-ankle line (m; negative: behind), the
+    front square to the line and to the left-right axis of the hips."""
+    line = joints[:, ankle] - joints[:, hip]
+    line /= np.linalg.norm(line, axis=-1, keepdims=True)
+    front = np.cross(joints[:, 2] - joints[:, 1], line)
+    front /= np.linalg.norm(front, axis=-1, keepdims=True)
+    return np.sum((joints[:, knee] - joints[:, hip]) * front, axis=-1)
+
+
+def test_a_knee_bent_behind_the_leg_is_mirrored_to_the_front():
+    """front_knees mirrors a knee that bends behind its hip-ankle line to the front and moves
+    nothing else: the thigh and shin keep their lengths, forward knees and held knees stay."""
+    # a crouch that sways and turns, knees bent forward as knees bend
+    t = np.arange(40) / 20.0
+    axis_angles = np.zeros((40, 22, 3))
+    axis_angles[:, 0, 1] = 0.6 * t  # turning
+    bend = 0.45 + 0.15 * np.sin(2 * np.pi * t)[:, None]
+    axis_angles[:, [4, 5], 0] = -bend  # thighs forward (each joint's rotation turns its bone)
+    axis_angles[:, [7, 8], 0] = 2 * bend  # shins back
+    root = np.stack([0.1 * np.sin(2 * np.pi * t), np.ones(40), 0.3 * t], axis=1)
+    joints = forward_kinematics(axis_angle_to_quat(axis_angles), root, SMPL.offsets, SMPL)
+    hip, knee, ankle = 1, 4, 7
+    assert (_ahead(joints, hip, knee, ankle) > 0.03).all()
+    behind = joints.copy()
+    ahead = _ahead(joints, hip, knee, ankle)
+    line = joints[:, ankle] - joints[:, hip]
+    line /= np.linalg.norm(line, axis=-1, keepdims=True)
+    front = np.cross(joints[:, 2] - joints[:, 1], line)
+    front /= np.linalg.norm(front, axis=-1, keepdims=True)
+    frames = np.arange(10, 25)  # the left knee mirrored behind the line on these frames
+    behind[frames, knee] -= 2 * ahead[frames, None] * front[frames]
+    assert (_ahead(behind, hip, knee, ankle)[frames] < -0.03).all()
+    fronted = cleanup.front_knees(behind)
+    # back where the walk had it, to the rounding of two mirrors (each a unit line, a cross
+    # product, its norm, a dot product and a subtraction: under 16 roundings at 1 m), x MARGIN
+    bound = float64_bound(32, 1.0) * MARGIN
+    np.testing.assert_allclose(fronted, joints, rtol=0, atol=bound)
+    np.testing.assert_array_equal(np.delete(fronted, knee, axis=1), np.delete(behind, knee, 1))
+    np.testing.assert_allclose(lengths(fronted), lengths(behind), rtol=0, atol=bound)
+    # a knee held on a frame stays behind there
+    free = np.ones(joints.shape[:2], bool)
+    free[frames[:3], knee] = False
+    held = cleanup.front_knees(behind, free=free)
+    np.testing.assert_array_equal(held[frames[:3]], behind[frames[:3]])
+    np.testing.assert_allclose(held[frames[3:]], joints[frames[3:]], rtol=0, atol=bound)

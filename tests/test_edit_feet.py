@@ -358,3 +358,47 @@ def test_next_to_held_frames_the_knee_eases_toward_the_toes(monkeypatch):
     leaning = cleanup.clean_joints(joints, contacts, held=held)
     jump = np.linalg.norm(leaning[10, knee] - joints[9, knee])
     assert jump > 0.8 * way, (jump, way)  # all of it on the first free frame
+
+
+def backward_knee_stance_features() -> np.ndarray:
+    """Features (FRAMES, 263) of a stance whose knees bend behind the legs (thighs back, shins
+    forward), as the hard keep's joint-by-joint seam easing can leave them; feet planted."""
+    axis_angles = np.zeros((FRAMES + 1, 22, 3))
+    axis_angles[:, [4, 5], 0] = 0.4  # each joint's rotation turns its bone: thighs back
+    axis_angles[:, [7, 8], 0] = -0.8  # shins forward
+    root = np.zeros((FRAMES + 1, 3))
+    joints = forward_kinematics(axis_angle_to_quat(axis_angles), root, SMPL.offsets, SMPL)
+    joints[..., 1] -= joints[..., 1].min()
+    features, _ = process_motion(joints)
+    features[:, FeatureLayout(22).foot_contact] = 1.0
+    return features.astype(np.float32)
+
+
+def knee_ahead(joints: np.ndarray) -> np.ndarray:
+    """(T, 2) how far each knee sits in front of its hip-ankle line (m; negative: behind)."""
+    out = []
+    for hip, knee, ankle, _ in ((1, 4, 7, 10), (2, 5, 8, 11)):
+        line = joints[:, ankle] - joints[:, hip]
+        line /= np.linalg.norm(line, axis=-1, keepdims=True)
+        front = np.cross(joints[:, 2] - joints[:, 1], line)
+        front /= np.linalg.norm(front, axis=-1, keepdims=True)
+        out.append(np.sum((joints[:, knee] - joints[:, hip]) * front, axis=-1))
+    return np.stack(out, axis=1)
+
+
+@pytest.mark.parametrize("clean", [True, False], ids=["cleaned", "rigid"])
+def test_a_finished_edit_bends_no_free_knee_behind_the_leg(walks, clean):
+    """finish_plan mirrors free knees bent behind the hip-ankle line to the front
+    (t2m.edit.keep.knees_to_front) and leaves the kept frames, hips and ankles where they were:
+    a stance on backward knees after a kept walk ends with every knee in front."""
+    source = walks[0]
+    generated = backward_knee_stance_features()
+    assert (knee_ahead(recover_from_ric(generated.astype(np.float64), 22)) < -0.05).all()
+    plan = plan_of(source, kept_start())
+    finished = recover_from_ric(finish_plan(generated, plan, clean=clean), 22)
+    ahead = knee_ahead(finished)
+    # every free knee in front; one on the line may sit behind it by the float32 features'
+    # rounding (a few 2^-24 at 2 m: under 1e-6 m)
+    assert (ahead[KEPT:] > -1e-6).all(), ahead[KEPT:].min()
+    assert (ahead[KEPT + cleanup.HELD_BLEND_FRAMES :] > 0.05).all()
+    np.testing.assert_allclose(finished[plan.keep], plan.target[plan.keep], rtol=0, atol=1e-5)

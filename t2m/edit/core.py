@@ -45,7 +45,8 @@ frame 0's root at the origin facing +Z):
    skeleton's bone length, kept joints stay exactly where the source has them (a source is
    retargeted to that skeleton when it is prepared, so its kept bones already have those
    lengths; a bone from a regenerated joint to a kept one, as at the edge of a body edit,
-   keeps the length it gets).
+   keeps the length it gets); a free knee the seam's easing left bent behind its hip-ankle line
+   is mirrored to the front (:func:`t2m.edit.keep.knees_to_front`).
 
 Method ``posterior`` skips step 3; ``auto`` (the default) runs it only for plans with targets the
 hard keep cannot guarantee; ``best_of_n`` (the baseline) skips steps 1 and 3: N prior samples, the

@@ -3,7 +3,8 @@ features copied, every seam eased, the root's heading and floor path bent to mee
 and root targets), then the rigid fit on the model's skeleton that leaves kept joints where the
 source has them, then the body's height near seams put back on the floor where the generated
 motion stands (:func:`keep_floor`), then the foot-contact clean-up that never moves a kept or
-targeted joint (steps 5-6 of :mod:`t2m.edit.core`)."""
+targeted joint, then free knees bent behind the leg mirrored to the front
+(:func:`knees_to_front`; steps 5-6 of :mod:`t2m.edit.core`)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 import torch
 from scipy.ndimage import gaussian_filter1d
 
+from dataset_tools.cleanup import features_with_joints, front_knees
 from dataset_tools.representation import FeatureLayout, recover_from_ric
 from dataset_tools.rigid import finish_features
 from t2m.edit.plan import EditPlan
@@ -43,10 +45,27 @@ def finish_plan(
     skeleton, the joints kept from the source left where they are, then :func:`keep_floor`
     (frames with no kept joint only), then (``clean``) the foot-contact clean-up
     (:func:`dataset_tools.cleanup.clean_joints`) with every kept or targeted joint held: kept
-    joints stay exactly where the rigid fit leaves them."""
+    joints stay exactly where the rigid fit leaves them; then :func:`knees_to_front` on the
+    joints not kept or targeted."""
     rigid = finish_features(hard_keep(generated, plan, blend), False, held=plan.keep)
     grounded = keep_floor(rigid, smooth_seams(generated, plan.keep), plan.keep)
-    return finish_features(grounded, clean, held=plan.keep, clean_held=plan.kept_mask())
+    finished = finish_features(grounded, clean, held=plan.keep, clean_held=plan.kept_mask())
+    return knees_to_front(finished, ~plan.kept_mask())
+
+
+def knees_to_front(features: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """Features (T, D) whose free knees (``free`` (T, J) bool) bent behind the hip-ankle line
+    are mirrored to the front (:func:`dataset_tools.cleanup.front_knees`); the features as given
+    where none is. The hard keep eases each joint into the kept side with its own rate of
+    change, so hip, knee and ankle can overshoot apart and the knee end up behind the leg (about 1%
+    of free leg-frames near seams, demo model, docs/editing.md); everything but those knees
+    stays."""
+    layout = FeatureLayout.for_dim(features.shape[-1])
+    joints = recover_from_ric(features.astype(np.float64), layout.num_joints)
+    fronted = front_knees(joints, free=free)
+    if np.array_equal(fronted, joints):
+        return features
+    return features_with_joints(features, fronted)
 
 
 def _lowest_foot(features: np.ndarray, layout: FeatureLayout) -> np.ndarray:
