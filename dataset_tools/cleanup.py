@@ -539,12 +539,12 @@ def front_knees(
     """
     joints = np.asarray(joints, dtype=np.float64)
     skeleton = skeleton or skeleton_for(joints.shape[1])
-    parents = skeleton.parents
-    knees = [parents[ankle] for ankle, _ in (skeleton.feet_left, skeleton.feet_right)]
-    hips = [parents[knee] for knee in knees]
-    lateral = joints[:, hips[1]] - joints[:, hips[0]]  # left hip to right hip
+    right_hip, left_hip = skeleton.face_joints[:2]
+    lateral = joints[:, right_hip] - joints[:, left_hip]
     out = joints.copy()
-    for (ankle, _), knee, hip in zip((skeleton.feet_left, skeleton.feet_right), knees, hips):
+    for hip in (left_hip, right_hip):
+        chain = next(c for c in skeleton.chains if hip in c)  # ... hip, knee, ankle, ...
+        knee, ankle = chain[chain.index(hip) + 1 : chain.index(hip) + 3]
         line = _unit(joints[:, ankle] - joints[:, hip])
         front = np.cross(lateral, line)
         norm = np.linalg.norm(front, axis=-1, keepdims=True)

@@ -323,3 +323,38 @@ def test_a_knee_bent_behind_the_leg_is_mirrored_to_the_front():
     held = cleanup.front_knees(behind, free=free)
     np.testing.assert_array_equal(held[frames[:3]], behind[frames[:3]])
     np.testing.assert_allclose(held[frames[3:]], joints[frames[3:]], rtol=0, atol=bound)
+
+
+def test_front_knees_finds_the_knees_of_a_kit_skeleton():
+    """On KIT-ML's 21 joints the knees are the joints after the hips (face_joints) along the
+    leg chains, not the parents of the contact joints (the foot's, below the ankle there)."""
+    from dataset_tools.skeleton import KIT
+
+    axis_angles = np.zeros((4, 21, 3))
+    right_hip, left_hip = KIT.face_joints[:2]
+    legs = []
+    for hip in (left_hip, right_hip):
+        chain = next(c for c in KIT.chains if hip in c)
+        legs.append(chain[chain.index(hip) : chain.index(hip) + 3])  # hip, knee, ankle
+    # the body's front is up x (face_joints[0] - face_joints[1]), as process_motion faces it:
+    # -z for this rest pose, so the thighs turn toward -z and the shins back
+    for _, knee, ankle in legs:
+        axis_angles[:, knee, 0] = 0.5  # each joint's rotation turns its bone
+        axis_angles[:, ankle, 0] = -1.0
+    joints = forward_kinematics(axis_angle_to_quat(axis_angles), np.ones((4, 3)), KIT.offsets, KIT)
+    front = []
+    for hip, knee, ankle in legs:
+        line = joints[:, ankle] - joints[:, hip]
+        line /= np.linalg.norm(line, axis=-1, keepdims=True)
+        ahead = np.cross(joints[:, right_hip] - joints[:, left_hip], line)
+        ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True)
+        front.append(ahead)
+        bend = np.sum((joints[:, knee] - joints[:, hip]) * ahead, axis=-1)
+        assert (bend > 0.05).all()  # bent forward, as the dataset's facing has it
+    behind = joints.copy()
+    for (hip, knee, _), ahead in zip(legs, front):
+        bend = np.sum((joints[:, knee] - joints[:, hip]) * ahead, axis=-1)
+        behind[:, knee] -= 2 * bend[:, None] * ahead
+    bound = float64_bound(32, 2.0) * MARGIN  # as above, at the skeleton's 2 m
+    np.testing.assert_allclose(cleanup.front_knees(behind, KIT), joints, rtol=0, atol=bound)
+    np.testing.assert_array_equal(cleanup.front_knees(joints, KIT), joints)
