@@ -29,8 +29,9 @@ Finishing (:meth:`t2m.pipeline.TextToMotion.finish`: the foot clean-up and whate
 pipeline applies to a whole motion) runs per snippet on a window of the last
 :data:`FINISH_LOOKBACK_FRAMES` frames plus the snippet (only frames already made: causal), and the
 snippet's rows are kept. The chain continues from each segment's result as
-:func:`t2m.edit.core.generate_plans` gives it (hard keep, seam smoothing, rigid fit and the foot
-clean-up with the kept context held: :func:`t2m.edit.keep.finish_plan`), so what the model reads
+:func:`t2m.edit.core.generate_plans` gives it (hard keep, seam smoothing, rigid fit, the foot
+clean-up with the kept context held and knees bent behind the leg turned to the front:
+:func:`t2m.edit.keep.finish_plan`), so what the model reads
 next is a finished motion, not its raw output.
 
 Reproducible: the stream is a function of its seed and its prompts' boundary frames (and fixed
