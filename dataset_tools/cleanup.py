@@ -42,6 +42,8 @@ down, jerk up by a few percent, semantic accuracy unchanged within its interval.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
@@ -457,6 +459,27 @@ def plant_near_held(
     return out
 
 
+def leg_of(skeleton: SkeletonSpec, foot: int) -> tuple[int, int, int]:
+    """(hip, knee, ankle) of the leg whose chain holds the contact joint ``foot``: the chain's
+    three joints after the root. SMPL: the contact joint is the ankle (7 or 8); KIT-ML: it is
+    below the ankle (the metatarsal, 14 or 19), so the ankle is not its parent's parent."""
+    chain = next(c for c in skeleton.chains if foot in c)
+    hip, knee, ankle = chain[1:4]
+    return hip, knee, ankle
+
+
+def _descendants(parents: Sequence[int], joint: int) -> list[int]:
+    """Every joint below ``joint`` in the tree, in index order."""
+    below: list[int] = []
+    for j in range(len(parents)):
+        p = parents[j]
+        while p >= 0 and p != joint:
+            p = parents[p]
+        if p == joint:
+            below.append(j)
+    return below
+
+
 def clean_joints(
     joints: np.ndarray,
     contacts: np.ndarray,
@@ -488,11 +511,11 @@ def clean_joints(
             raise ValueError(f"held must be {joints.shape[:2]}, got {held.shape}")
     planted = contacts > CONTACT_THRESHOLD
     out = joints.copy()
-    for side, (ankle, toe) in enumerate((skeleton.feet_left, skeleton.feet_right)):
-        knee = parents[ankle]
-        hip = parents[knee]
+    for side, (foot, toe) in enumerate((skeleton.feet_left, skeleton.feet_right)):
+        hip, knee, ankle = leg_of(skeleton, foot)
+        below = _descendants(parents, ankle)  # the foot: moves rigidly with the ankle
         contact = planted[:, 2 * side] | planted[:, 2 * side + 1]
-        leg = sorted({knee, ankle, toe} | {j for j, p in enumerate(parents) if p == ankle})
+        leg = sorted({knee, ankle, *below})
         frozen = None if held is None else held[:, leg].any(axis=1)
         if frozen is not None and frozen.all():
             continue
@@ -512,11 +535,10 @@ def clean_joints(
             out[:, knee] = new_knee
             out[:, ankle] = new_ankle
             # The toe (and anything below the ankle) moves with the ankle: the foot stays rigid.
-            for joint in range(skeleton.num_joints):
-                if parents[joint] == ankle or joint == toe:
-                    out[:, joint] = joints[:, joint] + (new_ankle - joints[:, ankle])
+            for joint in below:
+                out[:, joint] = joints[:, joint] + (new_ankle - joints[:, ankle])
         if frozen is not None and frozen.any():
-            children = [j for j, p in enumerate(parents) if p == ankle and j != toe]
+            children = [j for j in below if j != toe]
             leg_joints = (hip, knee, ankle, toe)
             out = plant_near_held(joints, out, contact, frozen, leg_joints, children, weights)
             out[np.ix_(frozen, leg)] = joints[np.ix_(frozen, leg)]  # exactly as given
@@ -627,5 +649,6 @@ __all__ = [
     "plant_near_held",
     "foot_offsets",
     "front_knees",
+    "leg_of",
     "two_bone_knee",
 ]

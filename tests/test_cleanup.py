@@ -358,3 +358,41 @@ def test_front_knees_finds_the_knees_of_a_kit_skeleton():
     bound = float64_bound(32, 2.0) * MARGIN  # as above, at the skeleton's 2 m
     np.testing.assert_allclose(cleanup.front_knees(behind, KIT), joints, rtol=0, atol=bound)
     np.testing.assert_array_equal(cleanup.front_knees(joints, KIT), joints)
+
+
+def test_a_kit_legs_clean_up_bends_the_knee():
+    """On KIT-ML's 21 joints the contact joints lie below the ankle: the clean-up takes hip,
+    knee and ankle from the leg chain (cleanup.leg_of), so a locked foot bends the knee and the
+    whole foot moves with the ankle (read as the contact joint's parent and grandparent, the
+    ankle bent as a knee and the knee stayed where it was)."""
+    from dataset_tools.skeleton import KIT
+
+    frames = 60
+    t = np.arange(frames) / 20.0
+    axis_angles = np.zeros((frames, 21, 3))
+    for knee, ankle, phase in ((12, 13, 0.0), (17, 18, np.pi)):  # each rotation turns its bone
+        axis_angles[:, knee, 0] = -(0.4 * np.sin(2 * np.pi * t + phase) + 0.3)
+        axis_angles[:, ankle, 0] = 0.6
+    root = np.stack([np.zeros(frames), np.ones(frames), 0.3 * t], axis=1)  # gliding forward
+    joints = forward_kinematics(axis_angle_to_quat(axis_angles), root, KIT.offsets, KIT)
+    joints[..., 1] -= joints[..., 1].min()
+    contacts = np.zeros((frames, 4))
+    contacts[20:40] = 1.0  # both feet planted for a second while the body glides 30 cm
+    assert [cleanup.leg_of(KIT, foot) for foot, _ in (KIT.feet_left, KIT.feet_right)] == [
+        (16, 17, 18),
+        (11, 12, 13),
+    ]
+    cleaned = cleanup.clean_joints(joints, contacts, KIT)
+    moved = np.abs(cleaned - joints).max(axis=(0, 2))
+    assert moved[12] > 0.05 and moved[17] > 0.05  # the knees bend
+    bound = float64_bound(64, 2.0) * MARGIN  # the IK's few dozen roundings at 2 m, x MARGIN
+    for a, b in ((11, 12), (12, 13), (13, 14), (14, 15), (16, 17), (17, 18), (18, 19), (19, 20)):
+        np.testing.assert_allclose(
+            np.linalg.norm(cleaned[:, a] - cleaned[:, b], axis=-1),
+            np.linalg.norm(joints[:, a] - joints[:, b], axis=-1),
+            rtol=0,
+            atol=bound,
+        )
+    step = np.linalg.norm(np.diff(cleaned[20:40, [13, 18]], axis=0), axis=-1).max()
+    glide = np.linalg.norm(np.diff(joints[20:40, [13, 18]], axis=0), axis=-1).max()
+    assert step < 0.5 * glide  # the planted ankles held back
