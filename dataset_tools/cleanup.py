@@ -564,9 +564,8 @@ def front_knees(
     right_hip, left_hip = skeleton.face_joints[:2]
     lateral = joints[:, right_hip] - joints[:, left_hip]
     out = joints.copy()
-    for hip in (left_hip, right_hip):
-        chain = next(c for c in skeleton.chains if hip in c)  # ... hip, knee, ankle, ...
-        knee, ankle = chain[chain.index(hip) + 1 : chain.index(hip) + 3]
+    for foot, _ in (skeleton.feet_left, skeleton.feet_right):
+        hip, knee, ankle = leg_of(skeleton, foot)
         line = _unit(joints[:, ankle] - joints[:, hip])
         front = np.cross(lateral, line)
         norm = np.linalg.norm(front, axis=-1, keepdims=True)
