@@ -14,19 +14,28 @@ half-minute with the prompts. ``browser``: the web app in headless Chromium (Deb
 snippet; the page's own measures "t2m:live prompt to first frame". ``memory``: a server with
 ``--streams`` viewers reading their events for ``--seconds``: the process's resident memory
 before and after, and whether every stream kept its pace. Each prints one JSON object.
+
+``--contend K`` runs any of them beside K busy loops (:func:`contending`): every process then
+gets a share of the cores, as on a slower CPU (on 2 cores, 4 loops made one stream's computing
+2.5x slower). With ``ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2`` this stands in for a
+slower AVX2-only CPU; the stream's real-time factor says how much slower it ran.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import random
 import resource
 import statistics
+import subprocess
+import sys
 import threading
 import time
 import urllib.request
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +69,29 @@ def _rss_mb() -> float:
             if line.startswith("VmRSS:"):
                 return int(line.split()[1]) / 1024
     return float("nan")
+
+
+@contextlib.contextmanager
+def contending(processes: int) -> Iterator[list[subprocess.Popen]]:
+    """``processes`` busy loops (Python processes spinning at the default priority) while the
+    block runs; they are killed when it ends, however it ends."""
+    spinners: list[subprocess.Popen] = []
+    try:
+        for _ in range(processes):
+            spinners.append(
+                subprocess.Popen(
+                    [sys.executable, "-c", "while True: pass"],
+                    stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                )
+            )
+        yield spinners
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+        for spinner in spinners:
+            spinner.wait()
 
 
 def run_stream(args) -> dict:
@@ -242,9 +274,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--changes", type=int, default=60)
     parser.add_argument("--streams", type=int, default=10)
     parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument(
+        "--contend",
+        type=int,
+        default=0,
+        help="busy-loop processes beside the measurement (a slower CPU's stand-in)",
+    )
     args = parser.parse_args(argv)
+    if args.contend < 0:
+        parser.error(f"--contend must be 0 or more, not {args.contend}")
     run = {"stream": run_stream, "browser": run_browser, "memory": run_memory}[args.what]
-    print(json.dumps(run(args), indent=1))
+    with contending(args.contend):
+        result = run(args)
+    if args.contend:
+        result["contending_processes"] = args.contend
+    print(json.dumps(result, indent=1))
     return 0
 
 
