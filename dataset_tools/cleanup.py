@@ -563,6 +563,7 @@ def front_knees(
     skeleton = skeleton or skeleton_for(joints.shape[1])
     right_hip, left_hip = skeleton.face_joints[:2]
     lateral = joints[:, right_hip] - joints[:, left_hip]
+    free = None if free is None else np.asarray(free, dtype=bool)
     out = joints.copy()
     for foot, _ in (skeleton.feet_left, skeleton.feet_right):
         hip, knee, ankle = leg_of(skeleton, foot)
@@ -576,7 +577,7 @@ def front_knees(
         # behind the line (and a front that is defined: the leg not along the hips' axis)
         move = (ahead < 0) & (norm[:, 0] > 1e-6)
         if free is not None:
-            move &= np.asarray(free, dtype=bool)[:, knee]
+            move &= free[:, knee]
         out[move, knee] -= 2.0 * ahead[move, None] * front[move]
     return out
 

@@ -277,14 +277,20 @@ def test_a_large_correction_keeps_the_knee_bending_forward():
     np.testing.assert_allclose(np.linalg.norm(new_knee - hip), np.linalg.norm(knee - hip))
 
 
-def _ahead(joints: np.ndarray, hip: int, knee: int, ankle: int) -> np.ndarray:
-    """(T,) how far the knee sits in front of its hip-ankle line (m; negative: behind), the
-    front square to the line and to the left-right axis of the hips."""
+def _front(
+    joints: np.ndarray, hip: int, ankle: int, right_hip: int = 2, left_hip: int = 1
+) -> np.ndarray:
+    """(T, 3) unit front of a leg: square to its hip-ankle line and to the hips' left-right
+    axis (SMPL's hips by default)."""
     line = joints[:, ankle] - joints[:, hip]
     line /= np.linalg.norm(line, axis=-1, keepdims=True)
-    front = np.cross(joints[:, 2] - joints[:, 1], line)
-    front /= np.linalg.norm(front, axis=-1, keepdims=True)
-    return np.sum((joints[:, knee] - joints[:, hip]) * front, axis=-1)
+    front = np.cross(joints[:, right_hip] - joints[:, left_hip], line)
+    return front / np.linalg.norm(front, axis=-1, keepdims=True)
+
+
+def _ahead(joints: np.ndarray, hip: int, knee: int, ankle: int) -> np.ndarray:
+    """(T,) how far the knee sits in front of its hip-ankle line (m; negative: behind)."""
+    return np.sum((joints[:, knee] - joints[:, hip]) * _front(joints, hip, ankle), axis=-1)
 
 
 def test_a_knee_bent_behind_the_leg_is_mirrored_to_the_front():
@@ -303,10 +309,7 @@ def test_a_knee_bent_behind_the_leg_is_mirrored_to_the_front():
     assert (_ahead(joints, hip, knee, ankle) > 0.03).all()
     behind = joints.copy()
     ahead = _ahead(joints, hip, knee, ankle)
-    line = joints[:, ankle] - joints[:, hip]
-    line /= np.linalg.norm(line, axis=-1, keepdims=True)
-    front = np.cross(joints[:, 2] - joints[:, 1], line)
-    front /= np.linalg.norm(front, axis=-1, keepdims=True)
+    front = _front(joints, hip, ankle)
     frames = np.arange(10, 25)  # the left knee mirrored behind the line on these frames
     behind[frames, knee] -= 2 * ahead[frames, None] * front[frames]
     assert (_ahead(behind, hip, knee, ankle)[frames] < -0.03).all()
@@ -344,10 +347,7 @@ def test_front_knees_finds_the_knees_of_a_kit_skeleton():
     joints = forward_kinematics(axis_angle_to_quat(axis_angles), np.ones((4, 3)), KIT.offsets, KIT)
     front = []
     for hip, knee, ankle in legs:
-        line = joints[:, ankle] - joints[:, hip]
-        line /= np.linalg.norm(line, axis=-1, keepdims=True)
-        ahead = np.cross(joints[:, right_hip] - joints[:, left_hip], line)
-        ahead /= np.linalg.norm(ahead, axis=-1, keepdims=True)
+        ahead = _front(joints, hip, ankle, right_hip, left_hip)
         front.append(ahead)
         bend = np.sum((joints[:, knee] - joints[:, hip]) * ahead, axis=-1)
         assert (bend > 0.05).all()  # bent forward, as the dataset's facing has it
